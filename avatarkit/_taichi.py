@@ -1,0 +1,53 @@
+"""The one place Taichi is initialised: lazily, on the CPU, quietly.
+
+Every module with kernels calls `ensure_taichi()` before its first launch. Taichi prints a bare
+"[Taichi] Starting on arch=..." line from C++ on init; we silence the process's stdout file
+descriptor for that call only, so CLI output and piped data stay clean.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import threading
+
+_lock = threading.Lock()
+_ready = False
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # stdout replaced (pytest capture, notebooks)
+        with contextlib.redirect_stdout(open(os.devnull, "w")):
+            yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            with contextlib.redirect_stdout(open(os.devnull, "w")):
+                yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+def ensure_taichi():
+    """Initialise Taichi once (arch=cpu, all cores, no version check) and return the module."""
+    global _ready
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+    with _lock:
+        with _quiet_stdout():
+            import taichi as ti
+
+            if not _ready:
+                # arch=gpu/opengl segfaults on our machines; the CPU backend is the product.
+                ti.init(arch=ti.cpu, log_level=ti.WARN, cpu_max_num_threads=os.cpu_count() or 2,
+                        offline_cache=True)
+                _ready = True
+    return ti

@@ -1,0 +1,37 @@
+"""The one family of user-facing errors.
+
+Every failure a user can cause (a bad file, a bad argument) is an `AvatarKitError`; the CLI
+prints its message on one line and exits with code 2. Anything else is a bug (exit code 1).
+"""
+from __future__ import annotations
+
+import os
+
+
+class AvatarKitError(Exception):
+    """Base class. `path` (optional) names the file the problem is in; it leads the message."""
+
+    def __init__(self, message: str, path: str | os.PathLike | None = None):
+        self.message = message
+        self.path = os.fspath(path) if path is not None else None
+        super().__init__(f"{self.path}: {message}" if self.path else message)
+
+    def with_path(self, path: str | os.PathLike) -> "AvatarKitError":
+        """The same error, now naming `path` (used when a lower layer did not know the file)."""
+        if self.path is not None:
+            return self
+        err = type(self)(self.message, path)
+        err.__cause__ = self.__cause__
+        return err
+
+
+class InputError(AvatarKitError):
+    """A value handed to the library is wrong: shapes, ranges, options, missing inputs."""
+
+
+class FormatError(InputError):
+    """A file's bytes are not what its format promises (truncated, corrupt, wrong types)."""
+
+
+class OutputError(AvatarKitError):
+    """An output cannot be written (unwritable folder, unknown extension)."""

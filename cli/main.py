@@ -1,0 +1,76 @@
+"""`avatarkit` entry point: a lazily loaded command group and the one place errors become exit codes.
+
+Exit codes (DESIGN.md): 0 ok; 2 bad input (one line naming the file and the problem, no
+traceback); 1 an unexpected bug; 130 interrupted.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+
+import click
+
+# Command name -> "module:attribute" under avatarkit.cli. Loaded only when used, so
+# `avatarkit --help` stays fast and one command's heavy imports never slow another.
+COMMANDS: dict[str, str] = {
+    "inspect": "avatarkit.cli.inspect_cmd:inspect_cmd",
+}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx):
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx, name):
+        target = COMMANDS.get(name)
+        if target is None:
+            return None
+        module, attr = target.split(":")
+        return getattr(importlib.import_module(module), attr)
+
+
+def _version() -> str:
+    from avatarkit import __version__
+    return __version__
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(_version(), "--version", prog_name="avatarkit")
+def cli():
+    """avatarkit: one portrait in, an animated 3D Gaussian head avatar out.
+
+    Build avatars, bake motion clips to OpenUSD / 3DGS PLY sequences and render previews on the CPU.
+    """
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns (and exits with) the exit code."""
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+    from avatarkit.errors import AvatarKitError
+
+    try:
+        rv = cli.main(args=argv, prog_name="avatarkit", standalone_mode=False)
+        code = rv if isinstance(rv, int) else 0
+    except AvatarKitError as e:
+        click.echo(f"error: {e}", err=True)
+        code = 2
+    except click.exceptions.Abort:
+        click.echo("interrupted", err=True)
+        code = 130
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        code = 130
+    except click.ClickException as e:
+        e.show()
+        code = e.exit_code
+    except click.exceptions.Exit as e:
+        code = e.exit_code
+    if argv is None:
+        sys.exit(code)
+    return code
+
+
+if __name__ == "__main__":
+    main()
