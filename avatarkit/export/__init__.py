@@ -1,0 +1,1 @@
+"""Writers of baked results and previews: one module per format (USD stage, PLY sequence, video)."""
