@@ -1,0 +1,364 @@
+"""Portrait segmentation into background / skin (face) / hair / body with a classical method.
+
+Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular distance):
+1. person vs background: `cv2.grabCut` seeded from the face: the face core and neck are sure
+   person, a head ellipse (room for hair) and a widening torso below the chin probable person,
+   far left/right of the head sure background, the rest probable background;
+2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
+   eyes, above the mouth), outliers (nostrils, shadows) trimmed;
+3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
+   a robust Gaussian hair colour model from them (no seeds: a bald head, no hair label);
+4. hair vs the rest of the person: a second GrabCut restricted to the person, seeded with the
+   hair seeds (sure hair) and the face core (sure not hair); background pixels are repainted
+   with the skin colour so they cannot teach the "not hair" model hair-like colours;
+5. clean-up: hair components not connected to a seed are dropped, small holes filled; person
+   pixels in the head ellipse or skin-coloured are skin, the rest of the person is body.
+
+`hair_mask` (an array or an image path, any non-zero = hair, e.g. from SAM) replaces step 4.
+GrabCut runs on a copy whose longer side is at most `work_size` (512) px; labels are upsampled.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from avatarkit.errors import InputError
+from avatarkit.recon.portrait import FACE_PROPORTIONS, PortraitAnalysis
+
+BACKGROUND, SKIN, HAIR, BODY = 0, 1, 2, 3
+LABEL_NAMES = ("background", "skin", "hair", "body")
+
+#: squared Mahalanobis distance below which a colour belongs to a model (~99.9% for 3 dof)
+MATCH_D2 = 16.0
+#: smallest colour spread a model may claim (Lab units): flat synthetic colours and JPEG
+#: quantisation would otherwise give a singular covariance
+MIN_STD = 2.0
+WORK_SIZE = 512
+
+
+def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) uint8 sRGB -> (..., 3) float32 CIE Lab (L in [0, 100])."""
+    import cv2
+
+    a = np.asarray(rgb, dtype=np.float32).reshape(-1, 1, 3) / 255.0
+    return cv2.cvtColor(a, cv2.COLOR_RGB2Lab).reshape(np.shape(rgb))
+
+
+def lab_to_rgb(lab: np.ndarray) -> np.ndarray:
+    """(..., 3) float CIE Lab -> (..., 3) float32 sRGB in [0, 255] (not rounded)."""
+    import cv2
+
+    a = np.asarray(lab, dtype=np.float32).reshape(-1, 1, 3)
+    return (np.clip(cv2.cvtColor(a, cv2.COLOR_Lab2RGB), 0, 1) * 255.0).reshape(np.shape(lab))
+
+
+@dataclass(frozen=True, eq=False)
+class ColourModel:
+    """A Gaussian colour model in CIE Lab."""
+
+    mean: np.ndarray  # (3,) float64 Lab
+    cov: np.ndarray   # (3, 3) float64
+    count: int        # samples it was fitted to (after trimming)
+
+    @classmethod
+    def fit(cls, lab: np.ndarray, trim_d2: float = 7.8, rounds: int = 3) -> "ColourModel":
+        """Robust fit to samples (N, 3): start from the median, then `rounds` times keep the
+        samples within `trim_d2` (chi-square 95% for 3 dof) and refit."""
+        x = np.asarray(lab, dtype=np.float64).reshape(-1, 3)
+        if len(x) == 0:
+            raise InputError("cannot fit a colour model to zero samples")
+        mean = np.median(x, axis=0)
+        mad = np.median(np.abs(x - mean), axis=0) * 1.4826
+        est = np.diag(np.maximum(mad, MIN_STD) ** 2)
+        keep = np.ones(len(x), bool)
+        for _ in range(rounds):
+            # A tiny floor keeps flat (synthetic) colours from making the matrix singular.
+            keep = _mahalanobis2(x, mean, est + 0.25 * np.eye(3)) <= trim_d2
+            if keep.sum() < 4:
+                break
+            mean = x[keep].mean(axis=0)
+            # The trimmed sample underestimates the spread of a Gaussian truncated at chi2(95%):
+            # dividing by the truncated second moment (0.833 for 3 dof at 95%) undoes it.
+            est = np.cov(x[keep].T) / 0.833
+        cov = est + np.eye(3) * MIN_STD**2
+        return cls(mean=mean, cov=cov, count=int(keep.sum()))
+
+    def distance2(self, lab: np.ndarray) -> np.ndarray:
+        """Squared Mahalanobis distance of Lab colours (..., 3) -> (...)."""
+        return _mahalanobis2(lab, self.mean, self.cov)
+
+    def log_likelihood(self, lab: np.ndarray) -> np.ndarray:
+        """Log density (up to a shared constant) of Lab colours (..., 3) -> (...)."""
+        return -0.5 * self.distance2(lab) - 0.5 * float(np.linalg.slogdet(self.cov)[1])
+
+    @property
+    def rgb(self) -> np.ndarray:
+        """(3,) uint8 sRGB of the mean colour."""
+        return np.round(lab_to_rgb(self.mean[None].astype(np.float32))[0]).astype(np.uint8)
+
+
+def _mahalanobis2(x, mean, cov) -> np.ndarray:
+    """(..., 3) -> (...) float32 squared Mahalanobis distances (float32 maths: image-sized inputs)."""
+    d = (np.asarray(x, dtype=np.float32) - np.asarray(mean, dtype=np.float32)).reshape(-1, 3)
+    p = np.linalg.inv(np.asarray(cov, dtype=np.float64)).astype(np.float32)
+    return np.einsum("ij,ij->i", d @ p, d).reshape(np.shape(x)[:-1])
+
+
+@dataclass(eq=False)
+class Segmentation:
+    """Per-pixel labels of one portrait and the colour models behind them."""
+
+    labels: np.ndarray               # (H, W) uint8: 0 background, 1 skin/face, 2 hair, 3 body/clothes
+    skin_model: ColourModel
+    hair_model: ColourModel | None   # None when no hair was found (and none imported)
+    hair_source: str                 # "grabcut" | "imported" | "none"
+
+    def mask(self, label: int) -> np.ndarray:
+        """(H, W) bool."""
+        return self.labels == label
+
+    @property
+    def hair(self) -> np.ndarray:
+        return self.labels == HAIR
+
+    @property
+    def skin(self) -> np.ndarray:
+        return self.labels == SKIN
+
+    @property
+    def person(self) -> np.ndarray:
+        return self.labels != BACKGROUND
+
+    def fractions(self) -> dict[str, float]:
+        """Share of the image per label name."""
+        counts = np.bincount(self.labels.ravel(), minlength=4)[:4]
+        return {n: float(c) / self.labels.size for n, c in zip(LABEL_NAMES, counts)}
+
+
+def _ellipse(u, v, cu, cv, au, av) -> np.ndarray:
+    return ((u - cu) / au) ** 2 + ((v - cv) / av) ** 2 <= 1.0
+
+
+def face_regions(u: np.ndarray, v: np.ndarray) -> dict[str, np.ndarray]:
+    """Named boolean regions (H, W) from eye-frame coordinates (u, v) in IOD units."""
+    chin = FACE_PROPORTIONS["chin"][1]
+    au = np.abs(u)
+    return {
+        # eyes, brows, nose, mouth and cheeks: always face, never hair or background
+        # (its top stops at the brows: bangs often reach down to just above them)
+        "face_core": _ellipse(u, v, 0.0, 0.6, 0.9, 1.05) | ((au < 0.65) & (v > -0.45) & (v < 0.2)),
+        "neck": (au < 0.3) & (v > chin - 0.05) & (v < chin + 0.45),
+        # where hair can be: generous ellipse over the head
+        "head_zone": _ellipse(u, v, 0.0, -0.1, 2.1, 2.5),
+        # the head itself (skull + face + ears), for the skin label
+        "head": _ellipse(u, v, 0.0, 0.1, 1.35, 1.95) & (v < chin + 0.1),
+        "torso": (v > chin - 0.15) & (au < 1.0 + (v - chin + 0.15) * 1.5),
+        "far": ~_ellipse(u, v, 0.0, -0.1, 3.2, 3.4) & (v < chin - 0.55),
+        "skin_sample": (au < 0.75) & (v > 0.2) & (v < 0.75),
+        "seed_zone": (((au < 0.9) & (v > -1.9) & (v < -0.9))
+                      | ((au > 1.1) & (au < 1.6) & (v > -1.0) & (v < 0.4))),
+        # long hair may fall beside the neck onto the shoulders
+        "hair_zone": (v < chin - 0.05) | ((au > 0.7) & (v < chin + 2.5)),
+    }
+
+
+def _grabcut(image: np.ndarray, mask: np.ndarray, iterations: int) -> np.ndarray:
+    """Run GrabCut from an initial GC_* mask; returns (H, W) bool foreground. A mask without both
+    classes is returned as is (GrabCut cannot learn a model from nothing)."""
+    import cv2
+
+    fg = (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
+    if fg.all() or not fg.any():
+        return fg
+    m = mask.copy()
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.grabCut(np.ascontiguousarray(image), m, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    return (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)
+
+
+def _keep_touching(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """The connected components (8-connected) of `mask` that contain a seed pixel."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return mask
+    keep = np.zeros(n + 1, bool)
+    keep[np.unique(lab[seeds & mask])] = True
+    keep[0] = False
+    return keep[lab]
+
+
+def _drop_small(mask: np.ndarray, max_size: int) -> np.ndarray:
+    """`mask` without its 4-connected components of at most `max_size` pixels."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(mask)
+    if n == 0:
+        return mask
+    sizes = np.bincount(lab.ravel())
+    keep = sizes > max_size
+    keep[0] = False
+    return keep[lab]
+
+
+def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int) -> np.ndarray:
+    import cv2
+    from scipy import ndimage
+
+    sure = reg["face_core"] | reg["neck"]
+    gc = np.full(img.shape[:2], cv2.GC_PR_BGD, np.uint8)
+    gc[reg["head_zone"] | reg["torso"]] = cv2.GC_PR_FGD
+    gc[reg["far"]] = cv2.GC_BGD
+    gc[sure] = cv2.GC_FGD
+    bg_share = np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).mean()
+    if bg_share < 0.02:  # the head fills the picture: nothing to learn a background from
+        return np.ones(img.shape[:2], bool)
+    person = _grabcut(img, gc, iterations)
+    person = _keep_touching(person, sure) | sure
+    return ndimage.binary_fill_holes(person)
+
+
+def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod) -> np.ndarray:
+    import cv2
+
+    # Work only inside the box around the person's hair zone: GrabCut cost scales with its area.
+    ys, xs = np.nonzero(reg["hair_zone"] & person)
+    if len(ys) == 0:
+        return np.zeros(person.shape, bool)
+    pad = int(0.2 * iod) + 2
+    y0, y1 = max(0, ys.min() - pad), min(person.shape[0], ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(person.shape[1], xs.max() + pad + 1)
+    win = (slice(y0, y1), slice(x0, x1))
+
+    sub = img[win].copy()
+    sub[~person[win]] = skin.rgb
+    hairlike = hair.log_likelihood(lab) > skin.log_likelihood(lab)
+    gc = np.full(sub.shape[:2], cv2.GC_PR_BGD, np.uint8)
+    gc[person[win] & reg["hair_zone"][win] & hairlike[win]] = cv2.GC_PR_FGD
+    gc[seeds[win]] = cv2.GC_FGD
+    gc[~person[win] | reg["face_core"][win]] = cv2.GC_BGD
+    fg = np.zeros(person.shape, bool)
+    fg[win] = _grabcut(sub, gc, iterations)
+    fg &= person & ~reg["face_core"] & reg["hair_zone"]
+
+    fg = _keep_touching(fg, seeds)
+    # GrabCut's cut sits a pixel or two inside soft hair edges (the hairline, flyaways): take
+    # the adjacent person pixels that are hair-like and clearly not skin.
+    r = max(1, round(0.05 * iod))
+    near = cv2.dilate(fg.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)).astype(bool)
+    fg |= near & person & ~reg["face_core"] & hairlike & (skin.distance2(lab) > MATCH_D2)
+    min_area = max(4, int(0.02 * iod * iod))
+    fg = _drop_small(fg, min_area)
+    fg |= ~_drop_small(~fg, int(0.15 * iod * iod))  # fill small holes
+    return fg & person & ~reg["face_core"]
+
+
+def _load_hair_mask(hair_mask, shape, path) -> np.ndarray:
+    from avatarkit.recon.image_io import fit_mask, read_mask
+
+    if isinstance(hair_mask, (str, os.PathLike)):
+        return read_mask(hair_mask, shape)
+    try:
+        arr = np.asarray(hair_mask)
+    except Exception as e:  # noqa: BLE001 - anything array-like may fail in its own way
+        raise InputError(f"hair mask is not an array: {e}", path) from None
+    return fit_mask(arr, shape, path)
+
+
+def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
+                     work_size: int = WORK_SIZE, iterations: int = 3,
+                     path: str | os.PathLike | None = None) -> Segmentation:
+    """Label every pixel of a portrait as background, skin/face, hair or body.
+
+    image: (H, W, 3) uint8 RGB, the image `analysis` was made on.
+    hair_mask: optional (h, w) array or image path; any non-zero pixel is hair. Resized to the
+        image if the aspect ratio matches, else FormatError. It replaces the built-in hair label.
+    work_size: GrabCut runs on a copy whose longer side is at most this many pixels.
+    iterations: GrabCut iterations per cut (3 is enough on portraits; 5 is OpenCV's usual).
+    """
+    import cv2
+
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.dtype} {image.shape}", path)
+    H, W = image.shape[:2]
+    if tuple(analysis.image_size) != (W, H):
+        raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
+                         f"this one is {W}x{H}", path)
+    imported = _load_hair_mask(hair_mask, (H, W), path) if hair_mask is not None else None
+
+    k = min(1.0, work_size / max(H, W))
+    if k < 1.0:
+        size = (max(1, round(W * k)), max(1, round(H * k)))
+        img = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        a = analysis.scaled(k)
+    else:
+        img, a = image, analysis
+    iod = a.eye_distance
+    u, v = a.face_grid(img.shape[:2])
+    reg = face_regions(u, v)
+    lab = rgb_to_lab(img)
+
+    person = _person(img, reg, iterations)
+    skin_px = reg["skin_sample"] & person
+    if skin_px.sum() < 10:
+        skin_px = reg["face_core"]
+    skin = ColourModel.fit(lab[skin_px])
+    skin_d2 = skin.distance2(lab)
+
+    hair_model, hair = None, np.zeros(img.shape[:2], bool)
+    if imported is None:
+        seeds = reg["seed_zone"] & person & (skin_d2 > MATCH_D2) & ~reg["face_core"]
+        if seeds.sum() >= max(20, 0.05 * (reg["seed_zone"] & person).sum()):
+            hair_model = ColourModel.fit(lab[seeds])
+            seeds &= hair_model.distance2(lab) <= MATCH_D2
+            hair = _hair_grabcut(img, lab, person, reg, skin, hair_model, seeds, iterations, iod)
+            if not hair.any():
+                hair_model = None
+
+    chin = FACE_PROPORTIONS["chin"][1]
+    labels = np.zeros(img.shape[:2], np.uint8)
+    labels[person] = BODY
+    # Skin: the head (ears, shaded jaw: loosely skin-coloured) and skin-coloured neck/chest.
+    neck_zone = (np.abs(u) < 0.6) & (v < chin + 1.2)  # necks are shaded: loose colour test
+    loose = (reg["head"] | neck_zone) & (skin_d2 <= 4 * MATCH_D2)
+    labels[person & (loose | ((skin_d2 <= MATCH_D2) & (v > 0.5) & (v < chin + 1.5)))] = SKIN
+    labels[reg["face_core"]] = SKIN
+    labels[hair] = HAIR
+
+    if k < 1.0:
+        labels = _upsample_labels(labels, (W, H))
+    source = "grabcut" if hair_model is not None else "none"
+    if imported is not None:
+        labels, hair_model = _apply_hair_mask(image, labels, imported, skin, analysis)
+        source = "imported"
+    return Segmentation(labels=labels, skin_model=skin, hair_model=hair_model, hair_source=source)
+
+
+def _upsample_labels(labels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Smooth label upsampling: bilinear one-hot maps, then argmax (no blocky edges)."""
+    import cv2
+
+    onehot = np.stack([(labels == c).astype(np.float32) for c in range(4)], axis=2)
+    up = cv2.resize(onehot, size, interpolation=cv2.INTER_LINEAR)
+    return np.argmax(up, axis=2).astype(np.uint8)
+
+
+def _apply_hair_mask(image, labels, mask, skin: ColourModel, analysis: PortraitAnalysis):
+    """Imported hair wins; pixels the built-in method called hair but the mask does not become
+    skin if skin-coloured, body below the chin, background otherwise."""
+    labels = labels.copy()
+    former = (labels == HAIR) & ~mask
+    if former.any():
+        lab = rgb_to_lab(image[former])
+        centres = np.stack(np.nonzero(former)[::-1], axis=1) + 0.5  # pixel centres, (x, y)
+        _, v = analysis.to_face(centres).T
+        repl = np.where(skin.distance2(lab) <= MATCH_D2, SKIN,
+                        np.where(v > FACE_PROPORTIONS["chin"][1], BODY, BACKGROUND))
+        labels[former] = repl.astype(np.uint8)
+    labels[mask] = HAIR
+    hair_model = ColourModel.fit(rgb_to_lab(image[mask])) if mask.sum() >= 4 else None
+    return labels, hair_model

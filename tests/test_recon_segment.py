@@ -1,0 +1,144 @@
+"""Portrait segmentation (recon/segment.py) on synthetic portraits with known labels and the sample."""
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from avatarkit.errors import FormatError, InputError
+from avatarkit.recon.image_io import read_image
+from avatarkit.recon.portrait import analysis_from_box, analyze_portrait
+from avatarkit.recon.segment import (BACKGROUND, BODY, HAIR, SKIN, ColourModel, lab_to_rgb, rgb_to_lab,
+                                     segment_portrait)
+from avatarkit.recon.synthetic import synthetic_portrait
+
+SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
+
+
+def iou(a, b):
+    return (a & b).sum() / max(1, (a | b).sum())
+
+
+def segment_synthetic(**kw):
+    sp = synthetic_portrait(**kw)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    return sp, a, segment_portrait(sp.image, a)
+
+
+@pytest.mark.parametrize("kw", [
+    dict(blur=1.0, noise=4),
+    dict(blur=1.5, noise=6, hair_rgb=(196, 164, 108), seed=1),           # blond, close to skin
+    dict(blur=1.0, noise=4, background_rgb=(62, 50, 44), size=200),      # dark background, dark hair
+], ids=["brown", "blond", "dark-background"])
+def test_synthetic_labels_match_truth(kw):
+    sp, _, seg = segment_synthetic(**kw)
+    assert seg.labels.shape == sp.labels.shape and seg.labels.dtype == np.uint8
+    assert seg.hair_source == "grabcut" and seg.hair_model is not None
+    assert iou(seg.hair, sp.labels == HAIR) > 0.9
+    assert iou(seg.skin, sp.labels == SKIN) > 0.9
+    assert iou(seg.mask(BACKGROUND), sp.labels == BACKGROUND) > 0.95
+    assert iou(seg.mask(BODY), sp.labels == BODY) > 0.85
+    # the colour models found the colours that were painted
+    skin_true = rgb_to_lab(np.array(sp.image[(sp.labels == SKIN)]))
+    assert np.median(seg.skin_model.distance2(skin_true)) < 16
+    hair_true = rgb_to_lab(np.array(sp.image[(sp.labels == HAIR)]))
+    assert np.median(seg.hair_model.distance2(hair_true)) < 16
+
+
+def test_bald_subject_has_no_hair_label():
+    sp, _, seg = segment_synthetic(hair=False, blur=1.0, noise=4)
+    assert not seg.hair.any() and seg.hair_model is None and seg.hair_source == "none"
+    assert iou(seg.skin, sp.labels == SKIN) > 0.9
+
+
+def test_work_size_downscale_keeps_labels_at_full_resolution():
+    sp = synthetic_portrait(size=400, blur=1.0, noise=4)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    seg = segment_portrait(sp.image, a, work_size=200)
+    assert seg.labels.shape == (400, 400)
+    assert iou(seg.hair, sp.labels == HAIR) > 0.9
+    assert iou(seg.skin, sp.labels == SKIN) > 0.9
+
+
+def test_sample_portrait_hair_above_face_skin_in_centre():
+    image = read_image(SAMPLE)
+    a = analyze_portrait(image)
+    seg = segment_portrait(image, a)
+    u, v = a.face_grid()
+    hair = seg.hair
+    assert 0.04 < hair.mean() < 0.3
+    assert (v[hair] < 0.3).mean() > 0.9          # hair is above the eyes (short hair)
+    assert hair[(v < -1.2) & (v > -1.8) & (np.abs(u) < 1.0)].mean() > 0.9  # ...and covers the top of the head
+    for name in ("nose_tip", "mouth_center", "right_eye", "left_eye"):
+        x, y = np.round(a.point(name)).astype(int)
+        assert seg.labels[y, x] == SKIN, name
+    cheeks = (np.abs(u) < 0.7) & (v > 0.2) & (v < 0.8)
+    assert seg.skin[cheeks].mean() > 0.95
+    top_corners = np.concatenate([seg.labels[:40, :40].ravel(), seg.labels[:40, -40:].ravel()])
+    assert (top_corners == BACKGROUND).mean() > 0.95
+    assert seg.labels[-10, 256] == BODY          # the suit
+    # the hair colour model describes the hair pixels better than the skin model does
+    lab = rgb_to_lab(image[hair])
+    assert (seg.hair_model.log_likelihood(lab) > seg.skin_model.log_likelihood(lab)).mean() > 0.8
+
+
+def test_imported_hair_mask_overrides(tmp_path):
+    sp = synthetic_portrait(blur=1.0, noise=4)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    truth = sp.labels == HAIR
+    partial = truth.copy()
+    partial[: sp.face_box[1] + 10] = False  # a mask that disagrees with the colours: top part missing
+    seg = segment_portrait(sp.image, a, hair_mask=partial.astype(np.uint8) * 255)
+    assert seg.hair_source == "imported"
+    assert (seg.hair == partial).all()
+    # the part of the true hair the mask left out is no longer hair
+    assert not seg.hair[truth & ~partial].any()
+    assert seg.hair_model is not None
+
+    # the same from a PNG at half resolution (nearest-neighbour resized to the image)
+    Image.fromarray(np.where(partial[::2, ::2], 255, 0).astype(np.uint8)).save(tmp_path / "hair.png")
+    seg2 = segment_portrait(sp.image, a, hair_mask=tmp_path / "hair.png")
+    want = cv2.resize(partial[::2, ::2].astype(np.uint8), partial.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert (seg2.hair == want).all()
+
+
+def test_bad_hair_masks_are_format_errors(tmp_path):
+    sp = synthetic_portrait(size=128)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    Image.fromarray(np.zeros((100, 50), np.uint8)).save(tmp_path / "narrow.png")
+    with pytest.raises(FormatError, match="aspect") as e:
+        segment_portrait(sp.image, a, hair_mask=tmp_path / "narrow.png")
+    assert "narrow.png" in str(e.value)
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    with pytest.raises(FormatError, match="broken.png"):
+        segment_portrait(sp.image, a, hair_mask=tmp_path / "broken.png")
+    with pytest.raises(FormatError, match="aspect"):
+        segment_portrait(sp.image, a, hair_mask=np.zeros((10, 30), bool))
+
+
+def test_analysis_of_another_image_is_refused():
+    sp = synthetic_portrait(size=128)
+    a = analysis_from_box((256, 256), sp.face_box)
+    with pytest.raises(InputError, match="analysis"):
+        segment_portrait(sp.image, a)
+
+
+def test_colour_model_fit_is_robust_to_outliers():
+    rng = np.random.default_rng(0)
+    cov = np.array([[9.0, 2.0, 0.0], [2.0, 4.0, 1.0], [0.0, 1.0, 6.0]])
+    inliers = rng.multivariate_normal([60.0, 12.0, 18.0], cov, size=4000)
+    outliers = rng.uniform([0, -60, -60], [100, 60, 60], size=(400, 3))
+    m = ColourModel.fit(np.concatenate([inliers, outliers]))
+    assert m.mean == pytest.approx([60.0, 12.0, 18.0], abs=0.3)
+    # MIN_STD**2 = 4 is added to the diagonal on purpose
+    np.testing.assert_allclose(m.cov - 4.0 * np.eye(3), cov, atol=1.5)
+    # E[d2] = trace(C (C + 4 I)^-1) for inliers drawn from C
+    expected = np.trace(cov @ np.linalg.inv(cov + 4.0 * np.eye(3)))
+    assert m.distance2(inliers).mean() == pytest.approx(expected, abs=0.15)
+
+
+def test_lab_round_trip():
+    rgb = np.random.default_rng(0).integers(0, 256, (50, 3), dtype=np.uint8)
+    back = lab_to_rgb(rgb_to_lab(rgb))
+    assert np.abs(back - rgb).max() < 1.0
