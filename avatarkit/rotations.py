@@ -77,22 +77,25 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return quat_normalize(q).reshape(shape + (4,))
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> cross-product matrices (..., 3, 3): _skew(a) @ b == cross(a, b)."""
+    x, y, z = np.moveaxis(v, -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(v.shape[:-1] + (3, 3))
+
+
 def axis_angle_to_matrix(aa: np.ndarray) -> np.ndarray:
     """Rodrigues: axis-angle vectors (..., 3) -> rotation matrices (..., 3, 3). Exact at 0."""
     aa = np.asarray(aa, dtype=np.float64)
-    theta = np.linalg.norm(aa, axis=-1)[..., None, None]
+    theta = np.linalg.norm(aa, axis=-1)  # (...)
     small = theta < 1e-8
     safe = np.where(small, 1.0, theta)
-    k = aa[..., None, :] / safe[..., 0]
-    kx, ky, kz = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
-    zero = np.zeros_like(kx)
-    K = np.stack([zero, -kz, ky, kz, zero, -kx, -ky, kx, zero], -1).reshape(aa.shape[:-1] + (3, 3))
+    k = _skew(aa / safe[..., None])  # unit axis (for the rows that use it)
+    s, c = np.sin(safe)[..., None, None], np.cos(safe)[..., None, None]
+    eye = np.broadcast_to(np.eye(3), k.shape)
+    full = eye + s * k + (1 - c) * (k @ k)
     # Near zero use the first-order series I + [aa]x, which is exact to O(theta^2).
-    ax, ay, az = aa[..., 0], aa[..., 1], aa[..., 2]
-    Ks = np.stack([zero, -az, ay, az, zero, -ax, -ay, ax, zero], -1).reshape(K.shape)
-    eye = np.broadcast_to(np.eye(3), K.shape)
-    full = eye + np.sin(safe) * K + (1 - np.cos(safe)) * (K @ K)
-    return np.where(small, eye + Ks, full)
+    return np.where(small[..., None, None], eye + _skew(aa), full)
 
 
 def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:

@@ -29,6 +29,16 @@ def _as_f32(name: str, a, shape_tail: tuple[int, ...]) -> np.ndarray:
     return arr
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """Every value finite? A NaN/inf anywhere makes the sum non-finite, so a finite sum proves
+    it in one cheap reduction (validation runs on every derived set); an overflowing sum falls
+    back to the exact elementwise test."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(a.sum()):
+            return True
+    return bool(np.isfinite(a).all())
+
+
 @dataclass(eq=False)
 class GaussianSet:
     """N anisotropic 3D Gaussians with SH colour. Validated (and made float32) on construction.
@@ -61,7 +71,7 @@ class GaussianSet:
                 raise InputError(f"{name} has {len(getattr(self, name))} rows but means has {n}")
         for name in ("means", "quats", "scales", "opacities", "sh"):
             a = getattr(self, name)
-            if not np.isfinite(a).all():
+            if not _all_finite(a):
                 bad = int(np.flatnonzero(~np.isfinite(a.reshape(n, -1)).all(axis=1))[0])
                 raise InputError(f"{name} has a non-finite value (Gaussian {bad})")
         if n and not (self.scales > 0).all():
@@ -70,20 +80,25 @@ class GaussianSet:
         if n and not ((self.opacities >= 0) & (self.opacities <= 1)).all():
             bad = int(np.flatnonzero((self.opacities < 0) | (self.opacities > 1))[0])
             raise InputError(f"opacities must lie in [0, 1] (Gaussian {bad} has {self.opacities[bad]})")
-        norms = np.linalg.norm(self.quats, axis=1)
+        norms = np.sqrt(np.einsum("ij,ij->i", self.quats, self.quats, dtype=np.float64))
         if n and not (np.abs(norms - 1) <= QUAT_NORM_TOLERANCE).all():
             bad = int(np.flatnonzero(np.abs(norms - 1) > QUAT_NORM_TOLERANCE)[0])
             raise InputError(f"quats must be unit length (Gaussian {bad} has norm {norms[bad]:.6g}); "
                              "normalise them first")
-        self.quats = (self.quats / norms[:, None]).astype(np.float32) if n else self.quats
+        # Renormalise only rows not already unit to float32 precision, so constructing a set
+        # from another set's quats (replace, subset, file round trips) keeps them bit-identical.
+        fix = np.abs(norms - 1) > 4 * np.finfo(np.float32).eps
+        if fix.any():
+            self.quats = self.quats.copy()
+            self.quats[fix] = self.quats[fix].astype(np.float64) / norms[fix, None]
         extras = {}
         for key, value in dict(self.extras).items():
-            arr = np.ascontiguousarray(value)
+            arr = np.asarray(value)  # not ascontiguousarray: it would turn a scalar into (1,)
             if not isinstance(key, str) or not key.isidentifier():
                 raise InputError(f"extra name {key!r} must be an identifier")
             if arr.ndim == 0 or len(arr) != n:
                 raise InputError(f"extra {key!r} has shape {arr.shape}, first axis must be {n}")
-            extras[key] = arr
+            extras[key] = np.ascontiguousarray(arr)
         self.extras = extras
 
     # --- construction -------------------------------------------------------------------
@@ -146,6 +161,8 @@ class GaussianSet:
     def subset(self, index) -> "GaussianSet":
         """Gaussians selected by a boolean mask (N,) or integer indices (M,), extras included."""
         idx = np.asarray(index)
+        if idx.size == 0 and idx.dtype != bool:  # np.asarray([]) is float64
+            idx = idx.astype(np.intp)
         if idx.dtype == bool and idx.shape != (len(self),):
             raise InputError(f"mask has shape {idx.shape}, expected ({len(self)},)")
         return GaussianSet(self.means[idx], self.quats[idx], self.scales[idx], self.opacities[idx],

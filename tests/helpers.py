@@ -1,0 +1,45 @@
+"""Shared test fixtures: random but valid Gaussian sets."""
+from __future__ import annotations
+
+import numpy as np
+
+from avatarkit.gaussians import GaussianSet
+from avatarkit.gaussians.sh import SH_COUNTS
+
+
+def random_quats(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 4) unit wxyz quaternions, uniformly distributed rotations."""
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly random proper rotation matrix (3, 3)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.random(random_state=rng.integers(2**31)).as_matrix()
+
+
+def random_gaussians(n: int = 100, sh_degree: int = 0, seed: int = 0, extras=()) -> GaussianSet:
+    """A valid GaussianSet of `n` splats with every field random.
+
+    extras: names from {"binding" (N,) int32, "part" (N,) uint8, "feat" (N, 4) float32,
+    "weight" (N,) float64}, or a dict name -> array to pass through as given.
+    """
+    rng = np.random.default_rng(seed)
+    k = SH_COUNTS[sh_degree]
+    sh = rng.normal(scale=0.5, size=(n, k, 3))
+    made = {
+        "binding": lambda: rng.integers(0, 10_000, n).astype(np.int32),
+        "part": lambda: rng.integers(0, 4, n).astype(np.uint8),
+        "feat": lambda: rng.normal(size=(n, 4)).astype(np.float32),
+        "weight": lambda: rng.uniform(size=n),
+    }
+    ex = dict(extras) if isinstance(extras, dict) else {name: made[name]() for name in extras}
+    return GaussianSet(
+        means=rng.normal(scale=0.2, size=(n, 3)),
+        quats=random_quats(n, rng),
+        scales=np.exp(rng.uniform(-7, -2, size=(n, 3))),
+        opacities=rng.uniform(0, 1, size=n),
+        sh=sh,
+        extras=ex,
+    )
