@@ -98,3 +98,11 @@ def test_frames_and_fps_options():
 def test_bad_arguments(kwargs, match):
     with pytest.raises(InputError, match=match):
         make_clip(**kwargs)
+
+
+@pytest.mark.parametrize("kind", ["nod", "shake", "tilt", "turn", "talk", "idle", "whip"])
+@pytest.mark.parametrize("frames", [2, 3])
+def test_very_short_clips_are_finite(kind, frames):
+    clip = make_clip(kind, frames=frames)
+    for name in ("rotation", "translation", "neck", "jaw", "eyes", "expr"):
+        assert np.isfinite(getattr(clip, name)).all(), (kind, frames, name)

@@ -43,7 +43,9 @@ def _envelope(u: np.ndarray, ramp: float = 0.25) -> np.ndarray:
 def _peak_normalised(f, u: np.ndarray) -> np.ndarray:
     """f(u) scaled so its largest magnitude over the continuous interval is 1."""
     dense = np.linspace(0.0, 1.0, 20001)
-    return f(u) / np.abs(f(dense)).max()
+    peak = np.abs(f(dense)).max()
+    # A clip too short to hold one syllable/wiggle has no motion at all, not 0/0.
+    return f(u) / peak if peak > 0 else np.zeros_like(u, dtype=np.float64)
 
 
 def _keyframes(u: np.ndarray, keys: list[tuple[float, float]], ease) -> np.ndarray:
