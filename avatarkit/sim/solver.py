@@ -1,0 +1,167 @@
+"""`XPBDSolver`: one frame of the paper's Algorithm 1 (cage deformation by PBD, section 3.3).
+
+Per frame, for each of n substeps of h = dt / n (n = `substeps`, more if h would exceed
+`max_substep`):
+  1. kinematic roots at their targets, linearly interpolated between the previous and the
+     current frame; free vertices predicted with gravity (v += h g, x += h v);
+  2. proxy points from the predicted positions (each vertex's nearest hair Gaussian, rebuilt
+     through its MVC weights), kept as offsets from their vertex;
+  3. `iterations` Gauss-Seidel sweeps of XPBD (Macklin, Mueller and Chentanez 2016) over
+     stretch, bending, volume (linearised at the predicted positions), tether and collision
+     constraints, multipliers reset per substep;
+     collision tests the proxy (or the vertex) against the head SDF placed by this substep's
+     head joint transform (rotation slerped, translation interpolated), and moves the vertex;
+  4. v = (x - x_prev) / h, then damping and a speed clamp.
+All substeps of a frame run in one Taichi launch (`_kernels.simulate_frame`).
+In `static` mode the cage moves rigidly with the head joint (roots still on their targets).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from avatarkit.errors import InputError
+from avatarkit.sim.config import SimConfig
+from avatarkit.sim.model import CageModel, CageState, HeadFrame
+
+MODE_CODES = {"none": 0, "vertex": 1, "proxy": 2}
+
+
+def substep_transforms(t_in: np.ndarray, t_out: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Head transforms at the end of each substep: rotations (S, 3, 3), translations (S, 3).
+    The rotation turns at a constant rate about the fixed axis of R_out R_in^T (slerp)."""
+    r_in, r_out = t_in[:3, :3], t_out[:3, :3]
+    frac = np.arange(1, substeps + 1, dtype=np.float64) / substeps
+    if np.array_equal(r_in, r_out):  # a still head: skip the (slow, small) slerp
+        rotations = np.broadcast_to(r_out, (substeps, 3, 3))
+    else:
+        axis_angle = Rotation.from_matrix(r_out @ r_in.T).as_rotvec()
+        rotations = Rotation.from_rotvec(frac[:, None] * axis_angle).as_matrix() @ r_in
+    translations = t_in[:3, 3] + frac[:, None] * (t_out[:3, 3] - t_in[:3, 3])
+    return rotations, translations
+
+
+def frame_params(model: CageModel, config: SimConfig, dt: float, substeps: int) -> np.ndarray:
+    """The float parameters of one frame (slots `_kernels.FP_*`)."""
+    h = dt / substeps
+    h2 = h * h
+    sdf = model.sdf
+    return np.array([
+        h, config.compliance_stretch / h2, config.compliance_bending / h2,
+        config.compliance_volume / h2, config.compliance_tether / h2,
+        config.compliance_collision / h2, np.exp(-config.damping * h), config.collision_margin,
+        *config.gravity, config.max_speed, model.rest_volume, *sdf.origin, 1.0 / sdf.spacing,
+    ], dtype=np.float32)
+
+
+class PackedModel:
+    """The model's tables packed into the kernel's buffers (layout in `_kernels`' docstring),
+    with room for up to `substeps` substeps per frame."""
+
+    def __init__(self, model: CageModel, substeps: int):
+        from avatarkit.sim import _kernels as K
+
+        m = model
+        c, r = m.num_vertices, len(m.roots)
+        e, b, f = len(m.edges), len(m.bend_pairs), len(m.faces)
+        k = m.proxy_index.shape[1]
+        ints = [m.edges.ravel(), m.bend_pairs.ravel(), m.faces.ravel(), m.tether_roots,
+                m.proxy_index.ravel(), m.roots]
+        ioff = np.cumsum([K.H_COUNT] + [len(a) for a in ints])
+        # inv_mass padded so the 8-float constraint records start on a 32-byte boundary
+        pad = -(K.FP_COUNT + c) % 8
+        floats = [np.r_[m.inv_mass, np.zeros(pad)], np.zeros(8 * e), np.zeros(8 * b), m.tether_lengths,
+                  m.proxy_weight.ravel(), np.zeros(1 + 2 * c), np.zeros(9 * substeps),
+                  np.zeros(3 * substeps), np.zeros(4 * c)]
+        foff = np.cumsum([K.FP_COUNT] + [len(a) for a in floats])
+        header = np.zeros(K.H_COUNT, np.int64)
+        header[[K.H_NC, K.H_NE, K.H_NB, K.H_NF, K.H_NR, K.H_NK]] = [c, e, b, f, r, k]
+        header[[K.H_EDGES, K.H_BENDS, K.H_FACES, K.H_TETHER, K.H_PROXY_IDX, K.H_ROOTS]] = ioff[:6]
+        header[[K.H_INV_MASS, K.H_EDGE_DATA, K.H_BEND_DATA, K.H_TETHER_LEN, K.H_PROXY_W,
+                K.H_LAMBDA, K.H_ROT, K.H_TRANS, K.H_CACHE]] = foff[:9]
+        header[K.H_SUBSTEPS] = substeps
+        self.ibuf = np.concatenate([header] + ints).astype(np.int32)
+        self.fbuf = np.concatenate([np.zeros(K.FP_COUNT)] + floats).astype(np.float32)
+        self.xbuf = np.zeros((6 * c + 2 * r, 3), np.float32)
+        self.edge_data = self.fbuf[foff[1]:foff[2]].reshape(e, 8)
+        self.bend_data = self.fbuf[foff[2]:foff[3]].reshape(b, 8)
+        self.rot_slice = slice(int(foff[6]), int(foff[7]))
+        self.trans_slice = slice(int(foff[7]), int(foff[8]))
+        # A zero cached distance makes every vertex's first collision test a real lookup.
+        self.c, self.r, self.substeps = c, r, substeps
+        self.model = m
+
+    def set_time_step(self, config: SimConfig, dt: float, substeps: int) -> None:
+        """Fill the parameters and the per-constraint data that depend on the substep length."""
+        from avatarkit.sim import _kernels as K
+
+        m = self.model
+        h2 = (dt / substeps) ** 2
+        self.fbuf[:K.FP_COUNT] = frame_params(m, config, dt, substeps)
+        self.ibuf[K.H_SUBSTEPS] = substeps
+        w = m.inv_mass.astype(np.float64)
+        for data, pairs, rest, compliance in (
+                (self.edge_data, m.edges, m.edge_lengths, config.compliance_stretch),
+                (self.bend_data, m.bend_pairs, m.bend_lengths, config.compliance_bending)):
+            wa, wb = w[pairs[:, 0]], w[pairs[:, 1]]
+            data[:, :4] = np.stack([rest, 1.0 / (wa + wb + compliance / h2), wa, wb], axis=1)
+
+
+def check_step_inputs(model: CageModel, state_in: CageState, frame_in: HeadFrame,
+                      frame_out: HeadFrame, dt: float) -> None:
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"time step must be > 0 seconds, got {dt}")
+    if state_in.positions.shape != model.rest_positions.shape:
+        raise InputError(f"state has {len(state_in.positions)} vertices, the cage "
+                         f"{model.num_vertices}")
+    for frame in (frame_in, frame_out):
+        if frame.root_positions.shape != (len(model.roots), 3):
+            raise InputError(f"head frame has {len(frame.root_positions)} root positions, "
+                             f"the cage {len(model.roots)} roots")
+
+
+class XPBDSolver:
+    """Steps a `CageModel` with `SimConfig` settings; holds only scratch buffers between steps."""
+
+    def __init__(self, model: CageModel, config: SimConfig | None = None):
+        self.model = model
+        self.config = config or SimConfig()
+        self._packed: PackedModel | None = None
+        self._dt: float | None = None
+
+    def step(self, state_in: CageState, state_out: CageState, frame_in: HeadFrame,
+             frame_out: HeadFrame, dt: float) -> None:
+        """Advance state_in by dt seconds (head moving from frame_in to frame_out) into
+        state_out. state_in is not modified; state_out may be the same object."""
+        m, cfg = self.model, self.config
+        check_step_inputs(m, state_in, frame_in, frame_out, dt)
+        if cfg.static:
+            t = frame_out.transform
+            x = (m.rest_positions.astype(np.float64) @ t[:3, :3].T + t[:3, 3]).astype(np.float32)
+            x[m.roots] = frame_out.root_positions
+            v = ((x - state_in.positions) / np.float32(dt)).astype(np.float32)
+            state_out.positions, state_out.velocities = x, v
+            return
+        from avatarkit.sim import _kernels
+
+        n_sub = cfg.substeps_for(dt)
+        if self._packed is None or self._packed.substeps < n_sub:
+            self._packed = PackedModel(m, n_sub)
+            self._packed.ibuf[_kernels.H_ITERATIONS] = cfg.iterations
+            self._packed.ibuf[_kernels.H_MODE] = MODE_CODES[cfg.collision]
+            self._dt = None
+        p = self._packed
+        if self._dt != dt:
+            p.set_time_step(cfg, dt, n_sub)
+            self._dt = dt
+        c, r = p.c, p.r
+        p.xbuf[:c] = state_in.positions
+        p.xbuf[c:2 * c] = state_in.velocities
+        p.xbuf[5 * c:5 * c + r] = frame_in.root_positions
+        p.xbuf[5 * c + r:5 * c + 2 * r] = frame_out.root_positions
+        rotations, translations = substep_transforms(frame_in.transform, frame_out.transform, n_sub)
+        p.fbuf[p.rot_slice][:9 * n_sub] = rotations.ravel()
+        p.fbuf[p.trans_slice][:3 * n_sub] = translations.ravel()
+        _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad)
+        state_out.positions = p.xbuf[:c].copy()
+        state_out.velocities = p.xbuf[c:2 * c].copy()

@@ -1,0 +1,357 @@
+"""XPBD cage solver on a scene made in the test: a sphere "head" with a box "ponytail" cage.
+
+The scene is small (98 cage vertices) so the numpy reference runs in a blink; the avatar-level
+checks (template head, procedural hair, MVC proxies, the ablation) are in test_sim_avatar.py.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from avatarkit.errors import InputError
+from avatarkit.rotations import axis_angle_to_matrix
+from avatarkit.sim import CageModel, CageState, HeadFrame, HeadSDF, SimConfig, XPBDSolver
+from avatarkit.sim.reference import reference_step
+from avatarkit.sim.solver import substep_transforms
+
+RADIUS = 0.09
+PIVOT = np.array([0.0, -0.1, 0.0])  # the "neck": head rotations turn about it
+
+
+def _scene():
+    head = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
+    box = trimesh.creation.box(extents=(0.06, 0.22, 0.06))
+    box.apply_translation((0.0, -0.09, -0.105))
+    box = box.subdivide().subdivide()
+    cv, cf = np.asarray(box.vertices), np.asarray(box.faces)
+    rng = np.random.default_rng(0)
+    hair = rng.uniform(box.bounds[0] + 0.006, box.bounds[1] - 0.006, (3000, 3))
+    hair = hair[np.linalg.norm(hair, axis=1) > RADIUS + 0.002]
+    # roots: cage vertices inside or within 1 cm of the head, in the top part of the tail
+    roots = np.flatnonzero((np.linalg.norm(cv, axis=1) < RADIUS + 0.01) & (cv[:, 1] > -0.06))
+    # proxy weights: any partition of unity that rebuilds a point near the nearest hair point
+    # (inverse-distance weights of 8 cage vertices); the avatar tests use real MVC weights
+    _, near = cKDTree(hair).query(cv)
+    dist, idx = cKDTree(cv).query(hair[near], k=8)
+    wts = 1 / np.maximum(dist, 1e-4)
+    weights = np.zeros((len(cv), len(cv)))
+    np.put_along_axis(weights, idx, wts / wts.sum(axis=1, keepdims=True), axis=1)
+    model = CageModel.from_arrays(cv, cf, roots, head.vertices, head.faces,
+                                  proxy_weights=weights, proxy_k=8)
+    return model, np.asarray(head.vertices), hair
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _scene()
+
+
+def rigid(axis_angle=(0, 0, 0), translation=(0, 0, 0)) -> np.ndarray:
+    """Rotation about PIVOT, then a translation: (4, 4), rest -> posed."""
+    t = np.eye(4)
+    r = axis_angle_to_matrix(np.asarray(axis_angle, float))
+    t[:3, :3] = r
+    t[:3, 3] = PIVOT - r @ PIVOT + np.asarray(translation, float)
+    return t
+
+
+def frame(model, head_vertices, transform) -> HeadFrame:
+    posed = head_vertices @ transform[:3, :3].T + transform[:3, 3]
+    return model.head_frame(posed, transform)
+
+
+def run(model, head, config, transforms, dt=1 / 30, state=None):
+    """Simulate a sequence of head transforms; returns positions (T, C, 3), last state."""
+    solver = XPBDSolver(model, config)
+    state = state or model.rest_state()
+    frames = [frame(model, head, t) for t in transforms]
+    out = []
+    for a, b in zip([frames[0]] + frames[:-1], frames):
+        solver.step(state, state, a, b, dt)
+        out.append(state.positions.copy())
+    return np.stack(out), state
+
+
+def tips(model):
+    """The cage vertices at the bottom of the tail."""
+    y = model.rest_positions[:, 1]
+    return np.flatnonzero(y < y.min() + 1e-6)
+
+
+# --- config and model ------------------------------------------------------------------------
+def test_config_defaults_and_validation():
+    cfg = SimConfig()
+    assert cfg.substeps == 4 and cfg.iterations == 15 and cfg.collision == "proxy"
+    assert cfg.gravity == (0.0, -9.81, 0.0) and not cfg.static
+    for bad in [dict(substeps=0), dict(iterations=1.5), dict(collision="mesh"),
+                dict(gravity=(0, 1)), dict(compliance_bending=-1.0), dict(damping=float("nan")),
+                dict(max_speed=0.0)]:
+        with pytest.raises(InputError):
+            SimConfig(**bad)
+
+
+def test_sdf_matches_sphere_distance():
+    head = trimesh.creation.icosphere(subdivisions=4, radius=RADIUS)
+    sdf = HeadSDF.build(head.vertices, head.faces, spacing=0.004)
+    rng = np.random.default_rng(1)
+    p = rng.uniform(-0.13, 0.13, (4000, 3))
+    r = np.linalg.norm(p, axis=1)
+    d, g = sdf.query(p)
+    near = np.abs(r - RADIUS) < 0.01
+    # the icosphere's faces sit up to ~0.1 mm inside the true sphere
+    assert np.abs(d - (r - RADIUS))[near].max() < 4e-4
+    assert np.abs(d - (r - RADIUS)).max() < 4e-3
+    assert (np.sign(d) == np.sign(r - RADIUS))[np.abs(r - RADIUS) > 0.001].all()
+    cos = np.einsum("ij,ij->i", g, p / r[:, None])
+    assert cos[near].min() > 0.99
+    # far outside the grid the value keeps growing
+    far, _ = sdf.query(np.array([[1.0, 0.0, 0.0]]))
+    assert far[0] == pytest.approx(1.0 - RADIUS, abs=0.01)
+
+
+def test_sdf_posed_query_moves_with_the_head(scene):
+    model, _, _ = scene
+    t = rigid((0.3, -0.8, 0.2), (0.05, 0.02, -0.1))
+    rng = np.random.default_rng(2)
+    p = rng.uniform(-0.12, 0.12, (500, 3))
+    d0, g0 = model.sdf.query(p)
+    d1, g1 = model.sdf.query_posed(p @ t[:3, :3].T + t[:3, 3], t)
+    np.testing.assert_allclose(d1, d0, atol=1e-9)
+    np.testing.assert_allclose(g1, g0 @ t[:3, :3].T, atol=1e-9)
+
+
+def test_model_tables(scene):
+    model, _, _ = scene
+    x = model.rest_positions
+    assert (model.inv_mass[model.roots] == 0).all() and (model.inv_mass[model.free] == 1).all()
+    np.testing.assert_allclose(
+        np.linalg.norm(x[model.edges[:, 0]] - x[model.edges[:, 1]], axis=1), model.edge_lengths, rtol=1e-6)
+    # bending pairs are the two vertices opposite a shared edge: never an edge themselves here
+    edge_set = {tuple(sorted(e)) for e in trimesh.Trimesh(x, model.faces, process=False).edges_unique}
+    assert not any(tuple(sorted(b)) in edge_set for b in model.bend_pairs)
+    assert model.rest_volume == pytest.approx(0.06 * 0.22 * 0.06, rel=1e-4)
+    free = model.free
+    assert (model.tether_roots[free] >= 0).all() and (model.tether_roots[~free] == -1).all()
+    assert np.isin(model.tether_roots[free], model.roots).all()
+    euclid = np.linalg.norm(x[free] - x[model.tether_roots[free]], axis=1)
+    assert (model.tether_lengths[free] >= euclid - 1e-6).all()
+    np.testing.assert_allclose(model.proxy_weight.sum(axis=1), 1.0, atol=1e-5)
+
+
+def test_model_rejects_bad_input(scene):
+    model, head, _ = scene
+    with pytest.raises(InputError, match="root"):
+        CageModel.from_arrays(model.rest_positions, model.faces, [], head, model.head_faces)
+    with pytest.raises(InputError, match="faces"):
+        CageModel.from_arrays(model.rest_positions, model.faces + 1000, [0], head, model.head_faces)
+    with pytest.raises(InputError, match="root positions"):
+        XPBDSolver(model).step(model.rest_state(), model.rest_state(),
+                               HeadFrame(np.zeros((2, 3)), np.eye(4)), HeadFrame(np.zeros((2, 3)), np.eye(4)), 0.03)
+    with pytest.raises(InputError, match="time step"):
+        f = frame(model, head, np.eye(4))
+        XPBDSolver(model).step(model.rest_state(), model.rest_state(), f, f, 0.0)
+    with pytest.raises(InputError, match="rotation"):
+        HeadFrame(np.zeros((1, 3)), np.diag([2.0, 1, 1, 1]))
+
+
+# --- roots -----------------------------------------------------------------------------------
+def test_roots_follow_a_rigid_head_exactly(scene):
+    model, head, _ = scene
+    rest_roots = model.rest_positions[model.roots].astype(np.float64)
+    np.testing.assert_allclose(model.root_targets(head), rest_roots, atol=2e-7)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        t = rigid(rng.normal(scale=1.0, size=3), rng.normal(scale=0.1, size=3))
+        targets = frame(model, head, t).root_positions
+        np.testing.assert_allclose(targets, rest_roots @ t[:3, :3].T + t[:3, 3], atol=5e-7)
+
+
+def test_roots_follow_skinning_piece_by_piece(scene):
+    """A hinge (like the jaw) turns the lower half of the head: roots riding faces wholly in a
+    rigid piece follow that piece's transform exactly, whatever the other piece does."""
+    model, head, _ = scene
+    lower = head[:, 1] < -0.02
+    hinge = rigid((0.4, 0.1, 0.0), (0.0, 0.01, 0.0))
+    posed = head.copy()
+    posed[lower] = head[lower] @ hinge[:3, :3].T + hinge[:3, 3]
+    targets = model.root_targets(posed)
+    faces = model.head_faces[model.root_faces]
+    rest_roots = model.rest_positions[model.roots].astype(np.float64)
+    upper_roots = (~lower[faces]).all(axis=1)
+    lower_roots = lower[faces].all(axis=1)
+    assert upper_roots.any() and lower_roots.any()
+    np.testing.assert_allclose(targets[upper_roots], rest_roots[upper_roots], atol=5e-7)
+    np.testing.assert_allclose(targets[lower_roots],
+                               rest_roots[lower_roots] @ hinge[:3, :3].T + hinge[:3, 3], atol=5e-7)
+
+
+def test_solver_puts_roots_on_their_targets(scene):
+    model, head, _ = scene
+    t = rigid((0.0, 0.5, 0.1))
+    positions, _ = run(model, head, SimConfig(), [np.eye(4), t])
+    np.testing.assert_array_equal(positions[-1][model.roots], frame(model, head, t).root_positions)
+
+
+# --- fast path vs reference ---------------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["none", "vertex", "proxy"])
+@pytest.mark.parametrize("substeps", [1, 2])
+def test_kernel_matches_numpy_reference(scene, mode, substeps):
+    model, head, _ = scene
+    cfg = SimConfig(collision=mode, substeps=substeps, iterations=4, compliance_stretch=1e-7,
+                    compliance_collision=1e-8, compliance_tether=1e-8, max_speed=0.6)
+    rng = np.random.default_rng(4)
+    state = CageState(model.rest_positions + rng.normal(scale=0.003, size=model.rest_positions.shape),
+                      rng.normal(scale=0.3, size=model.rest_positions.shape))
+    state.positions[model.roots] = model.rest_positions[model.roots]
+    f0 = frame(model, head, rigid((0.0, 0.0, 0.0)))
+    f1 = frame(model, head, rigid((-0.35, 0.25, 0.0), (0.0, 0.01, 0.02)))
+    out = CageState(state.positions, state.velocities)
+    XPBDSolver(model, cfg).step(state, out, f0, f1, 1 / 30)
+    ref = reference_step(model, cfg, state, f0, f1, 1 / 30)
+    moved = np.abs(ref.positions - state.positions).max()
+    assert moved > 0.005  # the step did something worth comparing
+    np.testing.assert_allclose(out.positions, ref.positions, atol=2e-5)
+    np.testing.assert_allclose(out.velocities, ref.velocities, atol=2e-3)
+
+
+def test_substep_transforms_interpolate_rotation_and_translation():
+    a, b = rigid((0, 0.2, 0), (0, 0, 0)), rigid((0, 1.0, 0), (0.1, 0, 0))
+    rot, trans = substep_transforms(a, b, 4)
+    np.testing.assert_allclose(rot[-1], b[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(trans[-1], b[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(rot[1], axis_angle_to_matrix(np.array([0, 0.6, 0])), atol=1e-12)
+    np.testing.assert_allclose(trans[1], (a[:3, 3] + b[:3, 3]) / 2, atol=1e-12)
+
+
+# --- behaviour ---------------------------------------------------------------------------------
+def test_deterministic(scene):
+    model, head, _ = scene
+    transforms = [rigid((0, 0.6 * np.sin(i / 5), 0)) for i in range(20)]
+    a, _ = run(model, head, SimConfig(), transforms)
+    b, _ = run(model, head, SimConfig(), transforms)
+    assert a.tobytes() == b.tobytes()
+
+
+def test_settles_under_gravity_and_sags(scene):
+    model, head, _ = scene
+    positions, state = run(model, head, SimConfig(), [np.eye(4)] * 90)  # 3 s
+    assert state.kinetic_energy(model.inv_mass) < 1e-5 * model.free.sum()
+    t = tips(model)
+    assert positions[-1][t, 1].mean() < model.rest_positions[t, 1].mean() - 1e-4
+    # and stays in one piece: no edge stretched by more than a few percent
+    x = positions[-1]
+    stretch = np.linalg.norm(x[model.edges[:, 0]] - x[model.edges[:, 1]], axis=1) / model.edge_lengths
+    assert stretch.max() < 1.05
+
+
+def test_head_turn_makes_hair_lag_then_recover(scene):
+    model, head, _ = scene
+    cfg = SimConfig()
+    _, settled = run(model, head, cfg, [np.eye(4)] * 45)
+    turn = [rigid((0, 0.8 * min(i / 9, 1.0), 0)) for i in range(1, 70)]  # 0.3 s turn, then hold
+    positions, _ = run(model, head, cfg, turn, state=settled.copy())
+    t = tips(model)
+
+    def turned(p):  # how far the tips have turned about the Y axis since the turn began
+        a, b = settled.positions[t].mean(axis=0), p[t].mean(axis=0)
+        return np.angle(complex(b[2], b[0]) / complex(a[2], a[0]))
+
+    lag_at_end_of_turn = 0.8 - turned(positions[8])
+    assert lag_at_end_of_turn > 0.1   # the tips are behind the head
+    assert abs(0.8 - turned(positions[-1])) < 0.05 < lag_at_end_of_turn / 2
+
+
+def test_whip_clip_stays_bounded(scene):
+    from avatarkit.motion import make_clip
+
+    model, head, _ = scene
+    clip = make_clip("whip", fps=30)
+    transforms = []
+    for rot, neck, trans in zip(clip.rotation, clip.neck, clip.translation):
+        t = rigid(rot)
+        t[:3, :3] = t[:3, :3] @ axis_angle_to_matrix(neck.astype(float))
+        t[:3, 3] = PIVOT - t[:3, :3] @ PIVOT + trans
+        transforms.append(t)
+    positions, _ = run(model, head, SimConfig(), transforms, dt=1 / clip.fps)
+    assert np.isfinite(positions).all()
+    # every vertex stays within its tether reach of the head (no explosion)
+    reach = np.linalg.norm(positions - PIVOT, axis=2).max()
+    assert reach < np.linalg.norm(model.rest_positions - PIVOT, axis=1).max() * 1.3
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.25])
+def test_large_time_steps_are_stable(scene, dt):
+    """A fast, jerky head at 10 and 4 frames per second: no NaN, nothing flies off, and once
+    the head stops the cage is back in shape (automatic substeps keep h <= max_substep)."""
+    model, head, _ = scene
+    moves = [rigid((0, 1.2 * np.sin(i), 0.5 * np.sin(0.7 * i))) for i in range(12)]
+    transforms = [np.eye(4)] + moves + [moves[-1]] * int(2 / dt)
+    positions, _ = run(model, head, SimConfig(), transforms, dt=dt)
+    assert np.isfinite(positions).all()
+    assert np.linalg.norm(positions - PIVOT, axis=2).max() < 0.25
+    x = positions[-1]
+    stretch = np.linalg.norm(x[model.edges[:, 0]] - x[model.edges[:, 1]], axis=1) / model.edge_lengths
+    assert stretch.max() < 1.1
+
+
+def test_one_substep_per_long_frame_stays_finite(scene):
+    """With automatic substeps off, one 0.25 s substep per frame is sloppy but never blows up."""
+    model, head, _ = scene
+    transforms = [np.eye(4)] + [rigid((0, 1.2 * np.sin(i), 0.5 * np.sin(0.7 * i))) for i in range(20)]
+    cfg = SimConfig(substeps=1, max_substep=float("inf"))
+    assert cfg.substeps_for(0.25) == 1 and SimConfig().substeps_for(0.25) == 15
+    positions, _ = run(model, head, cfg, transforms, dt=0.25)
+    assert np.isfinite(positions).all()
+    assert np.linalg.norm(positions - PIVOT, axis=2).max() < 0.4
+
+
+def test_static_mode_moves_rigidly(scene):
+    model, head, _ = scene
+    t = rigid((0.3, 0.9, -0.2), (0.02, 0.0, 0.01))
+    positions, state = run(model, head, SimConfig(static=True), [np.eye(4), t])
+    np.testing.assert_allclose(positions[-1], model.rest_positions @ t[:3, :3].T + t[:3, 3], atol=1e-6)
+    assert np.isfinite(state.velocities).all()
+
+
+def test_collision_keeps_cage_vertices_out_of_the_head(scene):
+    """Gravity toward the face presses the tail into the back of the skull: vertex collision
+    keeps every free cage vertex outside (sdf >= margin - 1 mm), no collision lets it sink."""
+    model, head, _ = scene
+    depth = {}
+    for mode in ("none", "vertex"):
+        cfg = SimConfig(collision=mode, gravity=(0.0, 0.0, 9.81))
+        positions, _ = run(model, head, cfg, [np.eye(4)] * 30)
+        d, _ = model.sdf.query(positions[-1][model.free])
+        depth[mode] = d.min()
+    assert depth["vertex"] > SimConfig().collision_margin - 0.001
+    assert depth["none"] < -0.005
+
+
+def test_sparsified_proxy_weights_rebuild_the_point_exactly():
+    from avatarkit.sim.model import sparsify_weights
+
+    rng = np.random.default_rng(6)
+    vertices = rng.normal(size=(60, 3))
+    dense = np.abs(rng.normal(size=(10, 60))) ** 3  # long-tailed positive weights
+    dense /= dense.sum(axis=1, keepdims=True)
+    points = dense @ vertices
+    idx, w = sparsify_weights(dense, 8, points, vertices)
+    assert idx.shape == w.shape == (10, 8)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.einsum("pk,pkc->pc", w, vertices[idx]), points, atol=1e-5)
+    # the kept weights are the largest ones, only nudged
+    top = np.take_along_axis(dense, idx, axis=1)
+    assert (top.min(axis=1) >= np.sort(dense, axis=1)[:, -8]).all()
+    idx2, w2 = sparsify_weights(dense, 8)  # without points: renormalised only
+    np.testing.assert_allclose(w2, top / top.sum(axis=1, keepdims=True), rtol=1e-5)
+    with pytest.raises(InputError):
+        sparsify_weights(np.full((2, 3), np.nan), 2)
+
+
+def test_sdf_build_rejects_bad_meshes():
+    with pytest.raises(InputError, match="faces"):
+        HeadSDF.build(np.zeros((4, 3)), np.array([[0, 1, 9]]))
+    with pytest.raises(InputError, match="vertices"):
+        HeadSDF.build(np.zeros((4, 2)), np.array([[0, 1, 2]]))
