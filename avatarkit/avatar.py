@@ -1,0 +1,738 @@
+"""`Avatar`: the compositional head avatar (bald head on a parametric head + hair in a cage) and
+its folder format.
+
+An avatar folder holds:
+
+    avatar.json   manifest (schemas/avatar.schema.json): head model reference, identity shape,
+                  parts with their files and counts, provenance
+    bald.ply      bald head Gaussians, REST pose, world space, with a `binding` extra (the head
+                  face each rides), so splat viewers open it as is
+    hair.ply      hair Gaussians, rest pose, world space
+    cage.ply      the closed hair cage at rest (its vertex order is the simulation's)
+    rig.npz       what the hair driver needs that is slow to compute: the cage deformer's mean
+                  value coordinate weights and the simulation model (roots and their attachment
+                  to the head, proxy weights, tethers, head SDF), plus a SHA-256 of its inputs
+    preview.png   a front view (optional)
+
+The rest pose is the head model with the avatar's identity shape, zero expression, zero pose.
+Triangle-local values of the bald Gaussians are not stored: `TriangleBinding.bind` recomputes
+them on load from the rest head and the `binding` ids (deterministic, so a loaded avatar bakes
+exactly like a freshly loaded copy of itself). The rig's weights are only valid for the hair,
+cage and head they were computed from; their hash is checked on load and the rig rebuilt, with
+a `RigRebuiltWarning`, when it does not match (an edited hair.ply, for instance).
+
+`Avatar.save(folder)` writes a complete folder beside the target and renames it into place:
+an interrupted save leaves the old folder (or nothing) under the requested name.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime
+import functools
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import warnings
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
+from avatarkit.gaussians.gaussian_set import GaussianSet
+
+AVATAR_FORMAT = "avatarkit.avatar"
+AVATAR_VERSION = 1
+RIG_FORMAT = "avatarkit.rig/1"
+
+MANIFEST = "avatar.json"
+BALD_FILE = "bald.ply"
+HAIR_FILE = "hair.ply"
+CAGE_FILE = "cage.ply"
+RIG_FILE = "rig.npz"
+PREVIEW_FILE = "preview.png"
+PREVIEW_SIZE = 512
+
+HEAD_KINDS = ("template", "flame")
+
+
+class RigRebuiltWarning(UserWarning):
+    """An avatar's rig.npz did not match its hair, cage or head and was recomputed on load."""
+
+
+class HeadModelChangedWarning(UserWarning):
+    """The built-in template head differs from the one an avatar was made on (same topology,
+    other geometry): the bald Gaussians keep their saved rest positions, which may no longer
+    lie on the head's surface."""
+
+
+def head_geometry_sha256(head_model) -> str:
+    """SHA-256 of a head model's rest geometry (template vertices and faces)."""
+    h = hashlib.sha256(np.ascontiguousarray(head_model.v_template, "<f4").tobytes())
+    h.update(np.ascontiguousarray(head_model.faces, "<i4").tobytes())
+    return h.hexdigest()
+
+
+# --- head model reference ------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class HeadRef:
+    """Which head model an avatar rides: the built-in template, or a user's FLAME file
+    (.pkl, or an avatarkit .npz conversion) named by path and checked by SHA-256."""
+
+    kind: str = "template"
+    path: str | None = None
+    sha256: str | None = None
+
+    def __post_init__(self):
+        if self.kind not in HEAD_KINDS:
+            raise InputError(f"head model kind must be one of {', '.join(HEAD_KINDS)}, got {self.kind!r}")
+        if self.kind == "flame" and not (self.path and self.sha256):
+            raise InputError("a FLAME head model reference needs a path and a sha256")
+
+    @classmethod
+    def for_file(cls, path: str | os.PathLike) -> "HeadRef":
+        """A reference to a FLAME model file (absolute path and its SHA-256)."""
+        from avatarkit.head.io import file_sha256
+
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("head model file not found", p)
+        return cls("flame", str(p.resolve()), file_sha256(p))
+
+    def resolve(self, folder: Path | None) -> Path:
+        """The model file: the path as stored, else relative to the avatar folder."""
+        p = Path(self.path)
+        if not p.is_absolute() and folder is not None:
+            p = folder / p
+        return p
+
+    def load(self, folder: Path | None = None, manifest: Path | None = None):
+        """The `HeadModel` this reference names (the file's hash must match)."""
+        from avatarkit.head.model import HeadModel
+
+        if self.kind == "template":
+            return HeadModel.template()
+        from avatarkit.head.io import file_sha256, load_head_model
+
+        p = self.resolve(folder)
+        if not p.is_file():
+            raise FormatError(f"the avatar's FLAME head model {self.path} is not there "
+                              "(FLAME files are referenced, not copied: put it back or re-save the avatar)",
+                              manifest)
+        digest = file_sha256(p)
+        if digest != self.sha256:
+            raise FormatError(f"the head model file {p} has changed since the avatar was made "
+                              f"(sha256 {digest[:12]}..., expected {self.sha256[:12]}...)", manifest)
+        return load_head_model(p)
+
+    def to_json(self, head_model) -> dict:
+        out: dict[str, Any] = {"kind": self.kind}
+        if self.kind == "flame":
+            out.update(path=self.path, sha256=self.sha256)
+        else:
+            if getattr(head_model, "source", ""):
+                out["source"] = str(head_model.source)
+            out["sha256"] = head_geometry_sha256(head_model)
+        out.update(vertices=int(head_model.num_vertices), faces=int(head_model.num_faces))
+        return out
+
+
+# --- the hair rig ----------------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class HairRig:
+    """What drives the hair and is slow to compute: `deformer` (`CageDeformer`: the MVC weights
+    (C, P) of the hair's deformation points in the rest cage) and `model` (`CageModel`: roots,
+    attachments, constraints, proxy weights and the rest head's SDF)."""
+
+    deformer: Any
+    model: Any
+
+    @classmethod
+    def build(cls, head_model, rest_vertices: np.ndarray, hair: GaussianSet, cage,
+              method: str = "principal_axis",
+              progress: Callable[[int, int], None] | None = None, sdf=None) -> "HairRig":
+        """Compute the rig of `hair` in `cage` over the rest head (vertices (V, 3)).
+        sdf: the rest head's `HeadSDF` if already built (else built here)."""
+        from avatarkit.cage.deform import CageDeformer
+        from avatarkit.sim.model import CageModel
+
+        deformer = CageDeformer.build(hair, cage, method, progress=progress)
+        model = CageModel.build(cage, hair, head_model, np.asarray(rest_vertices, np.float32), sdf=sdf)
+        # the file keeps the SDF's values only; use what a load rebuilds, so a loaded rig
+        # simulates exactly like the one built here
+        model.sdf = sdf_from_values(model.sdf.values_grad[..., 0], model.sdf.origin, model.sdf.spacing)
+        return cls(deformer, model)
+
+    @property
+    def method(self) -> str:
+        return self.deformer.method
+
+    def driver(self, head_model, rest_vertices: np.ndarray, config=None):
+        """A `HairDriver` sharing this rig's model and weights (nothing is recomputed)."""
+        from avatarkit.sim.driver import HairDriver
+
+        return HairDriver(head_model, self.deformer.rest, self.deformer.cage, config,
+                          rest_vertices=rest_vertices, model=self.model, deformer=self.deformer)
+
+    # -- file ---------------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike, inputs_sha256: str, sdf_sha256: str) -> None:
+        """Write rig.npz (uncompressed: the weights are dense floats and do not compress).
+        inputs_sha256: hash of what the whole rig was computed from; sdf_sha256: of what the
+        head SDF was (the rest head only), so a rig rebuilt for new hair can keep the SDF."""
+        from avatarkit.fileio import atomic_path
+
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(RIG_FORMAT), "inputs_sha256": np.array(inputs_sha256),
+            "sdf_inputs_sha256": np.array(sdf_sha256),
+            "deform_method": np.array(self.deformer.method),
+            "deform_axis_sigma": np.array(self.deformer.axis_sigma, np.float64),
+            "deform_weights_t": self.deformer.weights_t}
+        for f in fields(self.model):
+            value = getattr(self.model, f.name)
+            if f.name == "sdf":  # the gradients are recomputed on load (4x smaller file)
+                arrays["sdf_values"] = np.ascontiguousarray(value.values_grad[..., 0])
+                arrays["sdf_origin"] = np.asarray(value.origin, np.float64)
+                arrays["sdf_spacing"] = np.array(value.spacing, np.float64)
+            else:
+                arrays[f"model_{f.name}"] = np.asarray(value)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+    @staticmethod
+    def read_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
+        """The arrays of a rig.npz, checked for format and completeness (FormatError)."""
+        import zipfile
+
+        from avatarkit.sim.model import CageModel
+
+        path = Path(path)
+        if not path.is_file():
+            raise FormatError("rig file missing", path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise FormatError(f"not a readable .npz file ({e})", path) from None
+        if "format" not in data or str(data["format"]) != RIG_FORMAT:
+            raise FormatError(f"not an avatarkit rig (format {RIG_FORMAT!r} expected)", path)
+        need = ["inputs_sha256", "sdf_inputs_sha256", "deform_method", "deform_axis_sigma",
+                "deform_weights_t", "sdf_values", "sdf_origin", "sdf_spacing"]
+        need += [f"model_{f.name}" for f in fields(CageModel) if f.name != "sdf"]
+        missing = [k for k in need if k not in data]
+        if missing:
+            raise FormatError(f"rig is missing {', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''}",
+                              path)
+        return data
+
+    @classmethod
+    def from_file_arrays(cls, data: dict[str, np.ndarray], hair: GaussianSet, cage,
+                         path: str | os.PathLike | None = None) -> "HairRig":
+        """The rig of `hair` in `cage` from `read_file`'s arrays (FormatError naming `path`)."""
+        from avatarkit.cage.deform import CageDeformer
+        from avatarkit.sim.model import CageModel
+
+        try:
+            kwargs = {f.name: data[f"model_{f.name}"] for f in fields(CageModel) if f.name != "sdf"}
+            kwargs["rest_volume"] = float(kwargs["rest_volume"])
+            model = CageModel(sdf=_stored_sdf(data), **kwargs)
+            if model.num_vertices != cage.n_vertices:
+                raise InputError(f"the simulation model has {model.num_vertices} cage vertices, "
+                                 f"the cage {cage.n_vertices}")
+            deformer = CageDeformer(hair, cage, data["deform_weights_t"], str(data["deform_method"]),
+                                    float(data["deform_axis_sigma"]))
+        except InputError as e:
+            raise FormatError(f"inconsistent rig: {e.message}", path) from None
+        return cls(deformer, model)
+
+
+def _stored_sdf(data: dict[str, np.ndarray]):
+    return sdf_from_values(data["sdf_values"], data["sdf_origin"], float(data["sdf_spacing"]))
+
+
+def sdf_from_values(values: np.ndarray, origin, spacing: float):
+    """A `HeadSDF` from its grid of distances (nx, ny, nz): unit gradients by central differences
+    (as `HeadSDF.build` makes them, but from the float32 values)."""
+    from avatarkit.sim.sdf import HeadSDF
+
+    v = np.asarray(values, np.float32)
+    if v.ndim != 3 or min(v.shape) < 2:
+        raise InputError(f"SDF values must be a (nx, ny, nz) grid with n >= 2, got {v.shape}")
+    grad = np.stack(np.gradient(v.astype(np.float64), float(spacing)), axis=-1)
+    grad /= np.maximum(np.linalg.norm(grad, axis=-1, keepdims=True), 1e-12)
+    return HeadSDF(np.concatenate([v[..., None], grad.astype(np.float32)], axis=-1), origin, spacing)
+
+
+def sdf_inputs_sha256(rest_vertices: np.ndarray, head_faces: np.ndarray) -> str:
+    """SHA-256 of what a rig's head SDF is computed from: the rest head."""
+    h = hashlib.sha256(RIG_FORMAT.encode() + b"sdf")
+    h.update(np.ascontiguousarray(rest_vertices, "<f4").tobytes())
+    h.update(np.ascontiguousarray(head_faces, "<i4").tobytes())
+    return h.hexdigest()
+
+
+def rig_inputs_sha256(hair: GaussianSet, cage, rest_vertices: np.ndarray, head_faces: np.ndarray,
+                      method: str) -> str:
+    """SHA-256 of everything a rig is computed from: hair geometry, cage, rest head, method."""
+    h = hashlib.sha256(RIG_FORMAT.encode())
+    h.update(method.encode())
+    for a in (hair.means, hair.quats, hair.scales, cage.vertices):
+        h.update(np.ascontiguousarray(a, "<f4").tobytes())
+    h.update(np.ascontiguousarray(cage.faces, "<i4").tobytes())
+    h.update(np.ascontiguousarray(rest_vertices, "<f4").tobytes())
+    h.update(np.ascontiguousarray(head_faces, "<i4").tobytes())
+    return h.hexdigest()
+
+
+# --- the avatar ------------------------------------------------------------------------------------
+
+def _rest_vertices(head_model, shape: np.ndarray) -> np.ndarray:
+    from avatarkit.head.model import HeadParams
+
+    params = HeadParams(shape=shape, expr=np.zeros((1, head_model.num_expr), np.float32))
+    return head_model.forward(params)[0][0]
+
+
+@dataclass(eq=False)
+class Avatar:
+    """A compositional head avatar.
+
+    head_model: `HeadModel` the bald Gaussians ride; shape: (S,) float32 identity coefficients
+    (padded with zeros to the model's S); bald: `GaussianSet` (N) in the rest pose, world space,
+    with extras["binding"] (N,) int32 host face ids; hair: `GaussianSet` (M) at rest; cage: the
+    rest `Cage` around the hair; rig: `HairRig` of that hair and cage; head_ref: where the head
+    model comes from; sh_frame: how the bald SH turns ("local": with its triangle, "world": not);
+    preview: (H, W, 3) uint8 front view or None; path: the folder it was loaded from.
+    """
+
+    head_model: Any
+    bald: GaussianSet
+    hair: GaussianSet
+    cage: Any
+    rig: HairRig
+    shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    head_ref: HeadRef = field(default_factory=HeadRef)
+    name: str = "avatar"
+    sh_frame: str = "local"
+    provenance: dict = field(default_factory=dict)
+    preview: np.ndarray | None = None
+    path: Path | None = None
+
+    def __post_init__(self):
+        m = self.head_model
+        shape = np.asarray(self.shape, dtype=np.float32).reshape(-1)
+        if not np.isfinite(shape).all():
+            raise InputError("identity shape has a non-finite value")
+        if len(shape) > m.num_shape:
+            if np.any(shape[m.num_shape:] != 0):
+                raise InputError(f"identity shape has {len(shape)} coefficients, the head model "
+                                 f"{m.num_shape}")
+            shape = shape[:m.num_shape]
+        self.shape = np.concatenate([shape, np.zeros(m.num_shape - len(shape), np.float32)])
+        for part in ("bald", "hair"):
+            if not isinstance(getattr(self, part), GaussianSet):
+                raise InputError(f"{part} must be a GaussianSet")
+        ids = self.bald.extras.get("binding")
+        if ids is None:
+            raise InputError("the bald Gaussians have no 'binding' extra (their host head faces)")
+        ids = np.asarray(ids)
+        if ids.ndim != 1 or ids.dtype.kind not in "iu":
+            raise InputError(f"'binding' must be integer face ids (N,), got {ids.dtype} {ids.shape}")
+        if len(ids) and (ids.min() < 0 or ids.max() >= m.num_faces):
+            bad = int(np.flatnonzero((ids < 0) | (ids >= m.num_faces))[0])
+            raise InputError(f"bald Gaussian {bad} is bound to face {int(ids[bad])}, but the head "
+                             f"model has {m.num_faces} faces")
+        if ids.dtype != np.int32:
+            self.bald = self.bald.replace(extras={**self.bald.extras, "binding": ids.astype(np.int32)})
+        if self.sh_frame not in ("local", "world"):
+            raise InputError(f"sh_frame must be 'local' or 'world', got {self.sh_frame!r}")
+        if len(self.rig.deformer.rest) != len(self.hair):
+            raise InputError(f"the rig is for {len(self.rig.deformer.rest)} hair Gaussians, "
+                             f"the avatar has {len(self.hair)}")
+        if self.rig.model.num_vertices != self.cage.n_vertices:
+            raise InputError(f"the rig is for a {self.rig.model.num_vertices}-vertex cage, the avatar's "
+                             f"has {self.cage.n_vertices}")
+        if self.preview is not None:
+            p = np.asarray(self.preview)
+            if p.ndim != 3 or p.shape[2] != 3 or p.dtype != np.uint8:
+                raise InputError(f"preview must be a (H, W, 3) uint8 image, got {p.dtype} {p.shape}")
+
+    # --- construction ---------------------------------------------------------------------------
+    @classmethod
+    def assemble(cls, head_model, bald: GaussianSet, hair: GaussianSet, cage=None, *,
+                 shape: np.ndarray | None = None, head_ref: HeadRef | None = None,
+                 name: str = "avatar", sh_frame: str = "local", provenance: dict | None = None,
+                 cage_vertices: int = 500, method: str = "principal_axis",
+                 progress: Callable[[int, int], None] | None = None) -> "Avatar":
+        """An avatar from its parts: builds the cage (unless given) and the hair rig.
+
+        bald: rest-pose world Gaussians with a `binding` extra (host face ids), or without one
+        (then each is bound to its nearest head triangle)."""
+        from avatarkit.cage.build import build_cage
+
+        shape = np.zeros(head_model.num_shape, np.float32) if shape is None else np.asarray(shape, np.float32)
+        rest = _rest_vertices(head_model, np.concatenate(
+            [shape[:head_model.num_shape], np.zeros(max(0, head_model.num_shape - len(shape)), np.float32)]))
+        if "binding" not in bald.extras:
+            from avatarkit.rig.binding import TriangleBinding
+
+            ids = TriangleBinding.bind(bald, rest, head_model.faces).face_ids
+            bald = bald.replace(extras={**bald.extras, "binding": ids})
+        if cage is None:
+            cage = build_cage(hair, target_vertices=cage_vertices)
+        rig = HairRig.build(head_model, rest, hair, cage, method, progress=progress)
+        prov = {"tool": "avatarkit", "version": _tool_version(), "created": _now()}
+        prov.update(provenance or {})
+        return cls(head_model, bald, hair, cage, rig, shape, head_ref or HeadRef(), name, sh_frame, prov)
+
+    # --- derived --------------------------------------------------------------------------------
+    @functools.cached_property
+    def rest_head_vertices(self) -> np.ndarray:
+        """(V, 3) float32: the head model with this identity, zero expression and pose."""
+        return _rest_vertices(self.head_model, self.shape)
+
+    @functools.cached_property
+    def binding(self):
+        """`TriangleBinding` of the bald Gaussians on the rest head (triangle-local values)."""
+        from avatarkit.rig.binding import TriangleBinding
+
+        return TriangleBinding.bind(self.bald, self.rest_head_vertices, self.head_model.faces,
+                                    face_ids=self.bald.extras["binding"],
+                                    rotate_sh=self.sh_frame == "local")
+
+    def hair_driver(self, config=None):
+        """A `HairDriver` for this avatar (shares the rig: no weights are recomputed)."""
+        return self.rig.driver(self.head_model, self.rest_head_vertices, config)
+
+    def rest_gaussians(self) -> GaussianSet:
+        """Bald and hair together at rest, with a `part` extra (uint8: 0 bald, 1 hair)."""
+        bald = self.bald.replace(extras={"part": np.zeros(len(self.bald), np.uint8)})
+        hair = self.hair.replace(extras={"part": np.ones(len(self.hair), np.uint8)})
+        return GaussianSet.concat([bald, hair])
+
+    def render_preview(self, size: int = PREVIEW_SIZE, background=(1.0, 1.0, 1.0)) -> np.ndarray:
+        """A front view (size x size, uint8 RGB) of the avatar at rest."""
+        from avatarkit.export.images import to_uint8
+        from avatarkit.render import frame_camera, render
+
+        gs = self.rest_gaussians()
+        return to_uint8(render(gs, frame_camera(gs, width=size, height=size), background).rgb)
+
+    def counts(self) -> dict[str, int]:
+        return {"bald": len(self.bald), "hair": len(self.hair), "cage_vertices": self.cage.n_vertices,
+                "head_vertices": self.head_model.num_vertices}
+
+    def __repr__(self) -> str:
+        return (f"Avatar(name={self.name!r}, head={self.head_ref.kind}, bald={len(self.bald)}, "
+                f"hair={len(self.hair)}, cage={self.cage.n_vertices} vertices)")
+
+    # --- files ----------------------------------------------------------------------------------
+    def manifest(self, rig_sha256: str, preview_size: tuple[int, int] | None) -> dict:
+        """The avatar.json content for this avatar (rig_sha256: hash of the rig's inputs)."""
+        parts: dict[str, Any] = {
+            "bald": {"file": BALD_FILE, "count": len(self.bald), "sh_degree": self.bald.sh_degree,
+                     "sh_frame": self.sh_frame},
+            "hair": {"file": HAIR_FILE, "count": len(self.hair), "sh_degree": self.hair.sh_degree},
+            "cage": {"file": CAGE_FILE, "vertices": self.cage.n_vertices, "faces": len(self.cage.faces)},
+            "rig": {"file": RIG_FILE, "deformation": self.rig.method, "inputs_sha256": rig_sha256},
+        }
+        if preview_size is not None:
+            parts["preview"] = {"file": PREVIEW_FILE, "width": preview_size[1], "height": preview_size[0]}
+        # `created` is when the avatar was made (kept across re-saves); `version` what wrote it
+        prov = {**self.provenance, "tool": "avatarkit", "version": _tool_version(),
+                "created": str(self.provenance.get("created") or _now())}
+        return {"format": AVATAR_FORMAT, "version": AVATAR_VERSION, "name": self.name,
+                "head_model": self.head_ref.to_json(self.head_model),
+                "identity": {"shape": [float(x) for x in self.shape]},
+                "parts": parts, "provenance": prov}
+
+    def save(self, folder: str | os.PathLike, *, preview: bool = True) -> Path:
+        """Write the avatar folder atomically (a sibling temp folder renamed into place).
+
+        An existing avatar folder under that name is replaced; any other existing folder or
+        file is refused (OutputError). preview: render preview.png if the avatar has none.
+        Returns the folder's path."""
+        from avatarkit.cage.mesh import load_cage, save_cage
+        from avatarkit.export.images import write_png
+        from avatarkit.gaussians.ply import read_ply, write_ply
+        from avatarkit.schemas import validate
+
+        target = check_avatar_target(folder)
+        parent = target.parent
+        image = self.preview
+        if image is None and preview:
+            image = self.render_preview()
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=parent))
+        try:
+            write_ply(tmp / BALD_FILE, self.bald)
+            write_ply(tmp / HAIR_FILE, self.hair)
+            save_cage(tmp / CAGE_FILE, self.cage)
+            # hash what a loader will read back (PLY stores log-scales: the floats may move)
+            sha = rig_inputs_sha256(read_ply(tmp / HAIR_FILE), load_cage(tmp / CAGE_FILE),
+                                    self.rest_head_vertices, self.head_model.faces, self.rig.method)
+            self.rig.save(tmp / RIG_FILE, sha,
+                          sdf_inputs_sha256(self.rest_head_vertices, self.head_model.faces))
+            if image is not None:
+                write_png(tmp / PREVIEW_FILE, image)
+            manifest = self.manifest(sha, None if image is None else image.shape[:2])
+            validate(manifest, "avatar", tmp / MANIFEST)
+            (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+            _umask_permissions(tmp)
+            _swap_into_place(tmp, target)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return target
+
+    @classmethod
+    def load(cls, folder: str | os.PathLike) -> "Avatar":
+        """Read and check an avatar folder. Every problem is a FormatError naming the file."""
+        return load_avatar(folder)
+
+
+def check_avatar_target(folder: str | os.PathLike) -> Path:
+    """Raise OutputError unless `folder` can receive an avatar: its parent exists and is
+    writable, and it is absent, empty or an avatar folder (which a save replaces)."""
+    target = Path(folder)
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputError("output folder does not exist", parent)
+    if not os.access(parent, os.W_OK):
+        raise OutputError("output folder is not writable", parent)
+    if target.exists() and not target.is_dir():
+        raise OutputError("exists and is not a folder", target)
+    if target.is_dir() and any(target.iterdir()) and not (target / MANIFEST).is_file():
+        raise OutputError("folder exists and is not an avatar folder (no avatar.json): "
+                          "refusing to replace it", target)
+    return target
+
+
+def _umask_permissions(folder: Path) -> None:
+    """Temp files and folders are private (0600/0700); give the finished folder the
+    permissions a plain mkdir/open would have."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(folder, 0o777 & ~mask)
+    for p in folder.iterdir():
+        os.chmod(p, 0o666 & ~mask)
+
+
+def _swap_into_place(tmp: Path, target: Path) -> None:
+    old = None
+    if target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+        os.rmdir(old)
+        os.replace(target, old)
+    try:
+        os.replace(tmp, target)
+    except BaseException:
+        if old is not None:
+            os.replace(old, target)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _tool_version() -> str:
+    from avatarkit import __version__
+    return __version__
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+
+
+# --- loading -----------------------------------------------------------------------------------------
+
+def is_avatar_folder(path: str | os.PathLike) -> bool:
+    p = Path(path)
+    return p.is_dir() and (p / MANIFEST).is_file()
+
+
+def read_manifest(folder: str | os.PathLike) -> dict:
+    """avatar.json of `folder`, parsed and validated against the schema."""
+    from avatarkit.schemas import validate
+
+    folder = Path(folder)
+    if not folder.exists():
+        raise InputError("avatar folder not found", folder)
+    if not folder.is_dir():
+        raise InputError("not an avatar folder (a file, not a folder)", folder)
+    path = folder / MANIFEST
+    if not path.is_file():
+        raise FormatError(f"not an avatar folder: no {MANIFEST}", folder)
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError) as e:
+        raise FormatError(f"not valid JSON ({e})", path) from None
+    if isinstance(manifest, dict) and manifest.get("format") == AVATAR_FORMAT \
+            and isinstance(manifest.get("version"), int) and manifest["version"] > AVATAR_VERSION:
+        raise FormatError(f"avatar format version {manifest['version']} is newer than this avatarkit "
+                          f"reads ({AVATAR_VERSION}); upgrade avatarkit", path)
+    validate(manifest, "avatar", path)
+    return manifest
+
+
+def _part_file(folder: Path, entry: dict) -> Path:
+    p = folder / entry["file"]
+    if not p.is_file():
+        raise FormatError("file missing (listed in avatar.json)", p)
+    return p
+
+
+def _read_splats(path: Path) -> GaussianSet:
+    from avatarkit.gaussians.ply import read_ply
+
+    try:
+        return read_ply(path)
+    except AvatarKitError as e:
+        if isinstance(e, FormatError) and e.path:
+            raise
+        raise FormatError(e.message, path) from None
+
+
+def _count_check(path: Path, what: str, got: int, want: int) -> None:
+    if got != want:
+        raise FormatError(f"has {got} {what} but avatar.json says {want}", path)
+
+
+def load_avatar(folder: str | os.PathLike) -> Avatar:
+    """Read and check an avatar folder (see the module docstring)."""
+    from avatarkit.cage.mesh import load_cage
+
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    mpath = folder / MANIFEST
+    parts = manifest["parts"]
+    ref_json = manifest["head_model"]
+    ref = HeadRef() if ref_json["kind"] == "template" else HeadRef("flame", ref_json["path"], ref_json["sha256"])
+    head = ref.load(folder, mpath)
+    if (head.num_vertices, head.num_faces) != (ref_json["vertices"], ref_json["faces"]):
+        raise FormatError(f"the avatar was made for a head model with {ref_json['vertices']} vertices "
+                          f"and {ref_json['faces']} faces; this {ref.kind} head has {head.num_vertices} "
+                          f"and {head.num_faces}", mpath)
+    if ref.kind == "template" and "sha256" in ref_json and ref_json["sha256"] != head_geometry_sha256(head):
+        warnings.warn(f"{mpath}: the built-in template head has changed since this avatar was made "
+                      f"({ref_json.get('source', 'unknown version')}); its bald Gaussians may not lie on "
+                      "the head any more: make the avatar again", HeadModelChangedWarning, stacklevel=2)
+    shape = np.asarray(manifest["identity"]["shape"], np.float64)
+    if len(shape) > head.num_shape:
+        raise FormatError(f"identity shape has {len(shape)} coefficients, the head model "
+                          f"{head.num_shape}", mpath)
+
+    bald_path = _part_file(folder, parts["bald"])
+    bald = _read_splats(bald_path)
+    _count_check(bald_path, "Gaussians", len(bald), parts["bald"]["count"])
+    ids = bald.extras.get("binding")
+    if ids is None:
+        raise FormatError("no 'binding' property (the head face each Gaussian rides)", bald_path)
+    if ids.dtype.kind not in "iu" and not (ids.dtype.kind == "f" and np.array_equal(ids, np.round(ids))):
+        raise FormatError(f"'binding' holds {ids.dtype} values, expected integer face ids", bald_path)
+    ids = ids.astype(np.int64)
+    if len(ids) and (ids.min() < 0 or ids.max() >= head.num_faces):
+        bad = int(np.flatnonzero((ids < 0) | (ids >= head.num_faces))[0])
+        raise FormatError(f"Gaussian {bad} is bound to face {int(ids[bad])}, but the head model has "
+                          f"{head.num_faces} faces (0..{head.num_faces - 1})", bald_path)
+    bald = bald.replace(extras={**bald.extras, "binding": ids.astype(np.int32)})
+
+    hair_path = _part_file(folder, parts["hair"])
+    hair = _read_splats(hair_path)
+    _count_check(hair_path, "Gaussians", len(hair), parts["hair"]["count"])
+
+    cage_path = _part_file(folder, parts["cage"])
+    try:
+        cage = load_cage(cage_path)
+    except AvatarKitError as e:
+        raise FormatError(e.message, cage_path) from None
+    _count_check(cage_path, "vertices", cage.n_vertices, parts["cage"]["vertices"])
+    _count_check(cage_path, "faces", len(cage.faces), parts["cage"]["faces"])
+
+    rest = _rest_vertices(head, np.concatenate([shape, np.zeros(head.num_shape - len(shape))]).astype(np.float32))
+    rig_path = _part_file(folder, parts["rig"])
+    method = parts["rig"]["deformation"]
+    data = HairRig.read_file(rig_path)
+    stored = str(data["inputs_sha256"])
+    if stored != parts["rig"]["inputs_sha256"]:
+        raise FormatError("belongs to another avatar (its inputs hash differs from avatar.json's)", rig_path)
+    if str(data["deform_method"]) != method:
+        raise FormatError(f"rig uses {data['deform_method']} deformation, avatar.json says {method}", rig_path)
+    if rig_inputs_sha256(hair, cage, rest, head.faces, method) == stored:
+        rig = HairRig.from_file_arrays(data, hair, cage, rig_path)
+    else:
+        warnings.warn(f"{rig_path}: the hair, cage or head changed since the rig was computed; "
+                      "recomputing it (save the avatar again to keep the result)", RigRebuiltWarning,
+                      stacklevel=2)
+        same_head = str(data["sdf_inputs_sha256"]) == sdf_inputs_sha256(rest, head.faces)
+        try:
+            rig = HairRig.build(head, rest, hair, cage, method, sdf=_stored_sdf(data) if same_head else None)
+        except InputError as e:
+            raise FormatError(f"cannot rebuild the hair rig: {e.message}", rig_path) from None
+
+    image = None
+    if "preview" in parts:
+        from avatarkit.export.images import read_png
+
+        ppath = _part_file(folder, parts["preview"])
+        try:
+            image = read_png(ppath)[..., :3].copy()
+        except AvatarKitError:
+            raise FormatError("not a readable image", ppath) from None
+
+    try:
+        avatar = Avatar(head, bald, hair, cage, rig, shape.astype(np.float32), ref,
+                        manifest.get("name", folder.name), parts["bald"]["sh_frame"],
+                        dict(manifest["provenance"]), image, folder)
+    except InputError as e:
+        raise FormatError(e.message, mpath) from None
+    try:
+        avatar.binding  # noqa: B018 -- check now that every host triangle has a frame
+    except InputError as e:
+        raise FormatError(e.message, bald_path) from None
+    return avatar
+
+
+# --- inspection ----------------------------------------------------------------------------------
+
+def inspect_avatar(path: Path):
+    """`avatarkit inspect` summary of an avatar folder (reads the manifest and file sizes only)."""
+    from avatarkit.inspect import ByteCount, Summary
+
+    folder = Path(path)
+    m = read_manifest(folder)
+    s = Summary("avatar folder", str(folder))
+    s.add("name", m.get("name", folder.name))
+    head = m["head_model"]
+    label = "built-in template" if head["kind"] == "template" else f"FLAME {head['path']}"
+    s.add("head model", f"{label} ({head['vertices']:,} vertices, {head['faces']:,} faces)")
+    shape = m["identity"]["shape"]
+    nonzero = sum(1 for x in shape if x != 0)
+    s.add("identity shape", f"{len(shape)} coefficients, {nonzero} non-zero")
+    parts = m["parts"]
+    s.add("bald Gaussians", parts["bald"]["count"]).add("bald SH degree", parts["bald"]["sh_degree"])
+    s.add("hair Gaussians", parts["hair"]["count"]).add("hair SH degree", parts["hair"]["sh_degree"])
+    s.add("cage", f"{parts['cage']['vertices']:,} vertices, {parts['cage']['faces']:,} faces")
+    s.add("hair deformation", parts["rig"]["deformation"])
+    files = []
+    total = 0
+    for key, entry in parts.items():
+        p = folder / entry["file"]
+        size = p.stat().st_size if p.is_file() else None
+        total += size or 0
+        files.append({"name": entry["file"], "bytes": size if size is not None else "MISSING"})
+    s.add("files", files).add("total size", ByteCount(total))
+    prov = m["provenance"]
+    s.add("created", prov.get("created", "")).add("made by", f"avatarkit {prov.get('version', '?')}")
+    if prov.get("generator"):
+        s.add("generator", prov["generator"])
+    if prov.get("source_image"):
+        s.add("source image", prov["source_image"])
+    return s
+
+
+__all__ = ["Avatar", "HairRig", "HeadModelChangedWarning", "HeadRef", "RigRebuiltWarning", "check_avatar_target", "inspect_avatar",
+           "is_avatar_folder",
+           "load_avatar", "read_manifest", "rig_inputs_sha256", "sdf_from_values", "sdf_inputs_sha256", "AVATAR_FORMAT", "AVATAR_VERSION"]

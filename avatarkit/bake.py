@@ -1,0 +1,462 @@
+"""`bake(avatar, clip, config) -> (BakeStatic, frames)`: an avatar driven by a motion clip, one
+frame at a time (the paper's Algorithm 1 at inference).
+
+Per frame: the head mesh by LBS (`HeadModel.forward` on the clip's pose and expression with the
+AVATAR's identity shape; a clip's own `shape` is ignored, since the Gaussians, hair and cage were
+fitted to the avatar's head); the bald Gaussians carried by their triangles
+(`TriangleBinding`: mu = k R mu' + t, q = q_R q', s = k s'); the hair cage stepped by XPBD
+(`HairDriver`: roots follow the posed scalp, proxy collision with the posed head) and the hair
+Gaussians moved through the cage (`CageDeformer`, mean value coordinates).
+
+Streaming: `frames` is a lazy iterator; only one frame's arrays (and a few frames of head
+vertices) are alive at a time, so memory does not grow with the clip. `run_bake` feeds one pass
+of it to any number of writers (USD stage, PLY sequence, preview video), each with the shape
+`begin(static)`, `write(frame)`, `close()`, `abort()`.
+
+Frame numbers: `BakeConfig.frames = (a, b)` selects frames a..b-1 of the clip (after `fps`
+resampling); the output's frames are numbered from 0 (USD time code 0 is clip frame a; the
+provenance records a and b). The hair is still simulated from the clip's first frame, so frame
+k of a ranged bake equals frame a + k of the full bake. Before the first simulated frame the
+hair settles for `preroll` seconds at that pose (`SimConfig.warmup_seconds` by default).
+
+View-dependent colour: `BakeStatic` holds one set of SH coefficients; a bald avatar whose SH
+bands turn with their triangles (sh_frame "local", degree > 0) is baked with its rest-pose SH.
+"""
+# no `from __future__ import annotations`: Taichi evaluates the kernel's annotations
+import dataclasses
+import functools
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from avatarkit.baked import BakeFrame, BakeStatic, SplatFrame
+from avatarkit.errors import InputError, OutputError
+from avatarkit.sim.config import SimConfig
+
+#: frames posed per call of the head model (LBS is cheaper batched; bounds memory)
+POSE_CHUNK = 8
+#: a clip whose translation goes further than this (metres) is not in metres
+MAX_TRANSLATION = 10.0
+
+
+@dataclass(frozen=True)
+class BakeConfig:
+    """What to bake and how to simulate it.
+
+    frames: (start, stop) frame range of the clip, Python slice rules (stop None = to the end,
+    negatives count from the end), after resampling to `fps`; None bakes every frame.
+    fps: resample the clip to this frame rate (quaternion slerp); None keeps the clip's.
+    sim: the hair simulation's `SimConfig` (substeps, iterations, gravity, collision, static).
+    preroll: seconds the hair settles at the first pose before the clip starts (None:
+    `sim.warmup_seconds`).
+    """
+
+    frames: tuple[int, int | None] | None = None
+    fps: float | None = None
+    sim: SimConfig = field(default_factory=SimConfig)
+    preroll: float | None = None
+
+    def __post_init__(self):
+        if self.frames is not None:
+            try:
+                start, stop = self.frames
+                start = int(start)
+                stop = None if stop is None else int(stop)
+            except (TypeError, ValueError):
+                raise InputError(f"frames must be (start, stop), got {self.frames!r}") from None
+            object.__setattr__(self, "frames", (start, stop))
+        if self.fps is not None and not (isinstance(self.fps, (int, float)) and math.isfinite(self.fps)
+                                         and self.fps > 0):
+            raise InputError(f"fps must be a positive number, got {self.fps!r}")
+        if not isinstance(self.sim, SimConfig):
+            raise InputError("sim must be a SimConfig")
+        if self.preroll is not None and not (math.isfinite(self.preroll) and self.preroll >= 0):
+            raise InputError(f"preroll must be >= 0 seconds, got {self.preroll!r}")
+
+    @staticmethod
+    def parse_frames(text: str) -> tuple[int, int | None]:
+        """"A:B" (A..B-1), "A:" (A to the end), ":B" or "N" (frame N only) -> (start, stop)."""
+        s = str(text).strip()
+        try:
+            if ":" not in s:
+                n = int(s)
+                return n, (n + 1 if n != -1 else None)
+            a, b = s.split(":")
+            return (int(a) if a.strip() else 0), (int(b) if b.strip() else None)
+        except ValueError:
+            raise InputError(f"cannot read frame range {text!r}: use A:B (frames A..B-1), A: or :B") from None
+
+    def to_json(self) -> dict:
+        return {"frames": None if self.frames is None else list(self.frames), "fps": self.fps,
+                "preroll": self.preroll, "sim": dataclasses.asdict(self.sim)}
+
+
+# --- clip checks -----------------------------------------------------------------------------------
+
+def check_clip(clip) -> None:
+    """Reject a clip that cannot be meant for a FLAME-layout head in metres (InputError)."""
+    reach = float(np.abs(clip.translation).max(initial=0.0))
+    if reach > MAX_TRANSLATION:
+        raise InputError(f"the clip's translation reaches {reach:.4g} m: clips are in metres "
+                         "(is this one in millimetres, or for another model?)")
+    angle = float(np.linalg.norm(clip.pose.reshape(len(clip.pose), -1, 3), axis=2).max(initial=0.0))
+    if angle > 4 * np.pi:
+        raise InputError(f"the clip has a joint rotation of {np.degrees(angle):.0f} degrees: "
+                         "axis-angle poses are in radians (is this clip in degrees?)")
+
+
+def prepare_clip(clip, head_model, config: BakeConfig):
+    """The clip as baked: checked, resampled, expressions fitted to the model (with an
+    `ExprDimsWarning` if they do not fit) -> (clip, start, stop) with frames start..stop-1."""
+    check_clip(clip)
+    if config.fps is not None and abs(config.fps - clip.fps) > 1e-9 * clip.fps:
+        clip = clip.resample(config.fps)
+    e = head_model.num_expr
+    if clip.expr_dims > e and not clip.expr[:, e:].any():
+        clip = clip.replace(expr=clip.expr[:, :e])  # only zeros dropped: nothing to warn about
+    elif clip.expr_dims == 0:
+        clip = clip.replace(expr=np.zeros((clip.n_frames, e), np.float32))  # no expressions: neutral
+    else:
+        clip = clip.with_expr_dims(e)
+    n = clip.n_frames
+    if config.frames is None:
+        return clip, 0, n
+    start, stop = config.frames
+    rng = range(n)[slice(start, stop)]
+    if len(rng) == 0:
+        raise InputError(f"frame range {start}:{'' if stop is None else stop} is empty: the clip has "
+                         f"{n} frames{' at ' + format(clip.fps, 'g') + ' fps' if config.fps else ''}")
+    return clip, rng.start, rng.stop
+
+
+# --- bald Gaussians: triangle-local -> world (fast path) --------------------------------------------
+
+@functools.cache
+def _binding_kernel():
+    """A fused Taichi kernel of `TriangleBinding.to_world` (means, quats, scales only)."""
+    from avatarkit._taichi import ensure_taichi
+    from avatarkit.rig.frames import MIN_EDGE, MIN_RELATIVE_HEIGHT
+
+    ti = ensure_taichi()
+    f64 = ti.f64
+
+    @ti.kernel
+    def to_world(verts: ti.types.ndarray(dtype=ti.f32, ndim=2), faces: ti.types.ndarray(dtype=ti.i32, ndim=2),
+                 face_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                 local_means: ti.types.ndarray(dtype=ti.f32, ndim=2),
+                 local_quats: ti.types.ndarray(dtype=ti.f32, ndim=2),
+                 local_scales: ti.types.ndarray(dtype=ti.f32, ndim=2),
+                 means: ti.types.ndarray(dtype=ti.f32, ndim=2), quats: ti.types.ndarray(dtype=ti.f32, ndim=2),
+                 scales: ti.types.ndarray(dtype=ti.f32, ndim=2), bad: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        # float64 inside, like the reference (rig.frames / rig.binding)
+        for i in range(face_ids.shape[0]):
+            f = face_ids[i]
+            a = ti.Vector([verts[faces[f, 0], 0], verts[faces[f, 0], 1], verts[faces[f, 0], 2]], dt=f64)
+            b = ti.Vector([verts[faces[f, 1], 0], verts[faces[f, 1], 1], verts[faces[f, 1], 2]], dt=f64)
+            c = ti.Vector([verts[faces[f, 2], 0], verts[faces[f, 2], 1], verts[faces[f, 2], 2]], dt=f64)
+            d1 = b - a
+            d2 = c - a
+            len0 = d1.norm()
+            e0 = d1 / ti.max(len0, MIN_EDGE)
+            nraw = e0.cross(d2)
+            height = nraw.norm()
+            if len0 <= MIN_EDGE or height <= MIN_RELATIVE_HEIGHT * len0:
+                bad[0] = f + 1
+            n = nraw / ti.max(height, 1e-300)
+            bb = e0.cross(n)
+            k = 0.5 * (len0 + height)
+            t = (a + b + c) / 3.0
+            lm = ti.Vector([local_means[i, 0], local_means[i, 1], local_means[i, 2]], dt=f64)
+            mu = k * (e0 * lm[0] + n * lm[1] + bb * lm[2]) + t
+            # R = [e0 | n | bb] (columns) -> quaternion, Shepperd's method as rotations.matrix_to_quat
+            m00, m01, m02 = e0[0], n[0], bb[0]
+            m10, m11, m12 = e0[1], n[1], bb[1]
+            m20, m21, m22 = e0[2], n[2], bb[2]
+            tr = m00 + m11 + m22
+            qw, qx, qy, qz = ti.f64(1.0), ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
+            if tr >= m00 and tr >= m11 and tr >= m22:
+                r = ti.sqrt(1.0 + tr) * 2.0
+                qw, qx, qy, qz = 0.25 * r, (m21 - m12) / r, (m02 - m20) / r, (m10 - m01) / r
+            elif m00 >= m11 and m00 >= m22:
+                r = ti.sqrt(1.0 + m00 - m11 - m22) * 2.0
+                qw, qx, qy, qz = (m21 - m12) / r, 0.25 * r, (m01 + m10) / r, (m02 + m20) / r
+            elif m11 >= m22:
+                r = ti.sqrt(1.0 + m11 - m00 - m22) * 2.0
+                qw, qx, qy, qz = (m02 - m20) / r, (m01 + m10) / r, 0.25 * r, (m12 + m21) / r
+            else:
+                r = ti.sqrt(1.0 + m22 - m00 - m11) * 2.0
+                qw, qx, qy, qz = (m10 - m01) / r, (m02 + m20) / r, (m12 + m21) / r, 0.25 * r
+            if qw < 0:
+                qw, qx, qy, qz = -qw, -qx, -qy, -qz
+            lw, lx, ly, lz = (ti.cast(local_quats[i, 0], f64), ti.cast(local_quats[i, 1], f64),
+                              ti.cast(local_quats[i, 2], f64), ti.cast(local_quats[i, 3], f64))
+            w = qw * lw - qx * lx - qy * ly - qz * lz
+            x = qw * lx + qx * lw + qy * lz - qz * ly
+            y = qw * ly - qx * lz + qy * lw + qz * lx
+            z = qw * lz + qx * ly - qy * lx + qz * lw
+            norm = ti.sqrt(w * w + x * x + y * y + z * z)
+            for j in ti.static(range(3)):
+                means[i, j] = ti.cast(mu[j], ti.f32)
+                scales[i, j] = ti.cast(k * local_scales[i, j], ti.f32)
+            quats[i, 0] = ti.cast(w / norm, ti.f32)
+            quats[i, 1] = ti.cast(x / norm, ti.f32)
+            quats[i, 2] = ti.cast(y / norm, ti.f32)
+            quats[i, 3] = ti.cast(z / norm, ti.f32)
+
+    return to_world
+
+
+def binding_to_world(binding, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fast `TriangleBinding.to_world` for one mesh pose: vertices (V, 3) -> means (N, 3),
+    quats (N, 4) wxyz, scales (N, 3), float32. InputError if a host triangle collapsed."""
+    v = np.ascontiguousarray(vertices, dtype=np.float32)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InputError(f"vertices must have shape (V, 3), got {v.shape}")
+    if not np.isfinite(v).all():
+        raise InputError("vertices contain non-finite values")
+    n = len(binding)
+    means = np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    scales = np.empty((n, 3), np.float32)
+    bad = np.zeros(1, np.int32)
+    if n:
+        local = binding.local
+        _binding_kernel()(v, binding.faces, binding.face_ids, local.means, local.quats, local.scales,
+                          means, quats, scales, bad)
+    if bad[0]:
+        raise InputError(f"triangle {int(bad[0]) - 1} collapsed (zero area); its Gaussians have no frame")
+    return means, quats, scales
+
+
+# --- the bake ---------------------------------------------------------------------------------------
+
+class BakeFrames:
+    """The lazy iterator of a bake's frames. `timings` accumulates seconds per stage (head LBS,
+    bald Gaussians, hair simulation, hair deformation) over the frames produced so far."""
+
+    def __init__(self, avatar, clip, start: int, stop: int, config: BakeConfig):
+        self.avatar, self.clip, self.start, self.stop, self.config = avatar, clip, start, stop, config
+        self.timings = {"head": 0.0, "bald": 0.0, "simulate": 0.0, "hair": 0.0}
+        self.produced = 0
+        self._gen = self._frames()
+
+    def __len__(self) -> int:
+        return self.stop - self.start
+
+    def __iter__(self) -> "BakeFrames":
+        return self
+
+    def __next__(self) -> BakeFrame:
+        return next(self._gen)
+
+    def close(self) -> None:
+        self._gen.close()
+
+    def _frames(self) -> Iterator[BakeFrame]:
+        from avatarkit.head.model import HeadParams
+
+        avatar, clip, cfg = self.avatar, self.clip, self.config
+        head = avatar.head_model
+        binding = avatar.binding
+        driver = avatar.hair_driver(cfg.sim)
+        fps = float(clip.fps)
+        dt = 1.0 / fps
+        # a static cage has no history: start where the output starts
+        first = self.start if cfg.sim.static else 0
+        t = self.timings
+        for chunk in range(first, self.stop, POSE_CHUNK):
+            idx = np.arange(chunk, min(self.stop, chunk + POSE_CHUNK))
+            c0 = time.perf_counter()
+            params = HeadParams(expr=clip.expr[idx], rotation=clip.rotation[idx],
+                                translation=clip.translation[idx], neck=clip.neck[idx],
+                                jaw=clip.jaw[idx], eyes=clip.eyes[idx], shape=avatar.shape)
+            vertices, transforms = head.forward(params)
+            t["head"] += time.perf_counter() - c0
+            for k, i in enumerate(idx):
+                v = vertices[k]
+                c1 = time.perf_counter()
+                joint = transforms[k, driver.head_joint].astype(np.float64)
+                if i == first:
+                    cage = driver.reset(v, joint, warmup=cfg.preroll, dt=dt)
+                else:
+                    cage = driver.step(v, joint, dt)
+                c2 = time.perf_counter()
+                t["simulate"] += c2 - c1
+                if i < self.start:
+                    continue
+                face = SplatFrame(*binding_to_world(binding, v))
+                c3 = time.perf_counter()
+                hair = SplatFrame(*driver.hair_arrays(cage))
+                c4 = time.perf_counter()
+                t["bald"] += c3 - c2
+                t["hair"] += c4 - c3
+                out = int(i - self.start)
+                self.produced += 1
+                yield BakeFrame(out, out / fps, np.ascontiguousarray(v, np.float32), face, hair,
+                                np.ascontiguousarray(cage, np.float32))
+
+
+def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, BakeFrames]:
+    """Bake `clip` (a `MotionClip`) on `avatar` -> (static data, lazy iterator of `BakeFrame`s).
+
+    Everything that can fail on bad input (the clip, the range, the settings) is checked before
+    this returns; the iterator only computes."""
+    from avatarkit import __version__
+
+    config = config or BakeConfig()
+    clip, start, stop = prepare_clip(clip, avatar.head_model, config)
+    frames = BakeFrames(avatar, clip, start, stop, config)
+    provenance = {
+        "tool": "avatarkit", "version": __version__,
+        "avatar": str(avatar.path) if avatar.path is not None else avatar.name,
+        "head_model": avatar.head_ref.kind,
+        "clip": clip.name, "clip_frames": int(clip.n_frames), "source_frames": [int(start), int(stop)],
+        "fps": float(clip.fps), "settings": config.to_json(),
+    }
+    static = BakeStatic(fps=float(clip.fps), n_frames=int(stop - start),
+                        head_faces=np.ascontiguousarray(avatar.head_model.faces, np.int32),
+                        face=avatar.bald, hair=avatar.hair,
+                        cage_faces=np.ascontiguousarray(avatar.cage.faces, np.int32),
+                        provenance=provenance)
+    return static, frames
+
+
+# --- writers ---------------------------------------------------------------------------------------
+
+class PreviewWriter:
+    """Renders each baked frame (bald + hair) with the CPU splat renderer into an .mp4/.gif.
+
+    The camera frames the head of the first frame (the mesh's bounds, with room for hair around
+    it) from the front; with `orbit` it turns once around the head over the clip. Same shape as
+    the other bake writers: `begin(static)`, `write(frame)`, `close()`, `abort()`."""
+
+    def __init__(self, path: str | os.PathLike, size: int = 384, orbit: bool = False,
+                 background=(1.0, 1.0, 1.0), elevation_deg: float = 5.0, margin: float = 1.3):
+        from avatarkit.export.video import video_format
+
+        self.path = Path(path)
+        video_format(self.path)  # OutputError for anything but .mp4/.gif
+        if int(size) != size or size < 16:
+            raise InputError(f"preview size must be an integer >= 16 pixels, got {size!r}")
+        self.size, self.orbit, self.background = int(size), bool(orbit), background
+        self.elevation_deg, self.margin = float(elevation_deg), float(margin)
+        self._video = None
+        self._static: BakeStatic | None = None
+        self._target = self._distance = None
+        self.frames = 0
+
+    def __enter__(self) -> "PreviewWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            self.abort()
+        elif self._video is not None:
+            self.close()
+        return False
+
+    def begin(self, static: BakeStatic) -> None:
+        from avatarkit.export.video import VideoWriter
+
+        self._static = static
+        self._video = VideoWriter(self.path, fps=static.fps)
+
+    def camera(self, frame: BakeFrame):
+        from avatarkit.render import Camera, framing
+
+        if self._target is None:
+            v = frame.head_vertices
+            self._target, self._distance = framing((v.min(0), v.max(0)), 30.0, self.size, self.size,
+                                                   self.margin)
+        n = max(self._static.n_frames, 1)
+        azimuth = 360.0 * frame.index / n if self.orbit else 0.0
+        return Camera.orbit(self._target, azimuth, self.elevation_deg, self._distance, 30.0,
+                            self.size, self.size)
+
+    def write(self, frame: BakeFrame) -> None:
+        from avatarkit.gaussians import GaussianSet
+        from avatarkit.render import render
+
+        if self._video is None:
+            raise InputError("write() needs begin() first")
+        s = self._static
+        gs = GaussianSet.concat([frame.gaussians(s, "face").replace(extras={}),
+                                 frame.gaussians(s, "hair").replace(extras={})])
+        self._video.append(render(gs, self.camera(frame), self.background).rgb)
+        self.frames += 1
+
+    def close(self) -> Path:
+        video, self._video = self._video, None
+        if video is not None:
+            video.close()
+        return self.path
+
+    def abort(self) -> None:
+        video, self._video = self._video, None
+        if video is not None:  # leaving its block with an exception deletes the partial file
+            video.__exit__(RuntimeError, RuntimeError("bake aborted"), None)
+
+
+@dataclass
+class BakeSummary:
+    """What `run_bake` did: frames written, wall time, per-stage and per-writer seconds, and
+    what each writer's close() returned."""
+
+    frames: int
+    seconds: float
+    timings: dict[str, float]
+    results: list[Any]
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else float("inf")
+
+
+def run_bake(avatar, clip, config: BakeConfig | None, writers: Sequence[Any],
+             progress: Callable[[int, int], None] | None = None) -> BakeSummary:
+    """Bake once and feed every frame to all `writers` (objects with begin/write/close/abort).
+
+    On any exception (Ctrl-C included) every writer is aborted: nothing is left under the
+    requested names. progress(done, total) is called after each frame."""
+    t0 = time.perf_counter()
+    static, frames = bake(avatar, clip, config)
+    write_time = [0.0] * len(writers)
+    started: list[Any] = []
+    try:
+        for w in writers:
+            started.append(w)
+            w.begin(static)
+        total = len(frames)
+        for done, frame in enumerate(frames, 1):
+            for j, w in enumerate(writers):
+                c = time.perf_counter()
+                w.write(frame)
+                write_time[j] += time.perf_counter() - c
+            if progress is not None:
+                progress(done, total)
+        results = []
+        for j, w in enumerate(writers):
+            c = time.perf_counter()
+            results.append(w.close())
+            write_time[j] += time.perf_counter() - c
+    except BaseException:
+        frames.close()
+        for w in started:
+            try:
+                w.abort()
+            except Exception:  # noqa: BLE001 -- keep aborting the others; the first error wins
+                pass
+        raise
+    timings = dict(frames.timings)
+    for w, s in zip(writers, write_time):
+        timings[f"write {type(w).__name__}"] = s
+    return BakeSummary(frames.produced, time.perf_counter() - t0, timings, results)
+
+
+__all__ = ["BakeConfig", "BakeFrames", "BakeSummary", "PreviewWriter", "bake", "binding_to_world",
+           "check_clip", "prepare_clip", "run_bake", "MAX_TRANSLATION"]

@@ -1,0 +1,218 @@
+"""`avatarkit bake`: an avatar driven by a motion clip, written as an animated USD stage, a PLY
+sequence and/or a preview video in one pass."""
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import warnings
+from pathlib import Path
+
+import click
+
+from avatarkit.cli.options import progress, quiet_option
+
+_USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")   # gaussians.usd.USD_EXTENSIONS
+_VIDEO_EXTENSIONS = (".mp4", ".gif")                     # export.video.VIDEO_EXTENSIONS
+_COLLISION = ("none", "vertex", "proxy")                 # sim.COLLISION_MODES
+# (kept literal so `--help` imports neither pxr nor numpy; a test checks they agree)
+
+
+@contextlib.contextmanager
+def cli_warnings(quiet: bool):
+    """Library warnings as one `warning: ...` line each on stderr (none with --quiet)."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not quiet:
+            click.echo(f"warning: {message}", err=True)
+
+    with warnings.catch_warnings():
+        # ours (and other UserWarnings) are for the user; deprecation and resource noise is not
+        warnings.simplefilter("ignore")
+        warnings.simplefilter("always", UserWarning)
+        warnings.showwarning = show
+        yield
+
+
+def _check_output_file(path: str, extensions: tuple[str, ...], what: str) -> Path:
+    from avatarkit.errors import OutputError
+
+    p = Path(path)
+    if p.suffix.lower() not in extensions:
+        raise OutputError(f"unknown {what} extension {p.suffix or '(none)'!r}; use one of "
+                          f"{', '.join(extensions)}", p)
+    if p.is_dir():
+        raise OutputError("is a folder, not a file name", p)
+    _check_folder(p.parent if str(p.parent) else Path("."))
+    return p
+
+
+def _check_folder(folder: Path) -> None:
+    from avatarkit.errors import OutputError
+
+    if not folder.is_dir():
+        raise OutputError("output folder does not exist", folder)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError("output folder is not writable", folder)
+
+
+def _check_ply_dir(path: str) -> Path:
+    from avatarkit.errors import OutputError
+
+    p = Path(path)
+    if p.exists():
+        if not p.is_dir():
+            raise OutputError("is a file, not a folder", p)
+        _check_folder(p)
+    else:
+        _check_folder(p.parent if str(p.parent) else Path("."))
+    return p
+
+
+def _size(path: Path) -> int:
+    if path.is_dir():
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    return path.stat().st_size if path.exists() else 0
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
+
+
+@click.command("bake")
+@click.argument("avatar_dir", metavar="AVATAR", type=click.Path())
+@click.argument("clip_path", metavar="CLIP", type=click.Path())
+@click.option("-o", "--output", type=click.Path(), default=None,
+              help="Animated USD stage: .usdc, .usda, .usd or .usdz.")
+@click.option("--ply-dir", type=click.Path(), default=None,
+              help="Also write a 3DGS PLY per frame (frame_00000.ply ...) + sequence.json here.")
+@click.option("--split", is_flag=True, help="PLY sequence: face_*.ply and hair_*.ply instead of one file per frame.")
+@click.option("--preview", type=click.Path(), default=None,
+              help="Also render a preview video (.mp4 or .gif) with the CPU renderer.")
+@click.option("--orbit", is_flag=True, help="Preview: the camera circles the head once over the clip.")
+@click.option("--preview-size", type=click.IntRange(min=16), default=384, show_default=True,
+              help="Preview width and height in pixels.")
+@click.option("--frames", "frame_range", default=None, metavar="A:B",
+              help="Bake frames A..B-1 of the clip (A: to the end, :B from the start); output frames start at 0.")
+@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Resample the clip to this frame rate first [default: the clip's].")
+@click.option("--substeps", type=click.IntRange(min=1), default=None, help="Simulation substeps per frame [default: 4].")
+@click.option("--iterations", type=click.IntRange(min=1), default=None,
+              help="Constraint iterations per substep [default: 15].")
+@click.option("--gravity", default=None, metavar="X,Y,Z", help="Gravity in m/s^2 [default: 0,-9.81,0].")
+@click.option("--collision", type=click.Choice(_COLLISION), default=None,
+              help="Hair-head collision: none, vertex (cage vertices) or proxy (the paper's) [default: proxy].")
+@click.option("--static-hair", is_flag=True, help="No hair dynamics: the hair follows the head rigidly.")
+@click.option("--preroll", type=click.FloatRange(min=0), default=None,
+              help="Seconds the hair settles at the first pose before frame 0 [default: 1].")
+@click.option("--half", is_flag=True, help="USD: half-precision splat attributes.")
+@click.option("--usd-points", is_flag=True,
+              help="USD: Face and Hair as UsdGeom.Points (+ orientations, widths, colour, SH primvars) "
+                   "for tools that do not read the 3D Gaussian splat schema yet.")
+@click.option("--chunk-frames", type=click.IntRange(min=0), default=50, show_default=True,
+              help="USD: frames per value-clip layer (0: one layer).")
+@quiet_option
+def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, preview_size, frame_range,
+             fps, substeps, iterations, gravity, collision, static_hair, preroll, half, usd_points,
+             chunk_frames, quiet):
+    """Bake the motion CLIP on the AVATAR folder: the head follows the clip (LBS), the bald
+    Gaussians ride its triangles, the hair cage is simulated (XPBD) and carries the hair.
+    Frames are computed once and streamed to every output.
+
+    CLIP: a motion .npz (GaussianAvatars/VHAP keys, or `avatarkit motion make`), .json, or a
+    folder of per-frame VHAP .npz files.
+
+    \b
+    Examples:
+      avatarkit avatar sample -o sample_avatar
+      avatarkit motion make shake -o shake.npz
+      avatarkit bake sample_avatar shake.npz -o shake.usdc
+      avatarkit bake sample_avatar shake.npz -o shake.usdz --half --preview shake.mp4
+      avatarkit bake sample_avatar shake.npz --ply-dir shake_ply --split --frames 10:40
+      avatarkit bake sample_avatar whip.npz -o whip.usdc --collision vertex --substeps 8
+    """
+    from avatarkit.errors import InputError
+
+    # every output is checked before anything is loaded or baked
+    if not (output or ply_dir or preview):
+        raise InputError("nothing to write: give -o OUT.usdc, --ply-dir DIR and/or --preview OUT.mp4")
+    out_path = _check_output_file(output, _USD_EXTENSIONS, "USD") if output else None
+    ply_path = _check_ply_dir(ply_dir) if ply_dir else None
+    preview_path = _check_output_file(preview, _VIDEO_EXTENSIONS, "preview") if preview else None
+    if split and not ply_dir:
+        raise InputError("--split applies to the PLY sequence: give --ply-dir too")
+    if (orbit or preview_size != 384) and not preview:
+        raise InputError("--orbit and --preview-size apply to the preview: give --preview too")
+
+    from avatarkit.bake import BakeConfig, PreviewWriter, run_bake
+    from avatarkit.render.preview import parse_vec3
+    from avatarkit.sim.config import SimConfig
+
+    sim = {}
+    if substeps is not None:
+        sim["substeps"] = substeps
+    if iterations is not None:
+        sim["iterations"] = iterations
+    if gravity is not None:
+        sim["gravity"] = parse_vec3(gravity, "--gravity")
+    if collision is not None:
+        sim["collision"] = collision
+    if static_hair:
+        sim["static"] = True
+    config = BakeConfig(frames=BakeConfig.parse_frames(frame_range) if frame_range else None, fps=fps,
+                        sim=SimConfig(**sim), preroll=preroll)
+
+    t0 = time.perf_counter()
+    with cli_warnings(quiet):
+        from avatarkit.avatar import load_avatar
+        from avatarkit.motion import load_clip
+
+        avatar = load_avatar(avatar_dir)
+        clip = load_clip(clip_path)
+        writers = []
+        if out_path is not None:
+            from avatarkit.export.usd_stage import UsdStageWriter, UsdWriteOptions
+
+            writers.append(UsdStageWriter(out_path, UsdWriteOptions(half=half, usd_points=usd_points,
+                                                                    chunk_frames=chunk_frames)))
+        if ply_path is not None:
+            from avatarkit.export.ply_sequence import PlySequenceWriter
+
+            writers.append(PlySequenceWriter(ply_path, split=split))
+        if preview_path is not None:
+            writers.append(PreviewWriter(preview_path, size=preview_size, orbit=orbit))
+        from avatarkit.bake import prepare_clip
+
+        try:  # the clip's problems name the clip file
+            _, start, stop = prepare_clip(clip, avatar.head_model, config)
+        except InputError as e:
+            raise e.with_path(clip_path) from None
+        total = stop - start
+        t_load = time.perf_counter() - t0
+        with progress(range(total), length=total, label="baking", quiet=quiet) as bar:
+            last = [0]
+
+            def step(done, _total):
+                if hasattr(bar, "update"):
+                    bar.update(done - last[0])
+                last[0] = done
+
+            with warnings.catch_warnings():  # prepare_clip already said it
+                warnings.filterwarnings("ignore", message=".*expression coefficients.*")
+                summary = run_bake(avatar, clip, config, writers, progress=step)
+    if quiet:
+        return
+    click.echo(f"baked {summary.frames} frames of {Path(clip_path).name} on {avatar.name} "
+               f"({len(avatar.bald):,} bald + {len(avatar.hair):,} hair Gaussians) in "
+               f"{summary.seconds:.1f} s: {summary.fps:.1f} frames/s (+{t_load:.1f} s loading)")
+    for path, label in ((out_path, "USD stage"), (ply_path, "PLY sequence"), (preview_path, "preview")):
+        if path is None:
+            continue
+        size = _size(path)
+        if label == "USD stage":
+            clips = path.parent / (path.stem + "_clips")
+            if path.suffix.lower() != ".usdz" and clips.is_dir():
+                size += _size(clips)
+                label += f" (+ {clips.name}/)"
+        click.echo(f"  {label:<26} {path}  {_mb(size)}")
+    stages = ", ".join(f"{k} {v:.2f} s" for k, v in summary.timings.items())
+    click.echo(f"  time: {stages}")
