@@ -41,6 +41,9 @@ def ensure_taichi():
     global _ready
     os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+    # With stdout swapped during import Taichi thinks it runs in a GUI shell, logs that on
+    # stderr and flushes a print buffer after every launch; its plain-stdout mode avoids both.
+    os.environ.setdefault("TI_ENABLE_PYBUF", "0")
     with _lock:
         with _quiet_stdout():
             import taichi as ti

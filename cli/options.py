@@ -1,6 +1,8 @@
 """Options shared by several commands, defined once."""
 from __future__ import annotations
 
+import sys
+
 import click
 
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
@@ -16,7 +18,7 @@ def progress(iterable, *, length: int | None = None, label: str = "", quiet: boo
     """A progress bar on stderr for anything that may take more than a couple of seconds."""
     if quiet:
         return _NullBar(iterable)
-    return click.progressbar(iterable, length=length, label=label, file=click.get_text_stream("stderr"),
+    return click.progressbar(iterable, length=length, label=label, file=sys.stderr,
                              show_eta=True, show_pos=True)
 
 

@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""Renderer speed on the standard bench scene (../shared/bench/make_scene.py), 512x512.
+
+For N = 50k, 100k, 200k: writes the scene PLY + camera JSON, loads them the way the CLI does,
+renders one warm-up frame, then 5 timed frames. Prints per frame the median and best wall
+time, the CPU time (all threads; divide by the core count for an idle-machine estimate; this
+figure does not move when other processes share the cores), and the stage split. At 50k it
+also times the numpy reference once and reports the ratio and the image difference.
+
+Usage: benchmarks/render.py [--sizes 50000 100000 200000] [--repeats 5] [--no-reference]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+
+REPO = Path(__file__).resolve().parents[1]
+BENCH = REPO.parent / "shared" / "bench"
+PEER_CPP_100K = 0.80   # s/frame, compiled C++ single-thread rasterizer (bench README)
+PEER_TORCH_50K = 9.0   # s/frame, pure-PyTorch tiled rasterizer on CPU
+TARGET_100K = 0.10
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[50_000, 100_000, 200_000])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--no-reference", action="store_true")
+    args = ap.parse_args()
+
+    sys.path.insert(0, str(BENCH))
+    import make_scene  # noqa: E402  (the shared scene generator)
+
+    import numpy as np
+
+    from avatarkit.gaussians.io import load_gaussians
+    from avatarkit.render import Camera, render
+    from avatarkit.render.reference import render_reference
+
+    print(f"renderer benchmark: 512x512, {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.2f} at start (timings on a shared machine are noisy)")
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.sizes:
+            ply = Path(tmp) / f"scene_{n}.ply"
+            means, scales, quats, opacity, rgb, camera = make_scene.make_scene(n, 512, 512)
+            make_scene.write_ply(ply, means, scales, quats, opacity, rgb)
+            (Path(tmp) / f"scene_{n}.camera.json").write_text(json.dumps(camera))
+            gs = load_gaussians(ply)
+            cam = Camera.from_json(Path(tmp) / f"scene_{n}.camera.json")
+
+            t = time.perf_counter()
+            first = render(gs, cam)
+            warm = time.perf_counter() - t
+            wall, cpu, stages = [], [], []
+            for _ in range(args.repeats):
+                c0, w0 = time.process_time(), time.perf_counter()
+                res = render(gs, cam)
+                wall.append(time.perf_counter() - w0)
+                cpu.append(time.process_time() - c0)
+                stages.append(res.meta["timings"])
+            med = statistics.median(wall)
+            results[n] = med
+            split = ", ".join(f"{k} {1000 * statistics.median(s[k] for s in stages):.1f}"
+                              for k in ("project", "sh", "bin", "rasterize"))
+            print(f"N={n:>7,}: median {med:.3f} s/frame, best {min(wall):.3f}, "
+                  f"CPU {statistics.median(cpu):.3f} s/frame (/{os.cpu_count()} = "
+                  f"{statistics.median(cpu) / (os.cpu_count() or 1):.3f}); warm-up frame {warm:.2f} s")
+            print(f"           stages (median ms): {split}; {res.meta['n_visible']:,} visible, "
+                  f"{res.meta['n_pairs']:,} splat-tile pairs, mean alpha {first.alpha.mean():.3f}")
+            if n == 50_000 and not args.no_reference:
+                t = time.perf_counter()
+                ref = render_reference(gs, cam)
+                ref_s = time.perf_counter() - t
+                diff = np.abs(res.rgb - ref.rgb).max(axis=2)
+                print(f"           numpy reference {ref_s:.2f} s/frame (once): fast is "
+                      f"{ref_s / med:.0f}x faster; max |rgb diff| {diff.max():.2e}, "
+                      f"max |alpha diff| {np.abs(res.alpha - ref.alpha).max():.2e}, "
+                      f"pixels with rgb diff > 1e-3: {(diff > 1e-3).sum()} of {diff.size}")
+    if 100_000 in results:
+        s = results[100_000]
+        print(f"100k: {s:.3f} s/frame = {PEER_CPP_100K / s:.1f}x the single-thread C++ peer "
+              f"({PEER_CPP_100K} s); target {TARGET_100K} s: {'met' if s <= TARGET_100K else 'NOT met'}")
+    if 50_000 in results:
+        print(f"50k: {PEER_TORCH_50K / results[50_000]:.0f}x the pure-PyTorch peer ({PEER_TORCH_50K} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,286 @@
+"""The renderer: fast (Taichi) vs reference (numpy float64) stage by stage, analytic cases,
+culling, compositing rules, SH, determinism and bad input."""
+import math
+
+import numpy as np
+import pytest
+
+from avatarkit.errors import InputError
+from avatarkit.gaussians import GaussianSet
+from avatarkit.gaussians.sh import SH_COUNTS, rgb_to_dc, sh_basis
+from avatarkit.render import (Camera, bin_gaussians, project_gaussians, rasterize, render,
+                              sh_colors)
+from avatarkit.render.pipeline import depth_order
+from avatarkit.render.reference import (isotropic_screen_sigma, project_reference,
+                                        render_reference, sh_colors_reference)
+
+IDENTITY_QUAT = [1.0, 0.0, 0.0, 0.0]
+
+
+def random_scene(n, seed, sh_degree=0, width=67, height=45, spread=1.0):
+    """n random splats in front of a random camera with an off-centre principal point."""
+    rng = np.random.default_rng(seed)
+    target = rng.normal(size=3) * 0.1
+    cam = Camera.orbit(target, rng.uniform(0, 360), rng.uniform(-40, 40), 2.0,
+                       rng.uniform(25, 50), width, height)
+    cam = Camera(cam.fx * rng.uniform(0.9, 1.1), cam.fy, cam.cx + rng.uniform(-5, 5),
+                 cam.cy + rng.uniform(-5, 5), width, height, cam.world_to_camera)
+    means = target + rng.normal(size=(n, 3)) * 0.35 * spread
+    q = rng.normal(size=(n, 4))
+    scales = 0.02 * np.exp(0.6 * rng.normal(size=(n, 3)))
+    sh = rng.normal(scale=0.4, size=(n, SH_COUNTS[sh_degree], 3))
+    sh[:, 0] = rgb_to_dc(rng.uniform(size=(n, 3)))
+    gs = GaussianSet(means, q / np.linalg.norm(q, axis=1, keepdims=True), scales,
+                     rng.uniform(0.05, 1.0, n), sh)
+    return gs, cam
+
+
+def single(mean, scale, opacity, rgb, quat=IDENTITY_QUAT):
+    return GaussianSet.from_colors([mean], [quat], [[scale] * 3 if np.isscalar(scale) else scale],
+                                   [opacity], [rgb])
+
+
+def head_on_camera(width=64, height=64, f=80.0):
+    # principal point on a pixel centre, so a splat on the axis peaks exactly on pixel (32, 32)
+    return Camera(f, f, width // 2 + 0.5, height // 2 + 0.5, width, height)
+
+
+# --- fast vs reference ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed, sh_degree", [(0, 0), (1, 1), (2, 2), (3, 3), (4, 3)])
+def test_fast_matches_reference_on_random_scenes(seed, sh_degree):
+    gs, cam = random_scene(400, seed, sh_degree)
+    bg = np.random.default_rng(seed).uniform(size=3)
+    fast = render(gs, cam, bg)
+    ref = render_reference(gs, cam, bg)
+    assert fast.rgb.dtype == np.float32 and fast.rgb.shape == (45, 67, 3)
+    assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
+    assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
+    drawn = ref.alpha > 0.05
+    assert np.abs(fast.depth - ref.depth)[drawn].max() < 1e-3 * ref.depth[drawn].max()
+    assert ref.alpha.max() > 0.5 and (ref.alpha < 0.01).any()  # a scene with content and gaps
+
+
+def test_fast_matches_reference_with_early_termination():
+    # many opaque splats on one spot: most pixels stop at T < 1e-4
+    gs, cam = random_scene(600, 7, 1, width=48, height=40, spread=0.8)
+    gs = gs.replace(opacities=np.full(len(gs), 0.97, np.float32), scales=gs.scales * 4)
+    fast = render(gs, cam)
+    ref = render_reference(gs, cam)
+    assert (ref.alpha > 1 - 1e-3).mean() > 0.3
+    assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
+    assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
+
+
+def test_fast_matches_reference_on_large_and_needle_splats():
+    # long spans (forward differencing over many pixels) and thin rotated ellipses (span bounds)
+    rng = np.random.default_rng(8)
+    n = 60
+    scales = np.where(rng.uniform(size=(n, 1)) < 0.5, [0.4, 0.002, 0.002], [0.3, 0.25, 0.2])
+    q = rng.normal(size=(n, 4))
+    gs = GaussianSet.from_colors(rng.normal(size=(n, 3)) * 0.3, q, scales * rng.uniform(0.2, 1, (n, 1)),
+                                 rng.uniform(0.02, 0.9, n), rng.uniform(size=(n, 3)))
+    cam = Camera.orbit((0, 0, 0), 20, 10, 1.5, 60, 80, 72)
+    fast, ref = render(gs, cam, (0.3, 0.3, 0.3)), render_reference(gs, cam, (0.3, 0.3, 0.3))
+    assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
+    assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
+    assert fast.meta["radii"].max() > 40
+
+
+def test_projection_stage_matches_reference():
+    gs, cam = random_scene(500, 11, 0)
+    fast = project_gaussians(gs, cam)
+    ref = project_reference(gs, cam)
+    np.testing.assert_array_equal(fast.radii, ref.radii)
+    np.testing.assert_array_equal(fast.tile_rects, ref.tile_rects)
+    vis = ref.radii > 0
+    assert 50 < vis.sum() < len(gs)
+    np.testing.assert_allclose(fast.means2d[vis], ref.means2d[vis], rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(fast.depths, ref.depths, rtol=1e-6)
+    np.testing.assert_allclose(fast.conics[vis], ref.conics[vis], rtol=1e-5, atol=1e-8)
+
+
+def test_sh_color_stage_matches_reference():
+    for degree in range(4):
+        gs, cam = random_scene(300, 20 + degree, degree)
+        np.testing.assert_allclose(sh_colors(gs, cam), sh_colors_reference(gs, cam), atol=2e-6)
+
+
+def test_binning_gives_depth_sorted_lists_of_covering_splats():
+    gs, cam = random_scene(300, 5, 0)
+    proj = project_gaussians(gs, cam)
+    bins = bin_gaussians(proj, cam)
+    rects = proj.tile_rects
+    for t in range(bins.tiles_x * bins.tiles_y):
+        ty, tx = divmod(t, bins.tiles_x)
+        covering = np.flatnonzero((proj.radii > 0) & (rects[:, 0] <= tx) & (tx < rects[:, 2])
+                                  & (rects[:, 1] <= ty) & (ty < rects[:, 3]))
+        expected = covering[np.argsort(proj.depths[covering], kind="stable")]
+        got = bins.gaussian_ids[bins.tile_offsets[t]:bins.tile_offsets[t + 1]]
+        np.testing.assert_array_equal(got, expected)
+    assert bins.tile_counts.shape == (bins.tiles_y, bins.tiles_x)
+
+
+def test_depth_order_is_a_stable_argsort():
+    rng = np.random.default_rng(0)
+    d = rng.choice(rng.uniform(0.01, 100, 50).astype(np.float32), 5000)  # many ties
+    np.testing.assert_array_equal(depth_order(d), np.argsort(d, kind="stable"))
+
+
+# --- analytic cases ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("scale, depth", [(0.02, 1.0), (0.05, 3.0), (0.003, 1.5)])
+def test_single_isotropic_gaussian_peak_and_screen_sigma(scale, depth):
+    cam = head_on_camera()
+    opacity, rgb = 0.8, np.array([0.9, 0.5, 0.2])
+    res = render(single([0, 0, depth], scale, opacity, rgb), cam)
+    np.testing.assert_allclose(res.rgb[32, 32], opacity * rgb, rtol=1e-5)
+    assert res.alpha[32, 32] == pytest.approx(opacity, rel=1e-6)
+    assert res.depth[32, 32] == pytest.approx(depth, rel=1e-6)
+    sigma = isotropic_screen_sigma(scale, depth, cam.fx)
+    assert sigma == pytest.approx(math.sqrt((cam.fx * scale / depth) ** 2 + 0.3))
+    # fit the profile along the row and the column through the peak: log alpha vs d^2
+    for profile in (res.alpha[32, :], res.alpha[:, 32]):
+        d = np.arange(64) - 32.0
+        keep = profile > 0
+        assert keep.sum() >= 3
+        slope = np.polyfit(d[keep] ** 2, np.log(profile[keep] / opacity), 1)[0]
+        assert math.sqrt(-0.5 / slope) == pytest.approx(sigma, rel=1e-4)
+        # nothing drawn where alpha < 1/255 (beyond ~3.3 sigma here)
+        assert (profile[np.abs(d) > sigma * math.sqrt(2 * math.log(255 * opacity)) + 1] == 0).all()
+
+
+def test_two_opaque_gaussians_composite_in_depth_order():
+    cam = head_on_camera()
+    near = ([0, 0, 1.0], 0.05, 0.9, [1.0, 0.0, 0.0])
+    far = ([0, 0, 2.0], 0.1, 0.9, [0.0, 1.0, 0.0])
+    a = GaussianSet.concat([single(*near), single(*far)])
+    b = GaussianSet.concat([single(*far), single(*near)])
+    ra, rb = render(a, cam, (0, 0, 1)), render(b, cam, (0, 0, 1))
+    np.testing.assert_array_equal(ra.rgb, rb.rgb)
+    np.testing.assert_array_equal(ra.alpha, rb.alpha)
+    # centre: red over green over blue background, alpha 0.9 each
+    np.testing.assert_allclose(ra.rgb[32, 32], [0.9, 0.9 * 0.1, 0.01], rtol=1e-5)
+    np.testing.assert_allclose(ra.depth[32, 32], (0.9 * 1.0 + 0.09 * 2.0) / 0.99, rtol=1e-5)
+    np.testing.assert_allclose(render_reference(b, cam, (0, 0, 1)).rgb, ra.rgb, atol=1e-5)
+
+
+def test_early_termination_stops_before_the_splat_that_would_cross_1e_4():
+    # alpha 0.95 each: T = 0.05, 0.0025, 1.25e-4, then 6.25e-6 < 1e-4 -> the 4th is never drawn
+    cam = head_on_camera()
+    colors = [[1, 0, 0], [0, 1, 0], [1, 1, 0], [0, 0, 1], [0, 0, 1]]
+    gs = GaussianSet.concat([single([0, 0, 1.0 + 0.1 * i], 0.05, 0.95, c)
+                             for i, c in enumerate(colors)])
+    expected = sum(0.95 * 0.05 ** i * np.array(c, float) for i, c in enumerate(colors[:3]))
+    for res in (render(gs, cam), render_reference(gs, cam)):
+        np.testing.assert_allclose(res.rgb[32, 32], expected, rtol=1e-5, atol=1e-7)
+        assert res.rgb[32, 32, 2] < 1e-6  # drawing the 4th (blue) would add 0.95 * 1.25e-4
+        assert 1 - res.alpha[32, 32] == pytest.approx(0.05 ** 3, rel=1e-3)
+
+
+def test_behind_near_plane_and_outside_frustum_contribute_nothing():
+    cam = head_on_camera()
+    bg = (0.25, 0.5, 0.75)
+    culled = GaussianSet.concat([
+        single([0, 0, -1.0], 0.5, 1.0, [1, 1, 1]),     # behind the camera
+        single([0, 0, 0.005], 0.001, 1.0, [1, 1, 1]),  # in front of the 0.01 near plane
+        single([30, 0, 2.0], 0.05, 1.0, [1, 1, 1]),    # far right of the frustum
+        single([0, -40, 2.0], 0.05, 1.0, [1, 1, 1]),   # far above
+        single([0, 0, 2.0], 0.05, 0.003, [1, 1, 1]),   # opacity < 1/255 can never show
+    ])
+    res = render(culled, cam, bg)
+    assert (res.meta["radii"] == 0).all() and res.meta["n_pairs"] == 0
+    np.testing.assert_array_equal(res.rgb, np.broadcast_to(np.float32(bg), res.rgb.shape))
+    assert (res.alpha == 0).all() and (res.depth == 0).all()
+    # a splat centred just outside the image still draws its visible part
+    edge = single([-(32.5 + 3) / cam.fx * 2.0, 0, 2.0], 0.1, 0.9, [1, 1, 1])
+    res = render(edge, cam)
+    assert res.meta["n_visible"] == 1 and res.alpha[:, 0].max() > 0.5
+
+
+def test_empty_scene_is_the_background():
+    cam = Camera.from_fov(40, 37, 21)
+    res = render(GaussianSet.empty(), cam, (0.1, 0.2, 0.3))
+    np.testing.assert_allclose(res.rgb, np.broadcast_to([0.1, 0.2, 0.3], (21, 37, 3)), atol=1e-7)
+    assert res.alpha.shape == (21, 37) and not res.alpha.any() and not res.depth.any()
+
+
+# --- spherical harmonics ----------------------------------------------------------------------
+
+def _direct_real_sh(dirs, degree):
+    """Real SH from scipy's complex Y_l^m (Condon-Shortley phase), in 3DGS order and signs:
+    m < 0: sqrt(2) Im Y_l^|m|, m = 0: Y_l^0, m > 0: sqrt(2) Re Y_l^m."""
+    from scipy.special import sph_harm_y
+
+    theta = np.arccos(np.clip(dirs[:, 2], -1, 1))
+    phi = np.arctan2(dirs[:, 1], dirs[:, 0])
+    cols = []
+    for l in range(degree + 1):
+        for m in range(-l, l + 1):
+            y = sph_harm_y(l, abs(m), theta, phi)
+            cols.append(math.sqrt(2) * y.imag if m < 0 else y.real if m == 0 else math.sqrt(2) * y.real)
+    return np.stack(cols, 1)
+
+
+def test_degree3_sh_matches_direct_formula():
+    rng = np.random.default_rng(0)
+    n = 200
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    basis = _direct_real_sh(dirs, 3)
+    np.testing.assert_allclose(sh_basis(dirs, 3), basis, atol=1e-12)
+    # the renderer's kernel: splats on a sphere around the camera, dir = mean - centre
+    cam = Camera.orbit((0, 0, 0), 30, 20, 2.0)
+    means = cam.camera_center + dirs * rng.uniform(0.5, 3, (n, 1))
+    sh = rng.normal(scale=0.3, size=(n, 16, 3))
+    gs = GaussianSet(means, np.tile(IDENTITY_QUAT, (n, 1)), np.full((n, 3), 0.01), np.full(n, 0.5), sh)
+    expected = np.maximum(np.einsum("nk,nkc->nc", basis, sh) + 0.5, 0)
+    assert (expected == 0).any() and (expected > 1).any()  # exercises the clamp, and no top clamp
+    np.testing.assert_allclose(sh_colors(gs, cam), expected, atol=2e-6)
+
+
+def test_view_dependent_colour_changes_with_the_view():
+    sh = np.zeros((1, 4, 3))
+    sh[0, 0] = rgb_to_dc([0.5, 0.5, 0.5])
+    sh[0, 2, 0] = 0.5  # red grows with the z of the view direction (3DGS basis: +C1 z)
+    gs = GaussianSet([[0, 0, 0]], [IDENTITY_QUAT], [[0.05] * 3], [0.9], sh)
+    front = sh_colors(gs, Camera.orbit((0, 0, 0), 0, 0, 2.0))    # dir = -Z
+    back = sh_colors(gs, Camera.orbit((0, 0, 0), 180, 0, 2.0))   # dir = +Z
+    c1 = 0.4886025119029199
+    np.testing.assert_allclose(front[0], [0.5 - c1 * 0.5, 0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(back[0], [0.5 + c1 * 0.5, 0.5, 0.5], atol=1e-6)
+
+
+# --- determinism, API, bad input --------------------------------------------------------------
+
+def test_deterministic_and_meta():
+    gs, cam = random_scene(800, 9, 2, 130, 90)
+    a, b = render(gs, cam), render(gs, cam)
+    np.testing.assert_array_equal(a.rgb, b.rgb)
+    np.testing.assert_array_equal(a.depth, b.depth)
+    m = a.meta
+    assert m["means2d"].shape == (800, 2) and m["conics"].shape == (800, 3)
+    assert m["tile_counts"].shape == (6, 9) and m["tile_counts"].sum() == m["n_pairs"]
+    assert set(m["timings"]) == {"project", "sh", "bin", "rasterize", "total"}
+
+
+def test_stages_compose_to_render():
+    gs, cam = random_scene(200, 12, 1)
+    proj = project_gaussians(gs, cam)
+    rgb, alpha, depth = rasterize(proj, sh_colors(gs, cam), gs.opacities, bin_gaussians(proj, cam), cam)
+    res = render(gs, cam)
+    np.testing.assert_array_equal(rgb, res.rgb)
+    np.testing.assert_array_equal(alpha, res.alpha)
+
+
+def test_bad_input():
+    gs, cam = random_scene(10, 0)
+    with pytest.raises(InputError, match="GaussianSet"):
+        render(np.zeros((10, 3)), cam)
+    with pytest.raises(InputError, match="Camera"):
+        render(gs, "camera.json")
+    for bg in [(1, 2), (0, float("nan"), 0), "white"]:
+        with pytest.raises(InputError, match="background"):
+            render(gs, cam, bg)
+    with pytest.raises(InputError, match="near"):
+        render(gs, cam, near=0.0)
