@@ -9,9 +9,9 @@ An avatar folder holds:
                   face each rides), so splat viewers open it as is
     hair.ply      hair Gaussians, rest pose, world space
     cage.ply      the closed hair cage at rest (its vertex order is the simulation's)
-    rig.npz       what the hair driver needs that is slow to compute: the cage deformer's mean
-                  value coordinate weights and the simulation model (roots and their attachment
-                  to the head, proxy weights, tethers, head SDF), plus a SHA-256 of its inputs
+    rig.npz       what the hair driver needs that is slow to compute: the simulation model (roots
+                  and their attachment to the head, proxy weights, tethers, head SDF) and the
+                  cage deformer's settings, plus a SHA-256 of its inputs (~2 MB)
     preview.png   a front view (optional)
 
 The rest pose is the head model with the avatar's identity shape, zero expression, zero pose.
@@ -20,6 +20,13 @@ them on load from the rest head and the `binding` ids (deterministic, so a loade
 exactly like a freshly loaded copy of itself). The rig's weights are only valid for the hair,
 cage and head they were computed from; their hash is checked on load and the rig rebuilt, with
 a `RigRebuiltWarning`, when it does not match (an edited hair.ply, for instance).
+
+The cage deformer's mean value coordinate weights (C x 2N float32: 205 MB for 50k hair
+Gaussians) are NOT stored (rig format 2): they are recomputed from hair.ply and cage.ply with
+the Taichi MVC kernel (~2 s of 2 cores for 50k hair) when the loaded avatar's hair first moves
+(`CageDeformer.deferred`), exactly the weights a save of the loaded avatar would have stored. Top-k sparse weights were measured and rejected: on the whip
+clip they move hair up to 4.7 mm (k=64) from the dense result (docs/readme/avatar-and-bake.md).
+Rig format 1 files, which hold the dense weights, are still read (and their weights used).
 
 `Avatar.save(folder)` writes a complete folder beside the target and renames it into place:
 an interrupted save leaves the old folder (or nothing) under the requested name.
@@ -46,7 +53,11 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 
 AVATAR_FORMAT = "avatarkit.avatar"
 AVATAR_VERSION = 1
-RIG_FORMAT = "avatarkit.rig/1"
+RIG_FORMAT = "avatarkit.rig/2"
+#: rig formats this version reads: 1 stores the dense MVC weights, 2 recomputes them on load
+RIG_FORMATS_READ = ("avatarkit.rig/1", RIG_FORMAT)
+#: seeds the rig's input hashes; kept at the first format so older avatars still match
+_RIG_HASH_TAG = b"avatarkit.rig/1"
 
 MANIFEST = "avatar.json"
 BALD_FILE = "bald.ply"
@@ -181,7 +192,7 @@ class HairRig:
 
     # -- file ---------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, inputs_sha256: str, sdf_sha256: str) -> None:
-        """Write rig.npz (uncompressed: the weights are dense floats and do not compress).
+        """Write rig.npz (format 2: without the deformer's MVC weights, which a load recomputes).
         inputs_sha256: hash of what the whole rig was computed from; sdf_sha256: of what the
         head SDF was (the rest head only), so a rig rebuilt for new hair can keep the SDF."""
         from avatarkit.fileio import atomic_path
@@ -190,8 +201,7 @@ class HairRig:
             "format": np.array(RIG_FORMAT), "inputs_sha256": np.array(inputs_sha256),
             "sdf_inputs_sha256": np.array(sdf_sha256),
             "deform_method": np.array(self.deformer.method),
-            "deform_axis_sigma": np.array(self.deformer.axis_sigma, np.float64),
-            "deform_weights_t": self.deformer.weights_t}
+            "deform_axis_sigma": np.array(self.deformer.axis_sigma, np.float64)}
         for f in fields(self.model):
             value = getattr(self.model, f.name)
             if f.name == "sdf":  # the gradients are recomputed on load (4x smaller file)
@@ -218,10 +228,13 @@ class HairRig:
                 data = {k: z[k] for k in z.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise FormatError(f"not a readable .npz file ({e})", path) from None
-        if "format" not in data or str(data["format"]) != RIG_FORMAT:
-            raise FormatError(f"not an avatarkit rig (format {RIG_FORMAT!r} expected)", path)
+        if "format" not in data or str(data["format"]) not in RIG_FORMATS_READ:
+            raise FormatError(f"not an avatarkit rig (format {' or '.join(map(repr, RIG_FORMATS_READ))} "
+                              "expected)", path)
         need = ["inputs_sha256", "sdf_inputs_sha256", "deform_method", "deform_axis_sigma",
-                "deform_weights_t", "sdf_values", "sdf_origin", "sdf_spacing"]
+                "sdf_values", "sdf_origin", "sdf_spacing"]
+        if str(data["format"]) == RIG_FORMATS_READ[0]:
+            need.append("deform_weights_t")
         need += [f"model_{f.name}" for f in fields(CageModel) if f.name != "sdf"]
         missing = [k for k in need if k not in data]
         if missing:
@@ -231,8 +244,12 @@ class HairRig:
 
     @classmethod
     def from_file_arrays(cls, data: dict[str, np.ndarray], hair: GaussianSet, cage,
-                         path: str | os.PathLike | None = None) -> "HairRig":
-        """The rig of `hair` in `cage` from `read_file`'s arrays (FormatError naming `path`)."""
+                         path: str | os.PathLike | None = None,
+                         progress: Callable[[int, int], None] | None = None) -> "HairRig":
+        """The rig of `hair` in `cage` from `read_file`'s arrays (FormatError naming `path`).
+        Without stored weights (format 2) the deformer's MVC weights are computed on first use
+        (`CageDeformer.deferred`), or here with `progress` (progress(done, total) over the
+        points)."""
         from avatarkit.cage.deform import CageDeformer
         from avatarkit.sim.model import CageModel
 
@@ -243,8 +260,14 @@ class HairRig:
             if model.num_vertices != cage.n_vertices:
                 raise InputError(f"the simulation model has {model.num_vertices} cage vertices, "
                                  f"the cage {cage.n_vertices}")
-            deformer = CageDeformer(hair, cage, data["deform_weights_t"], str(data["deform_method"]),
-                                    float(data["deform_axis_sigma"]))
+            method, sigma = str(data["deform_method"]), float(data["deform_axis_sigma"])
+            if "deform_weights_t" in data:  # format 1
+                deformer = CageDeformer(hair, cage, data["deform_weights_t"], method, sigma)
+            else:
+                if progress is None:
+                    deformer = CageDeformer.deferred(hair, cage, method, sigma)
+                else:
+                    deformer = CageDeformer.build(hair, cage, method, sigma, progress=progress)
         except InputError as e:
             raise FormatError(f"inconsistent rig: {e.message}", path) from None
         return cls(deformer, model)
@@ -269,7 +292,7 @@ def sdf_from_values(values: np.ndarray, origin, spacing: float):
 
 def sdf_inputs_sha256(rest_vertices: np.ndarray, head_faces: np.ndarray) -> str:
     """SHA-256 of what a rig's head SDF is computed from: the rest head."""
-    h = hashlib.sha256(RIG_FORMAT.encode() + b"sdf")
+    h = hashlib.sha256(_RIG_HASH_TAG + b"sdf")
     h.update(np.ascontiguousarray(rest_vertices, "<f4").tobytes())
     h.update(np.ascontiguousarray(head_faces, "<i4").tobytes())
     return h.hexdigest()
@@ -278,7 +301,7 @@ def sdf_inputs_sha256(rest_vertices: np.ndarray, head_faces: np.ndarray) -> str:
 def rig_inputs_sha256(hair: GaussianSet, cage, rest_vertices: np.ndarray, head_faces: np.ndarray,
                       method: str) -> str:
     """SHA-256 of everything a rig is computed from: hair geometry, cage, rest head, method."""
-    h = hashlib.sha256(RIG_FORMAT.encode())
+    h = hashlib.sha256(_RIG_HASH_TAG)
     h.update(method.encode())
     for a in (hair.means, hair.quats, hair.scales, cage.vertices):
         h.update(np.ascontiguousarray(a, "<f4").tobytes())

@@ -9,10 +9,11 @@ ratios printed beside each figure, which come from baselines run in the same pro
  - MVC weight time for the principal-axis method (2 points per Gaussian), and the ns per
    point-face pair of a batched PyTorch implementation of the same formula run here on a
    subset (the peer figure in shared/bench/README.md is ~474 ns);
- - per-frame deformation: the one product X = W @ V' alone and with the Gaussian rebuild, the
-   plain numpy `W @ V` in row-major layout as a baseline, the memory floor bytes(W) / read
-   bandwidth (bandwidth measured with a large numpy sum), frames batched 8 at a time, and top-32
-   sparse weights with their position error.
+ - per-frame deformation as the bake does it: `deform_batch` with `bake.HAIR_BATCH` (16) frames
+   per product, wall and CPU ms per frame, against the single-frame path (`deform_arrays`, one
+   product per frame) as the baseline ratio; the product alone, the plain numpy `W @ V` in
+   row-major layout, the memory floor bytes(W) / read bandwidth (bandwidth measured with a
+   large numpy sum), and top-32/64 sparse weights with their position error.
 """
 from __future__ import annotations
 
@@ -29,7 +30,20 @@ import numpy as np  # noqa: E402
 
 from avatarkit.cage import (CageDeformer, build_cage, deformation_points, mvc_weights,  # noqa: E402
                             sparse_apply, sparse_error, sparsify)
+from avatarkit.bake import HAIR_BATCH  # noqa: E402
 from avatarkit.synthetic import make_hair  # noqa: E402
+
+
+def median_wall_cpu(fn, repeats: int = 3, warmup: int = 1) -> tuple[float, float]:
+    for _ in range(warmup):
+        fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return float(np.median(wall)), float(np.median(cpu))
 
 
 def median_time(fn, repeats: int = 7, warmup: int = 1) -> float:
@@ -125,15 +139,20 @@ def bench(n: int, bandwidth: float, peer_points: int) -> None:
     w_rowmajor = np.ascontiguousarray(deformer.weights)
     t_base = median_time(lambda: w_rowmajor @ v, repeats=7)
     del w_rowmajor
-    frames = np.stack([v + np.float32(0.001 * i) for i in range(8)])
-    t_batch = median_time(lambda: list(deformer.deform_batch(frames)), repeats=3) / len(frames)
-    print(f"per frame: product {t_prod * 1e3:.1f} ms, deform_arrays {t_arrays * 1e3:.1f} ms, "
-          f"deform -> GaussianSet {t_set * 1e3:.1f} ms (target <= 10 ms for 50k)")
+    frames = np.stack([v + np.float32(0.001 * i) for i in range(2 * HAIR_BATCH)])
+    b_wall, b_cpu = median_wall_cpu(lambda: list(deformer.deform_batch(frames, chunk=HAIR_BATCH)))
+    s_wall, s_cpu = median_wall_cpu(lambda: [deformer.deform_arrays(f) for f in frames])
+    b_wall, b_cpu, s_wall, s_cpu = (x / len(frames) for x in (b_wall, b_cpu, s_wall, s_cpu))
+    print(f"per frame, the bake's path (deform_batch, {HAIR_BATCH} frames per product): {b_wall * 1e3:.1f} ms "
+          f"wall / {b_cpu * 1e3:.1f} ms CPU (target <= 10 ms for 50k); baseline one product per frame "
+          f"(deform_arrays): {s_wall * 1e3:.1f} ms wall / {s_cpu * 1e3:.1f} ms CPU "
+          f"({s_wall / b_wall:.1f}x wall, {s_cpu / b_cpu:.1f}x CPU)")
+    print(f"  single frame: product {t_prod * 1e3:.1f} ms, deform_arrays {t_arrays * 1e3:.1f} ms, "
+          f"deform -> GaussianSet {t_set * 1e3:.1f} ms")
     print(f"  memory floor bytes(W) / bandwidth = {w_bytes / 1e6:.0f} MB / {bandwidth / 1e9:.1f} GB/s "
           f"= {floor * 1e3:.1f} ms (product at {floor / t_prod:.0%} of the floor's speed)")
     print(f"  baseline numpy W @ V, row-major W: {t_base * 1e3:.1f} ms "
           f"(our layout {t_base / t_prod:.2f}x faster)")
-    print(f"  batched 8 frames per product: {t_batch * 1e3:.1f} ms per frame (W read once per batch)")
     if n > 100_000:  # the top-k selection needs several P x C temporaries: skip when huge
         return
     dense = deformer.deformed_points(v).T.astype(np.float64)

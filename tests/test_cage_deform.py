@@ -198,3 +198,27 @@ def test_bad_deformation_inputs(deformers, hair, ball_cage):
         CageDeformer.build(hair, ball_cage, "affine")
     with pytest.raises(InputError, match="weights have shape"):
         CageDeformer(hair, ball_cage, d.weights_t[:, :10])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_deferred_weights_are_computed_on_first_use(deformers, hair, ball_cage, method):
+    built = deformers[method]
+    lazy = CageDeformer.deferred(hair, ball_cage, method)
+    assert not lazy.weights_ready and "deferred" in repr(lazy)
+    rng = np.random.default_rng(5)
+    v = ball_cage.vertices + rng.normal(0, 0.01, ball_cage.vertices.shape)
+    for a, b in zip(lazy.deform_arrays(v), built.deform_arrays(v)):  # the first use computes them
+        assert np.array_equal(a, b)
+    assert lazy.weights_ready and "ready" in repr(lazy)
+    assert np.array_equal(lazy.weights_t, built.weights_t)
+    with pytest.raises(AttributeError):
+        lazy.no_such_thing  # noqa: B018
+    calls = []
+    again = CageDeformer.deferred(hair, ball_cage, method).ensure_weights(lambda d, t: calls.append((d, t)))
+    assert again.weights_ready and calls[-1][0] == calls[-1][1] == again.weights_t.shape[1]
+    assert np.array_equal(again.weights_t, built.weights_t)
+    assert again.ensure_weights() is again  # nothing left to do
+    with pytest.raises(InputError, match="unknown deformation method"):
+        CageDeformer.deferred(hair, ball_cage, "affine")
+    with pytest.raises(InputError, match="axis_sigma"):
+        CageDeformer.deferred(hair, ball_cage, method, axis_sigma=0.0)

@@ -15,6 +15,9 @@ seven_point (GSDeformer-style, for comparison): the centre and the six axis ends
     eigendecomposition, eigenvectors matched to the deformed rest axes so that axis order and
     sign stay continuous; centre = deformed centre.
 
+`CageDeformer.deferred` makes a deformer that computes its weights on first use (what a loaded
+avatar's rig holds: the weights are not stored in the avatar folder).
+
 Rest references (W @ V_rest) are taken from the weights themselves, so an undeformed cage gives
 back the rest Gaussians exactly up to float32 rounding, and no frame jitters at rest: the
 residual mu - (W @ V_rest) of the centre (~1e-7 of the cage size) is stored and added back.
@@ -47,7 +50,7 @@ def fingerprint(gaussians: GaussianSet) -> str:
     return h.hexdigest()[:16]
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class CageDeformer:
     """Carries a cage's motion to Gaussians. Build with `CageDeformer.build(...)`.
 
@@ -109,6 +112,50 @@ class CageDeformer:
         points = deformation_points(gaussians, method, axis_sigma)
         wt = mvc_weights(points, cage.vertices, cage.faces, transposed=True, progress=progress)
         return cls(gaussians, cage, wt, method, float(axis_sigma))
+
+    @classmethod
+    def deferred(cls, gaussians: GaussianSet, cage: Cage, method: str = "principal_axis",
+                 axis_sigma: float = AXIS_SIGMA) -> "CageDeformer":
+        """A deformer whose weights are computed (as `build` does) the first time they are
+        needed: by a deformation, or by reading `weights_t`/`weights`. Loading an avatar uses
+        this, so tools that never move its hair (rendering at rest, hair transfer, inspection)
+        do not pay for the MVC weights (~2 s per 50k hair Gaussians)."""
+        if method not in METHODS:
+            raise InputError(f"unknown deformation method {method!r}; choose one of {', '.join(METHODS)}")
+        if not (np.isfinite(axis_sigma) and axis_sigma > 0):
+            raise InputError(f"axis_sigma must be > 0, got {axis_sigma}")
+        obj = cls.__new__(cls)
+        obj.rest, obj.cage, obj.method, obj.axis_sigma = gaussians, cage, method, float(axis_sigma)
+        obj.__dict__["_deferred"] = True
+        return obj
+
+    def __repr__(self) -> str:  # not the dataclass one: it would print (and compute) the weights
+        state = "ready" if self.weights_ready else "deferred"
+        return (f"CageDeformer(n={len(self.rest)}, cage={self.cage.n_vertices} vertices, "
+                f"method={self.method!r}, axis_sigma={self.axis_sigma:g}, weights {state})")
+
+    @property
+    def weights_ready(self) -> bool:
+        """False while a `deferred` deformer has not computed its weights yet."""
+        return "weights_t" in self.__dict__
+
+    def ensure_weights(self, progress: Callable[[int, int], None] | None = None) -> "CageDeformer":
+        """Compute a deferred deformer's weights now (progress(done, total) over the points),
+        e.g. under a progress bar before a bake; nothing to do when they are ready."""
+        if self.__dict__.get("_deferred"):
+            points = deformation_points(self.rest, self.method, self.axis_sigma)
+            # assigned only when complete: an interrupted computation leaves it deferred
+            self.weights_t = mvc_weights(points, self.cage.vertices, self.cage.faces, transposed=True,
+                                         progress=progress)
+            self.__post_init__()
+            del self.__dict__["_deferred"]
+        return self
+
+    def __getattr__(self, name: str):
+        # only reached for attributes not set yet: the weights of a deferred deformer
+        if name in ("weights_t", "_pre") and self.__dict__.get("_deferred"):
+            return self.ensure_weights().__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def weights(self) -> np.ndarray:
