@@ -187,6 +187,16 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         except InputError as e:
             raise e.with_path(clip_path) from None
         total = stop - start
+        deformer = avatar.rig.deformer if avatar.rig is not None else None
+        if deformer is not None and not deformer.weights_ready:
+            # Avatar folders do not store the hair's MVC weights; computing them takes seconds.
+            with progress(range(len(avatar.hair)), length=1, label="hair weights", quiet=quiet) as wbar:
+                def weights_step(done, todo):
+                    if hasattr(wbar, "length"):
+                        wbar.length = todo
+                        wbar.update(done - wbar.pos)
+
+                deformer.ensure_weights(progress=weights_step)
         t_load = time.perf_counter() - t0
         with progress(range(total), length=total, label="baking", quiet=quiet) as bar:
             last = [0]
