@@ -1,0 +1,406 @@
+"""`build_avatar`: one portrait -> an `Avatar` (issue 8; paper section 3.2), stage by stage.
+
+Stages (`STAGES`, each timed and reported through the `progress` callback):
+
+    read        the image (EXIF orientation, at most 2048 px)          recon.image_io
+    analyse     the one face, landmarks                                 recon.portrait
+    segment     background / skin / hair / body (or --hair-mask)        recon.segment
+    fit         head pose, shape; the camera                            recon.fit
+    bald        the 2D bald filter, guided by the fitted scalp          recon.bald
+    lift        bald + hair Gaussians (built-in, or imported splats)    recon.lift
+    segment3d   3D hair segmentation cleans the hair                    recon.labels3d
+    rig         bald Gaussians bound to the head's triangles            recon.assemble.rig_bald
+    assemble    hair out of the scalp, small head-shape adjustment      recon.assemble.assemble
+    colours     input-view render matched to the photo                  recon.assemble.refine_colours
+    hair_rig    cage + weights + roots, or rigid scalp binding          recon.hair_rig
+    previews    front / three-quarter / profile renders                 render
+
+`save_avatar` writes the folder atomically (a temp folder beside the target, renamed into
+place): a failed build never leaves a partial avatar folder.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from avatarkit.errors import InputError
+
+STAGES = ("read", "analyse", "segment", "fit", "bald", "lift", "segment3d", "rig", "assemble",
+          "colours", "hair_rig", "previews")
+#: preview views: file name -> azimuth (degrees; 0 = the front)
+PREVIEW_VIEWS = {"preview.png": 0.0, "preview_three_quarter.png": 45.0, "preview_profile.png": 90.0}
+#: grid spacing (metres) of the head SDF the hair is grown on
+LIFT_SDF_SPACING = 0.004
+#: label images for the 3D segmentation are at most this large (pixels)
+LABEL_SIDE = 512
+
+Progress = Callable[[str, int, int, "float | None"], None]
+
+
+@dataclass
+class BuildOptions:
+    """Everything `avatarkit build` can be told (paths may be str or Path).
+
+    hair_mask: PNG whose non-zero pixels are hair (replaces the built-in hair segmentation).
+    head_splats / bald_splats: 3DGS PLYs from an image-to-3D lifter (both or neither).
+    head_model: a FLAME .pkl (or avatarkit .npz) to use instead of the built-in template.
+    flame_params: a tracker's FLAME fit (.npz): its identity shape is used, not fitted.
+    face_index: which face when the photo has several (left to right, from 0).
+    n_bald / n_hair: built-in lifter's Gaussian counts (hair: at most).
+    hair_mode: "auto" (short hair rigid, long hair simulated), "cage" or "rigid".
+    clean_hair: run the 3D hair segmentation on the hair (always on for imported splats).
+    refine_iterations: rounds of colour matching against the photo (0 = off).
+    preview: render the preview images. name: the avatar's name (default: the photo's stem).
+    """
+
+    hair_mask: str | os.PathLike | None = None
+    head_splats: str | os.PathLike | None = None
+    bald_splats: str | os.PathLike | None = None
+    head_model: str | os.PathLike | None = None
+    flame_params: str | os.PathLike | None = None
+    face_index: int | None = None
+    n_bald: int = 40_000
+    n_hair: int = 40_000
+    cage_vertices: int = 500
+    hair_mode: str = "auto"
+    clean_hair: bool = True
+    refine_iterations: int = 6
+    preview: bool = True
+    preview_size: int = 512
+    seed: int = 0
+    name: str | None = None
+
+    def check(self) -> None:
+        if (self.head_splats is None) != (self.bald_splats is None):
+            raise InputError("--head-splats and --bald-splats go together: give both or neither")
+        if self.hair_mode not in ("auto", "cage", "rigid"):
+            raise InputError(f"hair mode must be auto, cage or rigid, got {self.hair_mode!r}")
+        for name in ("n_bald", "cage_vertices", "preview_size"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise InputError(f"{name} must be a positive integer, got {value!r}")
+        if isinstance(self.n_hair, bool) or int(self.n_hair) != self.n_hair or self.n_hair < 0:
+            raise InputError(f"n_hair must be a non-negative integer, got {self.n_hair!r}")
+        if self.face_index is not None and (int(self.face_index) != self.face_index or self.face_index < 0):
+            raise InputError(f"face index must be a non-negative integer, got {self.face_index!r}")
+        for name in ("hair_mask", "head_splats", "bald_splats", "head_model", "flame_params"):
+            value = getattr(self, name)
+            if value is not None and not Path(value).is_file():
+                what = name.replace("_", " ")
+                raise InputError(f"{what} file not found" if not Path(value).exists()
+                                 else f"{what} is not a file", value)
+
+
+@dataclass(eq=False)
+class BuildReport:
+    """What a build did: seconds per stage, counts, fit residuals, warnings."""
+
+    timings: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+                "total_s": round(sum(self.timings.values()), 3), **self.info,
+                "warnings": list(self.warnings)}
+
+
+class _Stages:
+    """Times the stages and tells `progress` about each (start: seconds None; end: seconds)."""
+
+    def __init__(self, progress: Progress | None, report: BuildReport):
+        self.progress = progress
+        self.report = report
+
+    def __call__(self, name: str):
+        return _Stage(self, name)
+
+
+class _Stage:
+    def __init__(self, owner: _Stages, name: str):
+        self.owner, self.name = owner, name
+
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        if self.owner.progress:
+            self.owner.progress(self.name, STAGES.index(self.name) + 1, len(STAGES), None)
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        dt = time.perf_counter() - self.t0
+        self.owner.report.timings[self.name] = dt
+        if exc_type is None and self.owner.progress:
+            self.owner.progress(self.name, STAGES.index(self.name) + 1, len(STAGES), dt)
+        return False
+
+
+def _labels_for(labels: np.ndarray, camera, side: int = LABEL_SIDE):
+    """Labels (H, W) and the camera shrunk (nearest neighbour) so the longer side is <= side."""
+    import cv2
+
+    h, w = labels.shape
+    k = min(1.0, side / max(h, w))
+    if k >= 1:
+        return labels, camera
+    size = (max(1, round(w * k)), max(1, round(h * k)))
+    small = cv2.resize(labels.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    return small, camera.with_size(*size)
+
+
+def clean_hair(bald, hair, camera, labels: np.ndarray, *, reassign: bool = True,
+               min_confidence: float = 0.6):
+    """The 3D hair segmentation (item 6, `recon.labels3d`) of the hair, from the photo's label
+    image seen by `camera`, over bald + hair together. Returns (hair kept, summary dict).
+
+    reassign=True (imported splats, whose hair is only a guess): `split_hair`, i.e. labels
+    lifted from the view, then the boundary-aware reassignment; hair candidates the view saw
+    and that end up labelled anything but hair are dropped (unseen ones are kept). reassign=False (the built-in hair, hair by construction):
+    only the lifted labels are used, and only hair Gaussians the camera clearly sees over
+    non-hair pixels (confidence >= min_confidence) are dropped; hidden hair is kept."""
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+    from avatarkit.recon.labels3d import UNSEEN, lift_labels, split_hair
+    from avatarkit.recon.segment import HAIR
+
+    if len(hair) == 0:
+        return hair, {"hair_in": 0, "hair_kept": 0}
+    lab, cam = _labels_for(np.asarray(labels), camera)
+    union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+    if reassign:
+        _, _, report = split_hair(union, [cam], [lab.astype(np.int32)])
+        is_hair = np.zeros(len(union), bool)
+        is_hair[report.hair_index] = True
+        # One view sees the front only. A candidate it never saw is kept: no bald splat explains
+        # it, which is the evidence we have; the k-NN vote of the reassignment, from one view,
+        # sent most hidden hair of our tests to the bald class.
+        unseen = ~report.lift.seen
+        keep = (is_hair | unseen)[len(bald):]
+        extra = {f"split_{k}": v for k, v in report.summary().items()}
+        extra["kept_unseen"] = int((unseen & ~is_hair)[len(bald):].sum())
+    else:
+        lift = lift_labels(union, [cam], [lab.astype(np.int32)])
+        lab_h = lift.labels[len(bald):]
+        conf = lift.confidence[len(bald):]
+        keep = (lab_h == HAIR) | (lab_h == UNSEEN) | (conf < min_confidence)
+        extra = {"seen": int((lab_h != UNSEEN).sum())}
+    return hair.subset(keep), {"hair_in": len(hair), "hair_kept": int(keep.sum()),
+                               "reassigned": bool(reassign), **extra}
+
+
+def head_mask(segmentation) -> np.ndarray:
+    """(H, W) bool: the pixels of the head in the photo (skin + hair labels): where colours
+    are matched and where the benchmark's PSNR is measured."""
+    from avatarkit.recon.segment import HAIR, SKIN
+
+    return np.isin(segmentation.labels, (SKIN, HAIR))
+
+
+def render_previews(avatar, size: int = 512, background=(1.0, 1.0, 1.0)) -> dict[str, np.ndarray]:
+    """File name -> (size, size, 3) uint8 view of the avatar at rest (PREVIEW_VIEWS), all framed
+    on the same bounds."""
+    from avatarkit.export.images import to_uint8
+    from avatarkit.render import render
+    from avatarkit.render.views import frame_camera, scene_bounds
+
+    gs = avatar.rest_gaussians()
+    bounds = scene_bounds(gs)
+    return {name: to_uint8(render(gs, frame_camera(bounds, azimuth, 0.0, width=size, height=size),
+                                  background).rgb)
+            for name, azimuth in PREVIEW_VIEWS.items()}
+
+
+def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None = None,
+                 progress: Progress | None = None):
+    """Build an `Avatar` from a portrait (module docstring). progress(stage, index, total,
+    seconds): called when each stage starts (seconds None) and ends. The `BuildReport` is in
+    `avatar.provenance["build"]`; the previews (if rendered) in `avatar.build_previews`."""
+    from avatarkit.avatar import Avatar, HeadRef, _now, _tool_version
+    from avatarkit.head.io import load_head_model
+    from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
+    from avatarkit.recon.bald import make_bald_image
+    from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
+    from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair
+    from avatarkit.recon.image_io import load_image
+    from avatarkit.recon.lift import BuiltinLifter, ImportLifter
+    from avatarkit.recon.portrait import analyze_portrait
+    from avatarkit.recon.segment import segment_portrait
+    from avatarkit.sim.sdf import HeadSDF
+
+    options = options or BuildOptions()
+    options.check()
+    report = BuildReport()
+    stage = _Stages(progress, report)
+    path = Path(portrait_path)
+
+    with stage("read"):
+        loaded = load_image(path)
+        image = loaded.rgb
+        head_model = load_head_model(options.head_model)
+        head_ref = HeadRef.for_file(options.head_model) if options.head_model else HeadRef()
+        flame = load_flame_params(options.flame_params) if options.flame_params else None
+        lifter = (ImportLifter(options.head_splats, options.bald_splats) if options.head_splats
+                  else BuiltinLifter(options.n_bald, options.n_hair, options.seed))
+    with stage("analyse"):
+        analysis = analyze_portrait(image, options.face_index, path=path)
+        report.warnings.extend(analysis.warnings)
+    with stage("segment"):
+        segmentation = segment_portrait(image, analysis, options.hair_mask, path=path)
+    with stage("fit"):
+        if flame is not None:
+            fit = fit_with_params(analysis, segmentation, head_model, flame)
+        else:
+            fit = fit_head(analysis, segmentation, head_model)
+        report.info["fit"] = fit.summary()
+        report.info["camera"] = fit.camera.to_dict()
+        # a coarse SDF is enough to grow hair on; the rig gets a fine one of the final head
+        sdf = HeadSDF.build(fit.rest_vertices, head_model.faces, spacing=LIFT_SDF_SPACING)
+    with stage("bald"):
+        bald_image = make_bald_image(image, segmentation, analysis, scalp_hint(fit))
+    with stage("lift"):
+        if isinstance(lifter, BuiltinLifter):
+            lifter.sdf = sdf
+        lifted = lifter.lift(image, analysis, segmentation, bald_image, fit)
+        report.info["lift"] = dict(lifted.info)
+    with stage("segment3d"):
+        hair = lifted.hair
+        if options.clean_hair or isinstance(lifter, ImportLifter):
+            hair, summary = clean_hair(lifted.bald, hair, fit.camera, segmentation.labels,
+                                       reassign=isinstance(lifter, ImportLifter))
+            report.info["segment3d"] = summary
+        if len(hair) == 0:
+            raise InputError("no hair was found in the portrait (bald heads are not supported yet: "
+                             "the avatar format needs hair for its cage)", path)
+    with stage("rig"):
+        binding = rig_bald(lifted.bald, fit)
+    with stage("assemble"):
+        assembled = assemble(fit, binding, hair, analysis, screen=sdf)
+        report.info["assemble"] = assembled.report
+        fit = assembled.fit
+    with stage("colours"):
+        bald, hair = assembled.bald, assembled.hair
+        if options.refine_iterations > 0:
+            from avatarkit.gaussians.gaussian_set import GaussianSet
+
+            both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+            both, figures = refine_colours(both, fit.camera, image, head_mask(segmentation),
+                                           options.refine_iterations)
+            bald = bald.replace(sh=both.sh[:len(bald)])
+            hair = hair.replace(sh=both.sh[len(bald):])
+            report.info["colours"] = figures
+    with stage("hair_rig"):
+        mode, why = detect_hair_mode(segmentation, analysis)
+        if options.hair_mode != "auto":
+            mode = options.hair_mode
+        rigged = rig_hair(fit, hair, mode, cage_vertices=options.cage_vertices)
+        report.info["hair"] = {"mode": mode, "requested": options.hair_mode, **why, **rigged.info}
+    bald_out = bald.replace(extras={"binding": bald.extras["binding"].astype(np.int32)})
+    hair_out = rigged.hair.replace(extras={k: v for k, v in rigged.hair.extras.items()
+                                           if k == "binding"})
+    provenance = {"tool": "avatarkit", "version": _tool_version(), "created": _now(),
+                  "source_image": str(path), "generator": _generator(path, options),
+                  "hair_mode": mode}
+    avatar = Avatar(head_model, bald_out, hair_out, rigged.cage, rigged.rig, fit.shape, head_ref,
+                    options.name or path.stem, "local", provenance)
+    previews = {}
+    with stage("previews"):
+        if options.preview:
+            previews = render_previews(avatar, options.preview_size)
+            avatar.preview = previews["preview.png"]
+    report.info["counts"] = {"bald": len(bald_out), "hair": len(hair_out),
+                             "cage_vertices": int(rigged.cage.n_vertices)}
+    avatar.provenance["build"] = report.to_json()
+    avatar.build_previews = previews
+    return avatar
+
+
+def front_view_metrics(avatar, image: np.ndarray, segmentation, camera=None) -> dict:
+    """Quality of a built avatar seen from the photo's camera (the `camera` the build stored in
+    its provenance unless given): PSNR (dB) and SSIM (skimage) of the render (on white) against
+    the photo inside the head mask (`head_mask`); the share of hair Gaussian centres inside the
+    rest head (exact signed distance); and hair/skin label agreement: over the head mask, the
+    share of pixels where the render's hair label (hair Gaussians dominate the pixel) equals
+    the 2D segmentation's, and the IoU of the two hair masks."""
+    from skimage.metrics import structural_similarity
+
+    from avatarkit.recon.assemble import psnr, signed_distance
+    from avatarkit.recon.labels3d import render_label_images
+    from avatarkit.recon.segment import HAIR, SKIN
+    from avatarkit.render import render
+    from avatarkit.render.camera import Camera
+
+    if camera is None:
+        camera = Camera.from_dict(avatar.provenance["build"]["camera"])
+    gs = avatar.rest_gaussians()
+    target = np.asarray(image, np.float32) / 255.0
+    rgb = np.clip(render(gs, camera, background=(1.0, 1.0, 1.0)).rgb, 0, 1)
+    mask = head_mask(segmentation)
+    _, ssim_map = structural_similarity(target, rgb, channel_axis=2, data_range=1.0, full=True)
+    sd = signed_distance(avatar.hair.means, avatar.rest_head_vertices, avatar.head_model.faces)
+    part = np.where(gs.extras["part"] == 1, HAIR, SKIN).astype(np.int32)
+    rendered = render_label_images(gs, part, [camera], n_labels=4)[0]
+    hair2d = segmentation.labels == HAIR
+    hair3d = rendered == HAIR
+    inter = (hair2d & hair3d & mask).sum()
+    union = ((hair2d | hair3d) & mask).sum()
+    return {"psnr_db": round(psnr(rgb, target, mask), 3),
+            "ssim": round(float(ssim_map[mask].mean()), 4),
+            "hair_inside_share": float((sd < 0).mean()) if len(sd) else 0.0,
+            "label_agreement": round(float((hair2d == hair3d)[mask].mean()), 4),
+            "hair_iou": round(float(inter / max(union, 1)), 4),
+            "render": rgb}
+
+
+def _generator(path: Path, options: BuildOptions) -> str:
+    defaults = BuildOptions()
+    args = [f"{k}={v!r}" for k, v in asdict(options).items() if v != getattr(defaults, k)]
+    return f"avatarkit build {path.name}" + (f" ({', '.join(args)})" if args else "")
+
+
+def save_avatar(avatar, folder: str | os.PathLike) -> Path:
+    """Write the avatar folder (Avatar.save) plus the extra preview renders, atomically: all of
+    it is written into a temp folder beside the target, then renamed into place (an existing
+    avatar folder there is replaced; anything else is refused)."""
+    from avatarkit.avatar import check_avatar_target
+    from avatarkit.export.images import write_png
+
+    target = check_avatar_target(folder)
+    parent = target.parent if str(target.parent) else Path(".")
+    work = Path(tempfile.mkdtemp(prefix=f".{target.name}.build-", dir=parent))
+    try:
+        staged = avatar.save(work / target.name, preview=avatar.preview is not None)
+        for name, image in (getattr(avatar, "build_previews", None) or {}).items():
+            if name != "preview.png":
+                write_png(staged / name, image)
+                os.chmod(staged / name, 0o666 & ~_umask())
+        old = None
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=parent))
+            os.rmdir(old)
+            os.replace(target, old)
+        try:
+            os.replace(staged, target)
+        except BaseException:
+            if old is not None:
+                os.replace(old, target)
+            raise
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return target
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+__all__ = ["BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "build_avatar", "clean_hair",
+           "front_view_metrics", "head_mask", "render_previews", "save_avatar"]

@@ -1,0 +1,86 @@
+"""`avatarkit build`: one portrait -> an avatar folder."""
+from __future__ import annotations
+
+import click
+
+from avatarkit.cli.options import quiet_option
+
+_FILE = click.Path(dir_okay=False)
+
+
+@click.command("build")
+@click.argument("portrait", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Avatar folder to write (an existing avatar folder is replaced).")
+@click.option("--hair-mask", type=_FILE, help="PNG whose non-zero pixels are hair (e.g. from SAM); "
+              "replaces the built-in hair segmentation.")
+@click.option("--head-splats", type=_FILE, help="3DGS PLY of the portrait lifted to 3D with its hair "
+              "(e.g. FaceLift); needs --bald-splats.")
+@click.option("--bald-splats", type=_FILE, help="3DGS PLY of the bald image lifted to 3D, in the "
+              "same frame as --head-splats.")
+@click.option("--head-model", type=_FILE, help="Your FLAME model (generic_model.pkl / flame2023.pkl, "
+              "or an avatarkit .npz) instead of the built-in template head.")
+@click.option("--flame-params", type=_FILE, help="A FLAME tracker's fit (.npz with 'shape'): its "
+              "identity shape is used instead of fitting one.")
+@click.option("--face-index", type=click.IntRange(min=0), help="Which face to use when the photo has "
+              "several (numbered left to right from 0).")
+@click.option("--hair-mode", type=click.Choice(["auto", "cage", "rigid"]), default="auto",
+              show_default=True, help="auto: short hair rides the scalp rigidly, long hair is "
+              "simulated in a cage.")
+@click.option("--n-bald", type=click.IntRange(min=100), default=40_000, show_default=True,
+              help="Bald head Gaussians (built-in lifter).")
+@click.option("--n-hair", type=click.IntRange(min=100), default=40_000, show_default=True,
+              help="Hair Gaussians, at most (built-in lifter).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Varies the sampling.")
+@click.option("--preview/--no-preview", default=True, show_default=True,
+              help="Render front, three-quarter and profile previews into the folder.")
+@quiet_option
+def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
+              face_index, hair_mode, n_bald, n_hair, seed, preview, quiet):
+    """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...).
+
+    Writes the avatar folder (avatar.json, bald.ply, hair.ply, cage.ply, rig.npz, previews)
+    atomically: on any error nothing is left under OUTPUT.
+
+    \b
+    Examples:
+      avatarkit build samples/portrait.jpg -o portrait_avatar
+      avatarkit build me.jpg -o me --hair-mask me_hair.png
+      avatarkit build me.jpg -o me --head-splats head.ply --bald-splats bald.ply
+      avatarkit build me.jpg -o me --head-model ~/flame/generic_model.pkl --flame-params track.npz
+    """
+    import time
+
+    from avatarkit.avatar import check_avatar_target
+    from avatarkit.recon.pipeline import BuildOptions, build_avatar, save_avatar
+
+    options = BuildOptions(hair_mask=hair_mask, head_splats=head_splats, bald_splats=bald_splats,
+                           head_model=head_model, flame_params=flame_params, face_index=face_index,
+                           hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview)
+    options.check()
+    check_avatar_target(output)  # refuse a bad output before the work
+    t0 = time.perf_counter()
+
+    def progress(stage, index, total, seconds):
+        if quiet:
+            return
+        if seconds is None:
+            click.echo(f"[{index:2d}/{total}] {stage:<10s} ...", err=True, nl=False)
+        else:
+            click.echo(f" {seconds:6.1f} s", err=True)
+
+    try:
+        avatar = build_avatar(portrait, options, progress)
+    except BaseException:
+        if not quiet:
+            click.echo(" failed", err=True)
+        raise
+    path = save_avatar(avatar, output)
+    if not quiet:
+        build = avatar.provenance.get("build", {})
+        for w in build.get("warnings", []):
+            click.echo(f"warning: {w}", err=True)
+        c = avatar.counts()
+        click.echo(f"wrote {path}: {c['bald']:,} bald + {c['hair']:,} hair Gaussians "
+                   f"({avatar.provenance.get('hair_mode')} hair), {c['cage_vertices']} cage vertices, "
+                   f"{time.perf_counter() - t0:.1f} s", err=True)

@@ -1,0 +1,232 @@
+"""Lifting (issue 8 item 5): image helpers, the bald head round trip, hair grown into a known
+hair mask, imported splats aligned back by a known similarity, and corrupt imports."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from avatarkit.errors import FormatError, InputError
+from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.fit import synthetic_head_view
+from avatarkit.recon.lift import (BuiltinLifter, ImportLifter, Lifter, align_similarity, hair_flow,
+                                  hair_shell, lift_bald, lift_hair, propagate_colors, sample_image,
+                                  umeyama)
+from avatarkit.recon.segment import HAIR, Segmentation
+
+
+def test_sample_image_is_bilinear_with_pixel_centres():
+    ramp = np.tile(np.arange(10, dtype=np.float32)[None, :, None], (6, 1, 1))
+    px = np.array([[0.5, 2.0], [3.75, 1.0], [6.5, 5.5], [-4.0, 0.0]])
+    np.testing.assert_allclose(sample_image(ramp, px)[:, 0], [0.0, 3.25, 6.0, 0.0], atol=1e-5)
+
+
+def test_propagate_colors_fixes_known_and_fades_to_the_fallback():
+    pts = np.stack([np.linspace(0, 0.3, 301), np.zeros(301), np.zeros(301)], axis=1)
+    colors = np.zeros((301, 3))
+    known = np.zeros(301, bool)
+    known[:20] = True
+    colors[:20] = (1.0, 0.0, 0.0)
+    out = propagate_colors(pts, colors, known, (0.0, 0.0, 1.0), reach=0.03)
+    np.testing.assert_allclose(out[:20], colors[:20], atol=1e-6)
+    assert out[21, 0] > 0.9                            # right next to the known colour
+    assert out[-1, 2] > 0.99 and out[-1, 0] < 0.01     # far away: the fallback
+    assert np.all(np.diff(out[20:, 0]) <= 1e-6)        # fading monotonically
+
+
+def test_hair_flow_follows_stripes():
+    h = w = 96
+    theta = np.radians(30)
+    y, x = np.mgrid[0:h, 0:w] + 0.5
+    grey = 0.5 + 0.4 * np.sin(2 * np.pi * (x * np.cos(theta) + y * np.sin(theta)) / 6.0)
+    image = np.repeat((grey * 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    flow, coherence = hair_flow(image, np.ones((h, w), bool), scale_px=40)
+    along = np.array([-np.sin(theta), np.cos(theta)])   # stripes run across their gradient
+    inner = (slice(20, 76), slice(20, 76))
+    assert np.all(np.abs(flow[inner] @ along) > 0.98)
+    assert coherence[inner].min() > 0.5
+
+
+@pytest.fixture(scope="module")
+def view():
+    return synthetic_head_view((0.0, 0.15, 0.0), distance=0.6, size=256)
+
+
+def _plain(view_, labels=None):
+    labels = view_.segmentation.labels if labels is None else labels
+    return SimpleNamespace(image=view_.image, labels=labels)
+
+
+def test_bald_lifting_reproduces_the_photo(view):
+    from avatarkit.recon.assemble import psnr
+    from avatarkit.render import render
+
+    rng = np.random.default_rng(0)
+    bald, info = lift_bald(view.image, view.analysis, view.segmentation, _plain(view), view.truth,
+                           20000, rng)
+    assert len(bald) == 20000 and {"binding", "part"} <= set(bald.extras)
+    assert 0.3 < info["bald_seen_share"] < 0.7          # about the half that faces the camera
+    again = render(bald.replace(extras={}), view.truth.camera, background=(0.47, 0.59, 0.73)).rgb
+    mask = view.alpha > 0.5
+    assert psnr(again, view.image / 255.0, mask) > 27.0
+    # the back of the head was never seen: it gets the skin model's colour
+    back = bald.means[:, 2] < np.percentile(bald.means[:, 2], 5)
+    skin = view.segmentation.skin_model.rgb / 255.0
+    assert np.abs(np.median(bald.colors[back], axis=0) - skin).max() < 0.08
+
+
+def _hair_view(view_):
+    """The synthetic view with a hair cap: the head's projection above the brows, grown 10 px."""
+    import cv2
+
+    from avatarkit.recon.fit import project_mask
+
+    head = project_mask(view_.truth)
+    _, v = view_.analysis.face_grid(head.shape)
+    cap = cv2.dilate((head & (v < -0.45)).astype(np.uint8), np.ones((21, 21), np.uint8)).astype(bool)
+    cap &= v < 0.3
+    labels = view_.segmentation.labels.copy()
+    labels[cap] = HAIR
+    image = view_.image.copy()
+    image[cap] = (70, 45, 30)
+    seg = Segmentation(labels, view_.segmentation.skin_model, None, "imported")
+    return image, seg, cap
+
+
+def test_hair_grows_into_the_mask_and_outside_the_head(view):
+    from avatarkit.recon.assemble import signed_distance
+    from avatarkit.render import render
+
+    image, seg, cap = _hair_view(view)
+    rng = np.random.default_rng(1)
+    bald, _ = lift_bald(image, view.analysis, seg, _plain(view, seg.labels), view.truth, 15000, rng)
+    hair, info = lift_hair(image, view.analysis, seg, view.truth, 12000, rng, bald_set=bald)
+    assert 0 < len(hair) <= 12000
+    model = view.truth.model
+    sd = signed_distance(hair.means, view.truth.rest_vertices, model.faces)
+    assert sd.min() > 0                                  # every strand stays outside the head
+    seen = hair.extras["seen"].astype(bool)
+    px, _ = view.truth.camera.project(hair.means[seen])
+    xi, yi = np.clip(px.astype(int), 0, 255).T
+    assert np.mean(cap[yi, xi]) > 0.95                  # seen hair lies on the hair mask
+    both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+    alpha = render(both, view.truth.camera).alpha
+    hair_alpha = render(hair.replace(extras={}), view.truth.camera).alpha
+    assert np.mean(hair_alpha[cap] > 0.5) > 0.9          # the hair covers its mask
+    assert np.mean(hair_alpha[~cap & (alpha > 0.5)] > 0.5) < 0.05   # and not the face
+    # the hidden back of the head has hair too (the silhouette extrapolated)
+    centre_z = view.truth.rest_vertices[:, 2].mean()
+    assert np.sum(hair.means[:, 2] < centre_z - 0.05) > 0.1 * len(hair)
+    assert info["shell_max_m"] > 0.005
+
+
+def test_hair_shell_measures_the_grown_margin(view):
+    import cv2
+
+    from avatarkit.recon.fit import project_mask
+
+    head = project_mask(view.truth, view.truth.model.faces[
+        ~view.truth.model.region_mask("neck")[view.truth.model.faces].all(axis=1)])
+    grown = cv2.dilate(head.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (17, 17))).astype(bool)
+    shell = hair_shell(view.truth, grown & ~head | head, view.analysis)
+    # 8 px all around, at the head's depth
+    expected = 8 * shell.depth / view.truth.camera.fx
+    top = np.abs(shell.angles + np.pi / 2) < 0.6
+    np.testing.assert_allclose(np.median(shell.thickness[top]), expected, rtol=0.2)
+
+
+def test_builtin_lifter_is_a_lifter(view):
+    assert isinstance(BuiltinLifter(n_bald=100, n_hair=0), Lifter)
+    res = BuiltinLifter(n_bald=500, n_hair=0).lift(view.image, view.analysis, view.segmentation,
+                                                   _plain(view), view.truth)
+    assert len(res.bald) == 500 and len(res.hair) == 0
+    with pytest.raises(InputError):
+        BuiltinLifter(n_bald=0)
+
+
+def test_umeyama_is_exact_on_pairs():
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(50, 3))
+    from avatarkit.rotations import axis_angle_to_matrix
+
+    r = axis_angle_to_matrix(np.array([0.3, -0.5, 0.2]))
+    dst = 2.5 * src @ r.T + [1.0, -2.0, 0.5]
+    s, rr, t = umeyama(src, dst)
+    assert s == pytest.approx(2.5)
+    np.testing.assert_allclose(rr, r, atol=1e-9)
+    np.testing.assert_allclose(t, [1.0, -2.0, 0.5], atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def lifted_plys(tmp_path_factory, view):
+    """A FaceLift-like pair in a foreign frame: bald splats on the template, head splats = other
+    samples of the same surface + procedural hair, both moved by a known similarity."""
+    from avatarkit.gaussians.ply import write_ply
+    from avatarkit.rotations import axis_angle_to_matrix
+    from avatarkit.synthetic.head_hair import make_test_avatar
+    from avatarkit.synthetic.sample_avatar import make_bald
+
+    model = view.truth.model
+    rest = view.truth.rest_vertices
+    bald = make_bald(model, rest, 12000, seed=1).replace(extras={})
+    face = make_bald(model, rest, 12000, seed=2).replace(extras={})
+    hair = make_test_avatar("bob", 6000, 0, 200, head_model=model).hair.replace(extras={})
+    head = GaussianSet.concat([face, hair])
+    r = axis_angle_to_matrix(np.array([0.05, 0.35, -0.03]))
+    s, t = 1.8, np.array([0.3, -0.1, 2.0])
+    folder = tmp_path_factory.mktemp("lifted")
+    write_ply(folder / "bald.ply", bald.transform(r, t, s))
+    write_ply(folder / "head.ply", head.transform(r, t, s))
+    return folder, bald, head, len(face), len(hair)
+
+
+def test_import_lifter_aligns_and_finds_the_hair(view, lifted_plys):
+    folder, bald, head, n_face, n_hair = lifted_plys
+    lifter = ImportLifter(folder / "head.ply", folder / "bald.ply")
+    res = lifter.lift(view.image, view.analysis, view.segmentation, None, view.truth)
+    assert res.info["scale"] == pytest.approx(1 / 1.8, rel=0.01)
+    assert res.info["bald_dropped"] == 0
+    # on the surface to a fraction of a millimetre (ICP may slide a little along it)
+    assert res.info["align_rms_mm"] < 0.5
+    err = np.linalg.norm(res.bald.means - bald.means, axis=1)
+    assert np.median(err) < 0.003
+    # the hair: the head splats not explained by the bald ones (found back by position)
+    from scipy.spatial import cKDTree
+
+    _, j = cKDTree(head.means).query(res.hair.means)
+    is_hair = j >= n_face
+    assert is_hair.mean() > 0.95                                   # precision
+    assert abs(len(res.hair) - n_hair) < 0.05 * n_hair             # so recall > 0.9 too
+
+
+def test_import_lifter_rejects_corrupt_and_missing_plys(tmp_path, lifted_plys):
+    folder = lifted_plys[0]
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\nend_header\n\x00\x01")
+    with pytest.raises(FormatError) as e:
+        ImportLifter(bad, folder / "bald.ply")
+    assert str(bad) in str(e.value)
+    with pytest.raises(InputError, match="not found"):
+        ImportLifter(folder / "head.ply", tmp_path / "missing.ply")
+    tiny = tmp_path / "tiny.ply"
+    from avatarkit.gaussians.ply import write_ply
+
+    write_ply(tiny, GaussianSet.from_colors(np.zeros((3, 3)), np.tile([1.0, 0, 0, 0], (3, 1)),
+                                            np.full((3, 3), 0.01), np.ones(3), np.ones((3, 3))))
+    with pytest.raises(FormatError, match="too few"):
+        ImportLifter(tiny, folder / "bald.ply")
+
+
+def test_align_similarity_recovers_a_flipped_frame(view):
+    from avatarkit.recon.lift import head_surface_samples
+    from avatarkit.rotations import axis_angle_to_matrix
+
+    target = head_surface_samples(view.truth, 8000, seed=0)
+    pts = head_surface_samples(view.truth, 4000, seed=5)
+    r = axis_angle_to_matrix(np.array([np.pi, 0.0, 0.0])) @ axis_angle_to_matrix(np.array([0.0, 0.2, 0.0]))
+    moved = 0.5 * pts @ r.T + [0.1, 0.2, 0.3]
+    s, rr, t, rms = align_similarity(moved, target, mesh=(view.truth.rest_vertices, view.truth.model.faces))
+    back = s * moved @ rr.T + t
+    assert np.median(np.linalg.norm(back - pts, axis=1)) < 0.003
+    assert rms < 0.0005
