@@ -15,6 +15,16 @@ import click
 # `avatarkit --help` stays fast and one command's heavy imports never slow another.
 COMMANDS: dict[str, str] = {
     "inspect": "avatarkit.cli.inspect_cmd:inspect_cmd",
+    "head": "avatarkit.cli.head_cmd:head",
+    "motion": "avatarkit.cli.motion_cmd:motion",
+    "convert": "avatarkit.cli.convert_cmd:convert_cmd",
+    "render": "avatarkit.cli.render_cmd:render_cmd",
+    "bake": "avatarkit.cli.bake_cmd:bake_cmd",
+    "avatar": "avatarkit.cli.avatar_cmd:avatar",
+    "build": "avatarkit.cli.build_cmd:build_cmd",
+    "bake-batch": "avatarkit.cli.batch_cmd:bake_batch_cmd",
+    "transfer-hair": "avatarkit.cli.hair_cmd:transfer_hair_cmd",
+    "hair-grid": "avatarkit.cli.hair_cmd:hair_grid_cmd",
 }
 
 
