@@ -36,6 +36,17 @@ def _quiet_stdout():
         os.close(saved)
 
 
+def _threads() -> int:
+    """Kernel threads: all cores, or AVATARKIT_THREADS (batch workers share the cores)."""
+    value = os.environ.get("AVATARKIT_THREADS", "")
+    if value.strip():
+        try:
+            return max(1, int(value))
+        except ValueError:
+            pass  # a malformed override is ignored rather than breaking every command
+    return os.cpu_count() or 2
+
+
 def ensure_taichi():
     """Initialise Taichi once (arch=cpu, all cores, no version check) and return the module."""
     global _ready
@@ -50,7 +61,7 @@ def ensure_taichi():
 
             if not _ready:
                 # arch=gpu/opengl segfaults on our machines; the CPU backend is the product.
-                ti.init(arch=ti.cpu, log_level=ti.WARN, cpu_max_num_threads=os.cpu_count() or 2,
+                ti.init(arch=ti.cpu, log_level=ti.WARN, cpu_max_num_threads=_threads(),
                         offline_cache=True)
                 _ready = True
     return ti

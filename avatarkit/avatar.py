@@ -427,6 +427,11 @@ class Avatar:
                                     face_ids=self.bald.extras["binding"],
                                     rotate_sh=self.sh_frame == "local")
 
+    @property
+    def hair_mode(self) -> str:
+        """"cage" (simulated) or "rigid" (short hair that moves with the scalp), as built."""
+        return "rigid" if self.provenance.get("hair_mode") == "rigid" else "cage"
+
     def hair_driver(self, config=None):
         """A `HairDriver` for this avatar (shares the rig: no weights are recomputed)."""
         return self.rig.driver(self.head_model, self.rest_head_vertices, config)

@@ -3,6 +3,7 @@ sequence and/or a preview video in one pass."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import time
 import warnings
@@ -101,7 +102,9 @@ def _mb(n: int) -> str:
 @click.option("--gravity", default=None, metavar="X,Y,Z", help="Gravity in m/s^2 [default: 0,-9.81,0].")
 @click.option("--collision", type=click.Choice(_COLLISION), default=None,
               help="Hair-head collision: none, vertex (cage vertices) or proxy (the paper's) [default: proxy].")
-@click.option("--static-hair", is_flag=True, help="No hair dynamics: the hair follows the head rigidly.")
+@click.option("--static-hair/--dynamic-hair", default=None,
+              help="No hair dynamics (the hair follows the head rigidly), or simulate it. "
+                   "[default: static for avatars built with short, rigid hair, else dynamic]")
 @click.option("--preroll", type=click.FloatRange(min=0), default=None,
               help="Seconds the hair settles at the first pose before frame 0 [default: 1].")
 @click.option("--half", is_flag=True, help="USD: half-precision splat attributes.")
@@ -167,6 +170,8 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         from avatarkit.motion import load_clip
 
         avatar = load_avatar(avatar_dir)
+        if static_hair is None and avatar.hair_mode == "rigid":
+            config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, static=True))
         clip = load_clip(clip_path)
         writers = []
         if out_path is not None:

@@ -230,3 +230,27 @@ def test_sample_command_and_full_bake(tmp_path, capsys):
     stage = Usd.Stage.Open(str(tmp_path / "pts.usdc"))
     assert stage.GetPrimAtPath("/Avatar/Hair").GetTypeName() == "Points"
 
+
+
+def test_rigid_hair_avatars_bake_static_by_default(folder, clip_file, tmp_path, monkeypatch):
+    """An avatar built with short (rigid) hair bakes without dynamics unless asked."""
+    import avatarkit.bake as bake_mod
+    from avatarkit.avatar import load_avatar
+
+    seen = []
+    real = bake_mod.run_bake
+
+    def spy(avatar, clip, config, writers, progress=None):
+        seen.append(config.sim.static)
+        return real(avatar, clip, config, writers, progress=progress)
+
+    monkeypatch.setattr(bake_mod, "run_bake", spy)
+    avatar = load_avatar(folder)
+    avatar.provenance["hair_mode"] = "rigid"
+    rigid = tmp_path / "rigid"
+    avatar.save(rigid, preview=False)
+    assert load_avatar(rigid).hair_mode == "rigid"
+    for args, want in (([], True), (["--dynamic-hair"], False)):
+        out = tmp_path / f"o{len(seen)}.usda"
+        assert main(["bake", str(rigid), str(clip_file), "-o", str(out), "-q", *FAST, *args]) == 0
+        assert seen[-1] is want

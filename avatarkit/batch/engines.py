@@ -35,8 +35,8 @@ from avatarkit.batch.worker import Task, execute, init_pool_worker
 from avatarkit.errors import InputError
 
 ENGINES = ("local", "ray")
-#: thread pools that numpy/BLAS and torch size at import from these variables
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: thread pools that numpy/BLAS, torch and our Taichi kernels size at start from these variables
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "AVATARKIT_THREADS")
 #: the message of a job whose worker process died under it
 LOST = "its worker process died (killed, out of memory, or crashed)"
 
