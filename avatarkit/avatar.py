@@ -33,14 +33,11 @@ an interrupted save leaves the old folder (or nothing) under the requested name.
 """
 from __future__ import annotations
 
-import contextlib
 import datetime
 import functools
 import hashlib
 import json
 import os
-import shutil
-import tempfile
 import warnings
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -49,6 +46,7 @@ from typing import Any, Callable
 import numpy as np
 
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
+from avatarkit.fileio import atomic_folder, check_output_folder
 from avatarkit.gaussians.gaussian_set import GaussianSet
 
 AVATAR_FORMAT = "avatarkit.avatar"
@@ -490,12 +488,10 @@ class Avatar:
         from avatarkit.schemas import validate
 
         target = check_avatar_target(folder)
-        parent = target.parent
         image = self.preview
         if image is None and preview:
             image = self.render_preview()
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=parent))
-        try:
+        with atomic_folder(target) as tmp:
             write_ply(tmp / BALD_FILE, self.bald)
             write_ply(tmp / HAIR_FILE, self.hair)
             save_cage(tmp / CAGE_FILE, self.cage)
@@ -509,11 +505,6 @@ class Avatar:
             manifest = self.manifest(sha, None if image is None else image.shape[:2])
             validate(manifest, "avatar", tmp / MANIFEST)
             (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
-            _umask_permissions(tmp)
-            _swap_into_place(tmp, target)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return target
 
     @classmethod
@@ -526,43 +517,13 @@ def check_avatar_target(folder: str | os.PathLike) -> Path:
     """Raise OutputError unless `folder` can receive an avatar: its parent exists and is
     writable, and it is absent, empty or an avatar folder (which a save replaces)."""
     target = Path(folder)
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError("output folder does not exist", parent)
-    if not os.access(parent, os.W_OK):
-        raise OutputError("output folder is not writable", parent)
+    check_output_folder(target.parent)
     if target.exists() and not target.is_dir():
         raise OutputError("exists and is not a folder", target)
     if target.is_dir() and any(target.iterdir()) and not (target / MANIFEST).is_file():
         raise OutputError("folder exists and is not an avatar folder (no avatar.json): "
                           "refusing to replace it", target)
     return target
-
-
-def _umask_permissions(folder: Path) -> None:
-    """Temp files and folders are private (0600/0700); give the finished folder the
-    permissions a plain mkdir/open would have."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(folder, 0o777 & ~mask)
-    for p in folder.iterdir():
-        os.chmod(p, 0o666 & ~mask)
-
-
-def _swap_into_place(tmp: Path, target: Path) -> None:
-    old = None
-    if target.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-        os.rmdir(old)
-        os.replace(target, old)
-    try:
-        os.replace(tmp, target)
-    except BaseException:
-        if old is not None:
-            os.replace(old, target)
-        raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def _tool_version() -> str:

@@ -39,6 +39,7 @@ import numpy as np
 
 from avatarkit.baked import BakeFrame, BakeStatic, SplatFrame
 from avatarkit.errors import InputError, OutputError
+from avatarkit.fileio import check_output_folder
 from avatarkit.sim.config import SimConfig
 
 #: frames posed per call of the head model (LBS is cheaper batched; bounds memory)
@@ -438,6 +439,79 @@ class PreviewWriter:
             video.__exit__(RuntimeError, RuntimeError("bake aborted"), None)
 
 
+WRITER_KINDS = ("usd", "ply", "preview")
+
+
+def make_writer(kind: str, target: str | os.PathLike, options: dict | None = None):
+    """The bake writer of one output kind: "usd" -> `UsdStageWriter` (options: the fields of
+    `UsdWriteOptions`), "ply" -> `PlySequenceWriter` (split), "preview" -> `PreviewWriter`
+    (size, orbit). Options left out take the writer's defaults."""
+    options = dict(options or {})
+    if kind == "usd":
+        from avatarkit.export.usd_stage import UsdStageWriter, UsdWriteOptions
+
+        return UsdStageWriter(target, UsdWriteOptions(**options))
+    if kind == "ply":
+        from avatarkit.export.ply_sequence import PlySequenceWriter
+
+        return PlySequenceWriter(target, **options)
+    if kind == "preview":
+        return PreviewWriter(target, **options)
+    raise InputError(f"unknown bake output kind {kind!r}; use one of {', '.join(WRITER_KINDS)}")
+
+
+def check_output(kind: str, path: str | os.PathLike) -> Path:
+    """Raise OutputError unless `path` can receive a bake output of `kind` (see `make_writer`):
+    a known extension (usd, preview), not a folder (usd, preview) or not a file (ply), and a
+    writable folder to go in. Cheap: meant to run before anything is loaded or baked."""
+    p = Path(path)
+    if kind == "ply":
+        if p.exists() and not p.is_dir():
+            raise OutputError("is a file, not a folder", p)
+        check_output_folder(p if p.exists() else p.parent)
+        return p
+    if kind == "usd":
+        from avatarkit.gaussians.usd import USD_EXTENSIONS as extensions
+        what = "USD"
+    elif kind == "preview":
+        from avatarkit.export.video import VIDEO_EXTENSIONS as extensions
+        what = "preview"
+    else:
+        raise InputError(f"unknown bake output kind {kind!r}; use one of {', '.join(WRITER_KINDS)}")
+    if p.suffix.lower() not in extensions:
+        raise OutputError(f"unknown {what} extension {p.suffix or '(none)'!r}; use one of "
+                          f"{', '.join(extensions)}", p)
+    if p.is_dir():
+        raise OutputError("is a folder, not a file name", p)
+    check_output_folder(p.parent)
+    return p
+
+
+def output_bytes(kind: str, path: str | os.PathLike) -> int:
+    """Bytes on disk of a written output: its file or its folder's files, plus for "usd" the
+    stage's `<name>_clips/` folder of value-clip layers (not for .usdz, which holds them)."""
+    p = Path(path)
+    size = _tree_bytes(p)
+    clips = usd_clips_folder(p) if kind == "usd" else None
+    return size + (_tree_bytes(clips) if clips is not None else 0)
+
+
+def usd_clips_folder(path: str | os.PathLike) -> Path | None:
+    """The `<name>_clips/` folder written beside a USD stage, if there is one."""
+    from avatarkit.export.usd_stage import CLIP_FOLDER_SUFFIX
+
+    p = Path(path)
+    clips = p.parent / (p.stem + CLIP_FOLDER_SUFFIX)
+    return clips if p.suffix.lower() != ".usdz" and clips.is_dir() else None
+
+
+def _tree_bytes(path: Path) -> int:
+    if path.is_dir():
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    return path.stat().st_size if path.exists() else 0
+
+
+
 @dataclass
 class BakeSummary:
     """What `run_bake` did: frames written, wall time, per-stage and per-writer seconds, and
@@ -494,5 +568,6 @@ def run_bake(avatar, clip, config: BakeConfig | None, writers: Sequence[Any],
     return BakeSummary(frames.produced, time.perf_counter() - t0, timings, results)
 
 
-__all__ = ["BakeConfig", "BakeFrames", "BakeSummary", "PreviewWriter", "bake", "binding_to_world",
-           "check_clip", "prepare_clip", "run_bake", "MAX_TRANSLATION"]
+__all__ = ["BakeConfig", "BakeFrames", "BakeSummary", "PreviewWriter", "WRITER_KINDS", "bake",
+           "binding_to_world", "check_clip", "check_output", "make_writer", "output_bytes",
+           "prepare_clip", "run_bake", "usd_clips_folder", "MAX_TRANSLATION"]

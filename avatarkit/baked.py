@@ -6,10 +6,12 @@ frame's moving data. Writers consume `BakeStatic` once and then an iterator of `
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from avatarkit.errors import InputError
 from avatarkit.gaussians import GaussianSet
 
 
@@ -55,3 +57,27 @@ class BakeFrame:
         rest: GaussianSet = getattr(static, part)
         moving: SplatFrame = getattr(self, part)
         return rest.replace(means=moving.means, quats=moving.quats, scales=moving.scales)
+
+
+def check_fps(fps) -> None:
+    """InputError unless `fps` (a `BakeStatic`'s frame rate) is a finite positive number."""
+    if not (isinstance(fps, (int, float, np.number)) and math.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be a positive number, got {fps!r}")
+
+
+class StreamingWriter:
+    """What the file writers of a bake share: `begin(static)`, `write(frame)` per frame, then
+    `close()` or `abort()`; subclasses move `_state` from "new" to "open" to "closed". As a
+    context manager: close on success, abort on any exception (Ctrl-C included)."""
+
+    _state = "new"
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            self.abort()
+        elif self._state == "open":
+            self.close()
+        return False

@@ -1,11 +1,13 @@
-"""Atomic output files: write to a temporary name beside the target, rename when complete.
+"""Atomic output files and folders: write to a temporary name beside the target, rename when
+complete.
 
-A failed or interrupted writer never leaves a half-written file under the requested name.
+A failed or interrupted writer never leaves a half-written file or folder under the requested name.
 """
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -19,6 +21,17 @@ def _umask() -> int:
     return mask
 
 
+def check_output_folder(folder: str | os.PathLike) -> Path:
+    """Raise OutputError unless `folder` (a target's parent; "" is the current folder) exists
+    and new entries can be made in it. Returns it as a Path."""
+    folder = Path(folder) if str(folder) else Path(".")
+    if not folder.is_dir():
+        raise OutputError("output folder does not exist", folder)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError("output folder is not writable", folder)
+    return folder
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it onto `path`.
@@ -28,11 +41,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     is removed and the target is untouched.
     """
     target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    if not folder.is_dir():
-        raise OutputError("output folder does not exist", folder)
-    if not os.access(folder, os.W_OK):
-        raise OutputError("output folder is not writable", folder)
+    folder = check_output_folder(target.parent)
     suffix = target.suffix if suffix is None else suffix
     fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".partial{suffix}", dir=folder)
     os.close(fd)
@@ -45,4 +54,56 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
+        raise
+
+
+def replace_folder(staged: str | os.PathLike, target: str | os.PathLike) -> Path:
+    """Rename the finished folder `staged` onto `target` (same file system).
+
+    An existing `target` is first moved aside and only deleted once the new folder is in
+    place, so a failure at any point leaves either the old or the new folder under the name.
+    """
+    staged, target = Path(staged), Path(target)
+    old = None
+    if target.exists():
+        parent = target.parent if str(target.parent) else Path(".")
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=parent))
+        os.rmdir(old)
+        os.replace(target, old)
+    try:
+        os.replace(staged, target)
+    except BaseException:
+        if old is not None:
+            os.replace(old, target)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return target
+
+
+def _plain_permissions(folder: Path) -> None:
+    """mkdtemp/mkstemp make private entries (0700/0600); give the finished folder the
+    permissions a plain mkdir/open would have."""
+    mask = _umask()
+    os.chmod(folder, 0o777 & ~mask)
+    for p in folder.rglob("*"):
+        os.chmod(p, (0o777 if p.is_dir() else 0o666) & ~mask)
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike, tag: str = "partial") -> Iterator[Path]:
+    """Yield an empty temporary folder beside `path`; on success give it plain permissions and
+    `replace_folder` it onto `path`. On any exception it is removed and `path` is untouched.
+
+    The caller checks that `path` may be replaced; the parent folder must exist.
+    """
+    target = Path(path)
+    parent = target.parent if str(target.parent) else Path(".")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.{tag}-", dir=parent))
+    try:
+        yield tmp
+        _plain_permissions(tmp)
+        replace_folder(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -2,77 +2,17 @@
 sequence and/or a preview video in one pass."""
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import os
 import time
 import warnings
 from pathlib import Path
 
 import click
 
-from avatarkit.cli.options import progress, quiet_option
+from avatarkit.cli.options import cli_warnings, progress, quiet_option
 
-_USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")   # gaussians.usd.USD_EXTENSIONS
-_VIDEO_EXTENSIONS = (".mp4", ".gif")                     # export.video.VIDEO_EXTENSIONS
-_COLLISION = ("none", "vertex", "proxy")                 # sim.COLLISION_MODES
+_COLLISION = ("none", "vertex", "proxy")  # sim.COLLISION_MODES
 # (kept literal so `--help` imports neither pxr nor numpy; a test checks they agree)
-
-
-@contextlib.contextmanager
-def cli_warnings(quiet: bool):
-    """Library warnings as one `warning: ...` line each on stderr (none with --quiet)."""
-    def show(message, category, filename, lineno, file=None, line=None):
-        if not quiet:
-            click.echo(f"warning: {message}", err=True)
-
-    with warnings.catch_warnings():
-        # ours (and other UserWarnings) are for the user; deprecation and resource noise is not
-        warnings.simplefilter("ignore")
-        warnings.simplefilter("always", UserWarning)
-        warnings.showwarning = show
-        yield
-
-
-def _check_output_file(path: str, extensions: tuple[str, ...], what: str) -> Path:
-    from avatarkit.errors import OutputError
-
-    p = Path(path)
-    if p.suffix.lower() not in extensions:
-        raise OutputError(f"unknown {what} extension {p.suffix or '(none)'!r}; use one of "
-                          f"{', '.join(extensions)}", p)
-    if p.is_dir():
-        raise OutputError("is a folder, not a file name", p)
-    _check_folder(p.parent if str(p.parent) else Path("."))
-    return p
-
-
-def _check_folder(folder: Path) -> None:
-    from avatarkit.errors import OutputError
-
-    if not folder.is_dir():
-        raise OutputError("output folder does not exist", folder)
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError("output folder is not writable", folder)
-
-
-def _check_ply_dir(path: str) -> Path:
-    from avatarkit.errors import OutputError
-
-    p = Path(path)
-    if p.exists():
-        if not p.is_dir():
-            raise OutputError("is a file, not a folder", p)
-        _check_folder(p)
-    else:
-        _check_folder(p.parent if str(p.parent) else Path("."))
-    return p
-
-
-def _size(path: Path) -> int:
-    if path.is_dir():
-        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
-    return path.stat().st_size if path.exists() else 0
 
 
 def _mb(n: int) -> str:
@@ -138,15 +78,17 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
     # every output is checked before anything is loaded or baked
     if not (output or ply_dir or preview):
         raise InputError("nothing to write: give -o OUT.usdc, --ply-dir DIR and/or --preview OUT.mp4")
-    out_path = _check_output_file(output, _USD_EXTENSIONS, "USD") if output else None
-    ply_path = _check_ply_dir(ply_dir) if ply_dir else None
-    preview_path = _check_output_file(preview, _VIDEO_EXTENSIONS, "preview") if preview else None
+    from avatarkit.bake import check_output
+
+    out_path = check_output("usd", output) if output else None
+    ply_path = check_output("ply", ply_dir) if ply_dir else None
+    preview_path = check_output("preview", preview) if preview else None
     if split and not ply_dir:
         raise InputError("--split applies to the PLY sequence: give --ply-dir too")
     if (orbit or preview_size != 384) and not preview:
         raise InputError("--orbit and --preview-size apply to the preview: give --preview too")
 
-    from avatarkit.bake import BakeConfig, PreviewWriter, run_bake
+    from avatarkit.bake import BakeConfig, make_writer, output_bytes, run_bake, usd_clips_folder
     from avatarkit.render.preview import parse_vec3
     from avatarkit.sim.config import SimConfig
 
@@ -173,18 +115,10 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         if static_hair is None and avatar.hair_mode == "rigid":
             config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, static=True))
         clip = load_clip(clip_path)
-        writers = []
-        if out_path is not None:
-            from avatarkit.export.usd_stage import UsdStageWriter, UsdWriteOptions
-
-            writers.append(UsdStageWriter(out_path, UsdWriteOptions(half=half, usd_points=usd_points,
-                                                                    chunk_frames=chunk_frames)))
-        if ply_path is not None:
-            from avatarkit.export.ply_sequence import PlySequenceWriter
-
-            writers.append(PlySequenceWriter(ply_path, split=split))
-        if preview_path is not None:
-            writers.append(PreviewWriter(preview_path, size=preview_size, orbit=orbit))
+        outputs = (("usd", out_path, {"half": half, "usd_points": usd_points, "chunk_frames": chunk_frames}),
+                   ("ply", ply_path, {"split": split}),
+                   ("preview", preview_path, {"size": preview_size, "orbit": orbit}))
+        writers = [make_writer(kind, path, opts) for kind, path, opts in outputs if path is not None]
         from avatarkit.bake import prepare_clip
 
         try:  # the clip's problems name the clip file
@@ -219,15 +153,14 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
     click.echo(f"baked {summary.frames} frames of {Path(clip_path).name} on {avatar.name} "
                f"({len(avatar.bald):,} bald + {len(avatar.hair):,} hair Gaussians) in "
                f"{summary.seconds:.1f} s: {summary.fps:.1f} frames/s (+{t_load:.1f} s loading)")
-    for path, label in ((out_path, "USD stage"), (ply_path, "PLY sequence"), (preview_path, "preview")):
+    labels = {"usd": "USD stage", "ply": "PLY sequence", "preview": "preview"}
+    for kind, path, _ in outputs:
         if path is None:
             continue
-        size = _size(path)
-        if label == "USD stage":
-            clips = path.parent / (path.stem + "_clips")
-            if path.suffix.lower() != ".usdz" and clips.is_dir():
-                size += _size(clips)
-                label += f" (+ {clips.name}/)"
-        click.echo(f"  {label:<26} {path}  {_mb(size)}")
+        label = labels[kind]
+        clips = usd_clips_folder(path) if kind == "usd" else None
+        if clips is not None:
+            label += f" (+ {clips.name}/)"
+        click.echo(f"  {label:<26} {path}  {_mb(output_bytes(kind, path))}")
     stages = ", ".join(f"{k} {v:.2f} s" for k, v in summary.timings.items())
     click.echo(f"  time: {stages}")

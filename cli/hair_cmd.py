@@ -23,19 +23,15 @@ def _keep_skin_option(f):
 
 def _check_png_output(path) -> None:
     """Fail on an unusable image path before any work (OutputError: exit 2)."""
-    import os
     from pathlib import Path
 
     from avatarkit.errors import OutputError
+    from avatarkit.fileio import check_output_folder
 
     p = Path(path)
     if p.suffix.lower() != ".png":
         raise OutputError(f"the image must be a .png file, got {p.suffix or 'no extension'}", p)
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError("output folder does not exist", parent)
-    if not os.access(parent, os.W_OK):
-        raise OutputError("output folder is not writable", parent)
+    check_output_folder(p.parent)
     if p.is_dir():
         raise OutputError("is a folder, expected a .png file", p)
 

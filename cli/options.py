@@ -1,7 +1,9 @@
 """Options shared by several commands, defined once."""
 from __future__ import annotations
 
+import contextlib
 import sys
+import warnings
 
 import click
 
@@ -20,6 +22,21 @@ def progress(iterable, *, length: int | None = None, label: str = "", quiet: boo
         return _NullBar(iterable)
     return click.progressbar(iterable, length=length, label=label, file=sys.stderr,
                              show_eta=True, show_pos=True)
+
+
+@contextlib.contextmanager
+def cli_warnings(quiet: bool):
+    """Library warnings as one `warning: ...` line each on stderr (none with --quiet)."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not quiet:
+            click.echo(f"warning: {message}", err=True)
+
+    with warnings.catch_warnings():
+        # ours (and other UserWarnings) are for the user; deprecation and resource noise is not
+        warnings.simplefilter("ignore")
+        warnings.simplefilter("always", UserWarning)
+        warnings.showwarning = show
+        yield
 
 
 class _NullBar:

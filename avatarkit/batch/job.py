@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from avatarkit.batch import records
-from avatarkit.batch.spec import BakeJob, OutputSpec
+from avatarkit.batch.spec import BakeJob
 
 JOB_STATUSES = ("done", "skipped", "failed", "cancelled")
 
@@ -103,23 +103,6 @@ def worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def _writer(output: OutputSpec, target: Path):
-    opts = output.options
-    if output.kind == "usd":
-        from avatarkit.export.usd_stage import UsdStageWriter, UsdWriteOptions
-
-        return UsdStageWriter(target, UsdWriteOptions(half=opts["half"], usd_points=opts["usd_points"],
-                                                      chunk_frames=opts["chunk_frames"],
-                                                      head_normals=opts["head_normals"]))
-    if output.kind == "ply":
-        from avatarkit.export.ply_sequence import PlySequenceWriter
-
-        return PlySequenceWriter(target, split=opts["split"])
-    from avatarkit.bake import PreviewWriter
-
-    return PreviewWriter(target, size=opts["size"], orbit=opts["orbit"])
-
-
 def run_job(job: BakeJob, outdir: str | os.PathLike, *, avatar: Any = None, kinds: list[str] | None = None,
             inputs: JobInputs | None = None,
             progress: Callable[[int, int], None] | None = None) -> JobResult:
@@ -129,7 +112,7 @@ def run_job(job: BakeJob, outdir: str | os.PathLike, *, avatar: Any = None, kind
     loaded here. inputs: the inputs' hashes if already known. Returns the result ("done", or
     "skipped" if nothing needed writing); raises on failure (AvatarKitError for bad input;
     nothing is left half-written under an output's name)."""
-    from avatarkit.bake import run_bake
+    from avatarkit.bake import make_writer, run_bake
     from avatarkit.errors import InputError, OutputError
 
     t0 = time.perf_counter()
@@ -167,7 +150,7 @@ def run_job(job: BakeJob, outdir: str | os.PathLike, *, avatar: Any = None, kind
                 except (FileExistsError, NotADirectoryError):
                     raise OutputError("cannot create the output's folder: a file is in the way",
                                       target.parent) from None
-            writers.append(_writer(o, target))
+            writers.append(make_writer(o.kind, target, o.options))
             written.append(o)
         try:
             summary = run_bake(avatar, clip, job.config, writers, progress=progress)

@@ -23,7 +23,6 @@ the new one does not reuse.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -32,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avatarkit.baked import BakeFrame, BakeStatic
+from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
 from avatarkit.fileio import atomic_path
 from avatarkit.gaussians import GaussianSet
@@ -59,7 +58,7 @@ def frame_name(prefix: str, index: int) -> str:
     return f"{prefix}_{index:05d}.ply"
 
 
-class PlySequenceWriter:
+class PlySequenceWriter(StreamingWriter):
     """Streams a bake into per-frame PLY files; `begin`, `write` per frame, `close` (or `abort`)."""
 
     def __init__(self, folder: str | os.PathLike, split: bool = False):
@@ -73,16 +72,6 @@ class PlySequenceWriter:
         self._indices: list[int] = []
         self._bytes = 0
 
-    def __enter__(self) -> "PlySequenceWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is not None:
-            self.abort()
-        elif self._state == "open":
-            self.close()
-        return False
-
     @property
     def sidecar(self) -> Path:
         return self.folder / SIDECAR
@@ -91,8 +80,7 @@ class PlySequenceWriter:
         """Create the folder (if needed) and the temporary folder inside it."""
         if self._state != "new":
             raise InputError("begin() must be called once, before write()")
-        if not (isinstance(static.fps, (int, float, np.number)) and math.isfinite(static.fps) and static.fps > 0):
-            raise InputError(f"fps must be a positive number, got {static.fps!r}")
+        check_fps(static.fps)
         if self.folder.exists() and not self.folder.is_dir():
             raise OutputError("is a file, not a folder", self.folder)
         try:

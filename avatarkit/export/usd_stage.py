@@ -33,7 +33,6 @@ the clips folder and then the root file into place, `abort()` deletes the folder
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -44,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
-from avatarkit.baked import BakeFrame, BakeStatic
+from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
 from avatarkit.gaussians.usd import (USD_EXTENSIONS, PointsPrimWriter, SplatPrimWriter, bounding_box,
                                      check_frame_arrays, find_splat_prims, validate_stage)
@@ -206,7 +205,7 @@ def _save(layer_or_stage, path: Path) -> None:
 
 
 # --- the writer -----------------------------------------------------------------------------
-class UsdStageWriter:
+class UsdStageWriter(StreamingWriter):
     """Streams a bake into an animated USD stage; `begin`, `write` per frame, `close` (or `abort`).
 
     Nothing appears under `path` (nor `<name>_clips/`) until `close()` succeeds. See the module
@@ -239,17 +238,6 @@ class UsdStageWriter:
         self._in_chunk = 0
         self._pending = 0
         self._vertex_counts: tuple[int, int] | None = None
-
-    # context manager: close on success, abort on any exception (Ctrl-C included)
-    def __enter__(self) -> "UsdStageWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is not None:
-            self.abort()
-        elif self._state == "open":
-            self.close()
-        return False
 
     @property
     def clips_dir(self) -> Path:
@@ -458,8 +446,7 @@ class UsdStageWriter:
 
 
 def _check_static(static: BakeStatic) -> None:
-    if not (isinstance(static.fps, (int, float, np.number)) and math.isfinite(static.fps) and static.fps > 0):
-        raise InputError(f"fps must be a positive number, got {static.fps!r}")
+    check_fps(static.fps)
     for name in ("head_faces", "cage_faces"):
         f = np.asarray(getattr(static, name))
         if f.ndim != 2 or f.shape[1] != 3 or f.dtype.kind not in "iu":

@@ -21,8 +21,6 @@ place): a failed build never leaves a partial avatar folder.
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from avatarkit.errors import InputError
+from avatarkit.fileio import atomic_folder
 
 STAGES = ("read", "analyse", "segment", "fit", "bald", "lift", "segment3d", "rig", "assemble",
           "colours", "hair_rig", "previews")
@@ -370,36 +369,12 @@ def save_avatar(avatar, folder: str | os.PathLike) -> Path:
     from avatarkit.export.images import write_png
 
     target = check_avatar_target(folder)
-    parent = target.parent if str(target.parent) else Path(".")
-    work = Path(tempfile.mkdtemp(prefix=f".{target.name}.build-", dir=parent))
-    try:
-        staged = avatar.save(work / target.name, preview=avatar.preview is not None)
+    with atomic_folder(target, tag="build") as staged:
+        avatar.save(staged, preview=avatar.preview is not None)
         for name, image in (getattr(avatar, "build_previews", None) or {}).items():
             if name != "preview.png":
                 write_png(staged / name, image)
-                os.chmod(staged / name, 0o666 & ~_umask())
-        old = None
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=parent))
-            os.rmdir(old)
-            os.replace(target, old)
-        try:
-            os.replace(staged, target)
-        except BaseException:
-            if old is not None:
-                os.replace(old, target)
-            raise
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
     return target
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 __all__ = ["BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "build_avatar", "clean_hair",
