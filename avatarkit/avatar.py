@@ -25,7 +25,7 @@ The cage deformer's mean value coordinate weights (C x 2N float32: 205 MB for 50
 Gaussians) are NOT stored (rig format 2): they are recomputed from hair.ply and cage.ply with
 the Taichi MVC kernel (~2 s of 2 cores for 50k hair) when the loaded avatar's hair first moves
 (`CageDeformer.deferred`), exactly the weights a save of the loaded avatar would have stored. Top-k sparse weights were measured and rejected: on the whip
-clip they move hair up to 4.7 mm (k=64) from the dense result (docs/readme/avatar-and-bake.md).
+clip they move hair up to 4.7 mm (k=64) from the dense result (README, "Avatars and baking").
 Rig format 1 files, which hold the dense weights, are still read (and their weights used).
 
 `Avatar.save(folder)` writes a complete folder beside the target and renames it into place:

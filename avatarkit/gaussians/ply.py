@@ -11,7 +11,7 @@ We *write* exactly that order, binary little endian, atomically; extras follow, 
 `name` for an (N,) extra or `name_0..name_{m-1}` for an (N, m) one.
 
 We *read* by property name in any order, from binary little/big endian or ASCII files, with any
-PLY scalar type. Decisions (documented in docs/readme/ply-and-inspect.md):
+PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
 - position (`x y z`), rotation (`rot_0..3`), scale (`scale_0..2`) and `opacity` are required:
   a file without them is not a splat file, and a silent default would hide the problem.
 - colour is `f_dc_0..2`, or failing that `red green blue` (integer types are divided by their
