@@ -225,6 +225,22 @@ def test_substep_transforms_interpolate_rotation_and_translation():
     np.testing.assert_allclose(trans[1], (a[:3, 3] + b[:3, 3]) / 2, atol=1e-12)
 
 
+@pytest.mark.parametrize("angle", [1e-6, 0.05, 0.8, 2.0, np.pi - 1e-4])
+def test_substep_transforms_match_scipy_slerp(angle):
+    """The per-frame fast path (skew part + Rodrigues) and its half-turn fallback against
+    scipy's slerp of the relative rotation."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rng = np.random.default_rng(int(1e4 * angle))
+    for _ in range(5):
+        axis = rng.normal(size=3)
+        a = rigid(rng.normal(size=3), rng.normal(size=3))
+        b = rigid(np.zeros(3), rng.normal(size=3))
+        b[:3, :3] = axis_angle_to_matrix(angle * axis / np.linalg.norm(axis)) @ a[:3, :3]
+        rot, _ = substep_transforms(a, b, 5)
+        slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))
+        np.testing.assert_allclose(rot, slerp(np.arange(1, 6) / 5).as_matrix(), atol=1e-9)
+
 # --- behaviour ---------------------------------------------------------------------------------
 def test_deterministic(scene):
     model, head, _ = scene

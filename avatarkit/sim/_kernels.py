@@ -5,6 +5,10 @@ order is deterministic, converges faster than Jacobi, and for a ~500-vertex cage
 frame beats any parallel split (a parallel loop costs a thread sync per constraint colour).
 `reference.py` is the obvious numpy twin of this file; keep the two in the same order.
 
+Updates of the buffers are written `x[i] = x[i] + ...`, never `x[i] += ...`: inside the
+kernel's (one-iteration) parallel loop Taichi compiles `+=` on an ndarray to an atomic
+compare-and-swap loop, which cost more than the arithmetic of a constraint.
+
 Inputs are packed into four buffers because Taichi's Python side spends ~15 us per kernel
 argument: the launch costs about as much as 10 constraint sweeps otherwise. Layout (offsets in
 the `ibuf` header, filled by `solver.PackedModel`):
@@ -16,9 +20,10 @@ the `ibuf` header, filled by `solver.PackedModel`):
                tether length (C) | proxy weight (C*K) | multipliers (1 + 2C) |
                head rotation per substep (9S, row-major) | head translation per substep (3S) |
                collision cache: last tested rest-frame point (3C) and its distance (C)
-  A distance constraint's record is [rest length, 1 / (w_a + w_b + alpha~), w_a, w_b,
-  multiplier, -, -, -]: one 32-byte aligned block instead of four scattered reads and a
-  division (filled per time step; the multiplier reset per substep).
+  A distance constraint's record is [rest length l0, k = 1 / (w_a + w_b + alpha~), w_a k, w_b k,
+  multiplier, alpha~, -, -]: one 32-byte aligned block instead of scattered reads and a
+  division (filled per time step; the multiplier reset per substep). Edges and bend pairs, and
+  their records, are adjacent, so one loop sweeps stretch then bending in the usual order.
   sdf (vec4, 3-D): the head SDF grid, [distance, unit gradient].
 """
 from avatarkit._taichi import ensure_taichi
@@ -67,17 +72,24 @@ def sdf_lookup(sdf: ti.template(), q, origin, inv_h):
 
 
 @ti.func
-def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, alpha):
-    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb."""
+def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
+    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb.
+
+    The correction w_a dl / |d| is rewritten as (r w_a k) / |d| - w_a k with r = l0 - alpha~ lambda
+    (dl = (r - |d|) k): the chain from the positions just written by the previous constraint to
+    the ones written here is then a dot product, a square root, a division and two multiply-adds, which
+    is what bounds a serial Gauss-Seidel sweep; everything else overlaps with it."""
     d = xb[a] - xb[b]
     len2 = d.dot(d)
     if len2 > 1e-18:
         inv_len = ti.rsqrt(len2)
-        dl = (fb[od] - len2 * inv_len - alpha * fb[od + 4]) * fb[od + 1]
-        fb[od + 4] += dl
-        corr = (dl * inv_len) * d
-        xb[a] += fb[od + 2] * corr
-        xb[b] -= fb[od + 3] * corr
+        lam = fb[od + 4]
+        r = fb[od] - fb[od + 5] * lam
+        wak = fb[od + 2]
+        wbk = fb[od + 3]
+        fb[od + 4] = lam + (r - len2 * inv_len) * fb[od + 1]
+        xb[a] = xb[a] + ((r * wak) * inv_len - wak) * d
+        xb[b] = xb[b] - ((r * wbk) * inv_len - wbk) * d
 
 
 @ti.kernel
@@ -94,14 +106,12 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         nr = ib[H_NR]
         nk = ib[H_NK]
         o_edge = ib[H_EDGES]
-        o_bend = ib[H_BENDS]
         o_face = ib[H_FACES]
         o_tether = ib[H_TETHER]
         o_pidx = ib[H_PROXY_IDX]
         o_root = ib[H_ROOTS]
         o_w = ib[H_INV_MASS]
         o_edata = ib[H_EDGE_DATA]
-        o_bdata = ib[H_BEND_DATA]
         o_tlen = ib[H_TETHER_LEN]
         o_pw = ib[H_PROXY_W]
         o_lam = ib[H_LAMBDA]
@@ -123,8 +133,6 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         l_coll = l_tether + nc
 
         h = fb[FP_H]
-        a_s = fb[FP_ALPHA_S]
-        a_b = fb[FP_ALPHA_B]
         a_v = fb[FP_ALPHA_V]
         a_t = fb[FP_ALPHA_T]
         a_c = fb[FP_ALPHA_C]
@@ -142,8 +150,8 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             for i in range(nc):
                 xb[o_prev + i] = xb[i]
                 if fb[o_w + i] > 0.0:
-                    xb[o_v + i] += h * gravity
-                    xb[i] += h * xb[o_v + i]
+                    xb[o_v + i] = xb[o_v + i] + h * gravity
+                    xb[i] = xb[i] + h * xb[o_v + i]
             for r in range(nr):
                 xb[ib[o_root + r]] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
             # 2. proxy points, kept as offsets from their vertex (a correction moves both)
@@ -155,10 +163,8 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     xb[o_poff + i] = p - xb[i]
             for li in range(1 + 2 * nc):
                 fb[o_lam + li] = 0.0
-            for e in range(ne):
+            for e in range(ne + nb):
                 fb[o_edata + 8 * e + 4] = 0.0
-            for e in range(nb):
-                fb[o_bdata + 8 * e + 4] = 0.0
             rs = ti.math.mat3(0.0)
             for a in ti.static(range(3)):
                 for b in ti.static(range(3)):
@@ -184,34 +190,31 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     pc = xb[ic] - centre
                     bc = pb.cross(pc)
                     vol0 += pa.dot(bc)
-                    xb[o_grad + ia] += bc
-                    xb[o_grad + ic_b] += pc.cross(pa)
-                    xb[o_grad + ic] += pa.cross(pb)
+                    xb[o_grad + ia] = xb[o_grad + ia] + bc
+                    xb[o_grad + ic_b] = xb[o_grad + ic_b] + pc.cross(pa)
+                    xb[o_grad + ic] = xb[o_grad + ic] + pa.cross(pb)
                 vol0 /= 6.0
                 for i in range(nc):
-                    xb[o_grad + i] /= 6.0
+                    xb[o_grad + i] = xb[o_grad + i] / 6.0
                     vol_denom += fb[o_w + i] * xb[o_grad + i].norm_sqr()
             # 3. constraint projection
             for _it in range(n_iter):
-                for e in range(ne):
+                for e in range(ne + nb):  # stretch, then bending (adjacent tables)
                     solve_distance(xb, fb, ib[o_edge + 2 * e], ib[o_edge + 2 * e + 1],
-                                   o_edata + 8 * e, a_s)
-                for e in range(nb):
-                    solve_distance(xb, fb, ib[o_bend + 2 * e], ib[o_bend + 2 * e + 1],
-                                   o_bdata + 8 * e, a_b)
+                                   o_edata + 8 * e)
                 dl_vol = 0.0
                 if nf > 0:
                     vol = vol0
                     for i in range(nc):
                         vol += xb[o_grad + i].dot(xb[i] - xb[o_x0 + i])
                     dl_vol = (rest_volume - vol - a_v * fb[l_vol]) / (vol_denom + a_v + 1e-20)
-                    fb[l_vol] += dl_vol
+                    fb[l_vol] = fb[l_vol] + dl_vol
                 # Volume, tether and collision updates of vertex i read only x_i and its
                 # (kinematic) root, so one pass per vertex gives exactly what three passes would.
                 for i in range(nc):
                     wi = fb[o_w + i]
                     if wi > 0.0:
-                        xb[i] += (wi * dl_vol) * xb[o_grad + i]
+                        xb[i] = xb[i] + (wi * dl_vol) * xb[o_grad + i]
                         r = ib[o_tether + i]
                         if r >= 0:
                             d = xb[i] - xb[r]
@@ -222,7 +225,7 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             dl = new - fb[li]
                             fb[li] = new
                             if length > 1e-9:
-                                xb[i] -= (wi * dl / length) * d
+                                xb[i] = xb[i] - (wi * dl / length) * d
                         if mode > 0:
                             p = xb[i]
                             if mode == 2:
@@ -242,7 +245,7 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                                 new = ti.max(fb[li] + dl, 0.0)  # contact only pushes
                                 dl = new - fb[li]
                                 fb[li] = new
-                                xb[i] += (wi * dl) * (rs @ vec3(hit[1], hit[2], hit[3]))
+                                xb[i] = xb[i] + (wi * dl) * (rs @ vec3(hit[1], hit[2], hit[3]))
             # 4. velocities from positions, damping, speed clamp
             for i in range(nc):
                 vi = (xb[i] - xb[o_prev + i]) / h

@@ -18,9 +18,9 @@ In `static` mode the cage moves rigidly with the head joint (roots still on thei
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from avatarkit.errors import InputError
+from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from avatarkit.sim.config import SimConfig
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
 
@@ -35,8 +35,22 @@ def substep_transforms(t_in: np.ndarray, t_out: np.ndarray, substeps: int) -> tu
     if np.array_equal(r_in, r_out):  # a still head: skip the (slow, small) slerp
         rotations = np.broadcast_to(r_out, (substeps, 3, 3))
     else:
-        axis_angle = Rotation.from_matrix(r_out @ r_in.T).as_rotvec()
-        rotations = Rotation.from_rotvec(frac[:, None] * axis_angle).as_matrix() @ r_in
+        rel = r_out @ r_in.T
+        two_sin = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+        two_cos = np.trace(rel) - 1.0
+        s = float(np.linalg.norm(two_sin))
+        if two_cos > 0.0 and s > 0.0:
+            # a turn under 90 degrees a frame (always, in practice): axis and angle straight from
+            # the skew part, Rodrigues per substep; this runs every frame and scipy's
+            # Rotation costs ~0.1 ms here
+            axis = two_sin / s
+            angles = frac * np.arctan2(s, two_cos)
+            k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+            rotations = (np.eye(3) + np.sin(angles)[:, None, None] * k
+                         + (1.0 - np.cos(angles))[:, None, None] * (k @ k)) @ r_in
+        else:  # near a half turn the skew part loses the axis
+            axis_angle = matrix_to_axis_angle(rel)
+            rotations = axis_angle_to_matrix(frac[:, None] * axis_angle) @ r_in
     translations = t_in[:3, 3] + frac[:, None] * (t_out[:3, 3] - t_in[:3, 3])
     return rotations, translations
 
@@ -104,7 +118,12 @@ class PackedModel:
                 (self.edge_data, m.edges, m.edge_lengths, config.compliance_stretch),
                 (self.bend_data, m.bend_pairs, m.bend_lengths, config.compliance_bending)):
             wa, wb = w[pairs[:, 0]], w[pairs[:, 1]]
-            data[:, :4] = np.stack([rest, 1.0 / (wa + wb + compliance / h2), wa, wb], axis=1)
+            alpha = compliance / h2
+            denom = wa + wb + alpha
+            # two kinematic ends with zero compliance: the constraint cannot move anything
+            k = np.divide(1.0, denom, out=np.zeros_like(denom), where=denom > 0)
+            data[:, :6] = np.stack([rest, k, wa * k, wb * k, np.zeros_like(k), np.full_like(k, alpha)],
+                                   axis=1)
 
 
 def check_step_inputs(model: CageModel, state_in: CageState, frame_in: HeadFrame,
