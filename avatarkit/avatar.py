@@ -63,6 +63,9 @@ HAIR_FILE = "hair.ply"
 CAGE_FILE = "cage.ply"
 RIG_FILE = "rig.npz"
 PREVIEW_FILE = "preview.png"
+#: optional extra views beside preview.png; the manifest schema has no place for them (its
+#: parts allow no extra fields), so they travel as plain files found by name
+EXTRA_PREVIEW_FILES = ("preview_three_quarter.png", "preview_profile.png")
 PREVIEW_SIZE = 512
 
 HEAD_KINDS = ("template", "flame")
@@ -327,7 +330,8 @@ class Avatar:
     with extras["binding"] (N,) int32 host face ids; hair: `GaussianSet` (M) at rest; cage: the
     rest `Cage` around the hair; rig: `HairRig` of that hair and cage; head_ref: where the head
     model comes from; sh_frame: how the bald SH turns ("local": with its triangle, "world": not);
-    preview: (H, W, 3) uint8 front view or None; path: the folder it was loaded from.
+    preview: (H, W, 3) uint8 front view or None; path: the folder it was loaded from;
+    extra_previews: file name (one of EXTRA_PREVIEW_FILES) -> (H, W, 3) uint8 view.
     """
 
     head_model: Any
@@ -342,6 +346,7 @@ class Avatar:
     provenance: dict = field(default_factory=dict)
     preview: np.ndarray | None = None
     path: Path | None = None
+    extra_previews: dict = field(default_factory=dict)
 
     def __post_init__(self):
         m = self.head_model
@@ -381,6 +386,13 @@ class Avatar:
             p = np.asarray(self.preview)
             if p.ndim != 3 or p.shape[2] != 3 or p.dtype != np.uint8:
                 raise InputError(f"preview must be a (H, W, 3) uint8 image, got {p.dtype} {p.shape}")
+        self.extra_previews = dict(self.extra_previews or {})
+        for key, p in self.extra_previews.items():
+            if key not in EXTRA_PREVIEW_FILES:
+                raise InputError(f"extra preview {key!r} is not one of {', '.join(EXTRA_PREVIEW_FILES)}")
+            p = np.asarray(p)
+            if p.ndim != 3 or p.shape[2] != 3 or p.dtype != np.uint8:
+                raise InputError(f"{key} must be a (H, W, 3) uint8 image, got {p.dtype} {p.shape}")
 
     # --- construction ---------------------------------------------------------------------------
     @classmethod
@@ -502,6 +514,8 @@ class Avatar:
                           sdf_inputs_sha256(self.rest_head_vertices, self.head_model.faces))
             if image is not None:
                 write_png(tmp / PREVIEW_FILE, image)
+            for key, extra in self.extra_previews.items():
+                write_png(tmp / key, np.asarray(extra))
             manifest = self.manifest(sha, None if image is None else image.shape[:2])
             validate(manifest, "avatar", tmp / MANIFEST)
             (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
@@ -671,10 +685,19 @@ def load_avatar(folder: str | os.PathLike) -> Avatar:
         except AvatarKitError:
             raise FormatError("not a readable image", ppath) from None
 
+    extras = {}
+    for key in EXTRA_PREVIEW_FILES:
+        if (folder / key).is_file():
+            from avatarkit.export.images import read_png
+
+            try:
+                extras[key] = read_png(folder / key)[..., :3].copy()
+            except AvatarKitError:
+                raise FormatError("not a readable image", folder / key) from None
     try:
         avatar = Avatar(head, bald, hair, cage, rig, shape.astype(np.float32), ref,
                         manifest.get("name", folder.name), parts["bald"]["sh_frame"],
-                        dict(manifest["provenance"]), image, folder)
+                        dict(manifest["provenance"]), image, folder, extras)
     except InputError as e:
         raise FormatError(e.message, mpath) from None
     try:

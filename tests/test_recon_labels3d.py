@@ -242,6 +242,52 @@ def test_scalp_under_the_hair_is_not_hair():
     assert (re.labels == truth).mean() >= 0.98
 
 
+def _sphere_distance(gs, radius=0.1):
+    return np.linalg.norm(gs.means, axis=1) - radius
+
+
+@pytest.mark.parametrize("scalp", [False, True])
+def test_front_view_only_keeps_hidden_hair_with_the_surface_distance(scalp):
+    # The build's situation: only the photo's view is labelled. Hair behind the visible hair,
+    # hair at the back and (with `scalp`) the skin under the hair are never seen or seen only
+    # through the hair's gaps, where the pixels say "hair". Colour alone cannot sort them out
+    # when the scalp shows through; the height over the head surface can.
+    gs, truth = head_scene(n_skin=6000 if scalp else 3000, n_hair=2000, seed=2, scalp=scalp,
+                           skin_sigma=0.008 if scalp else 0.012)
+    cams = default_label_cameras((0, 0, 0), 0.12, 8, size=128)[:1]
+    images = render_label_images(gs, truth, cams, 4)
+    lift = lift_labels(gs, cams, images)
+    re = reassign_boundary(gs, lift, cams, images, surface_distance=_sphere_distance(gs))
+    hidden_hair = (truth == HAIR) & (~lift.seen | re.occluded)
+    assert hidden_hair.sum() > 500
+    assert (re.labels[hidden_hair] == HAIR).mean() >= 0.95
+    assert (re.labels[truth == HAIR] == HAIR).mean() >= 0.95
+    assert (re.labels[truth == SKIN] == SKIN).mean() >= 0.97
+    if scalp:  # the scalp seen through the hair leaves it
+        through = (truth == SKIN) & lift.seen & (lift.labels == HAIR)
+        assert through.sum() > 50 and (re.labels[through] == SKIN).mean() >= 0.95
+
+
+def test_surface_distance_keeps_the_boundary_fixes(head):
+    gs, truth, cams, images = head
+    sd = _sphere_distance(gs)
+    for views in (slice(None), slice(0, 1)):
+        bad = dilate_hair(images[views], 3)
+        lift = lift_labels(gs, cams[views], bad)
+        wrong = lift.seen & (lift.labels != truth)
+        assert wrong.sum() > 30  # the corruption (and silhouettes) left wrong labels
+        re = reassign_boundary(gs, lift, cams[views], bad, surface_distance=sd)
+        still = re.labels != truth
+        assert (wrong & ~still).sum() >= 0.8 * wrong.sum()
+        assert (still & lift.seen & ~wrong).sum() <= 0.01 * len(gs)  # hardly any right label broken
+        assert (re.labels[~lift.seen] == truth[~lift.seen]).mean() >= 0.95
+    _, hair, report = split_hair(gs, cams[:1], dilate_hair(images[:1], 2), surface_distance=sd)
+    assert (truth[report.hair_index] == HAIR).mean() >= 0.99
+    assert len(hair) >= 0.95 * (truth == HAIR).sum()
+    with pytest.raises(InputError, match="surface_distance"):
+        reassign_boundary(gs, lift, cams[:1], bad, surface_distance=sd[:5])
+
+
 def test_reassignment_with_one_class_known_cannot_invent_the_other(head):
     gs, truth, cams, images = head
     skin_only = [np.where(im == HAIR, SKIN, im) for im in images]

@@ -260,6 +260,9 @@ class ReassignConfig:
     min_confidence: float = 0.7      # below: ambiguous, reclassified as well
     colour_weight: float = 1.0       # feature weights (each group standardised first)
     scale_weight: float = 0.5
+    distance_weight: float = 2.0     # signed distance to the head surface, where it is given
+    layer_quantile: float = 0.95     # the bald layer's thickness: this quantile of |distance| over
+    min_layer: float = 0.001         # the confident bald-label members, at least min_layer (m)
     local: bool = True               # False: compare with the global class centres only
 
     def __post_init__(self):
@@ -267,7 +270,8 @@ class ReassignConfig:
             raise InputError(f"reassignment k must be a positive integer, got {self.k!r}")
         for name in ("band", "near_hair", "depth_jump", "min_alpha", "boundary_fraction", "occlusion",
                      "occlusion_sigmas", "occluded_fraction", "min_confidence",
-                     "colour_weight", "scale_weight"):
+                     "colour_weight", "scale_weight", "distance_weight", "layer_quantile",
+                     "min_layer"):
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v < 0:
                 raise InputError(f"reassignment {name} must be a number >= 0, got {v!r}")
@@ -318,13 +322,22 @@ def _hair_edge_band(labels: np.ndarray, depth: np.ndarray, covered: np.ndarray,
     return edges
 
 
-def _features(gaussians: GaussianSet, cfg: ReassignConfig, ref: np.ndarray) -> np.ndarray:
+def _features(gaussians: GaussianSet, cfg: ReassignConfig, ref: np.ndarray,
+              surface_distance: tuple[np.ndarray, float] | None = None) -> np.ndarray:
     """(N, 6) float64 appearance features: DC colour and sorted log-scales (so the order of a
-    Gaussian's axes does not matter), each group standardised on the reference Gaussians."""
+    Gaussian's axes does not matter), each group standardised on the reference Gaussians;
+    (N, 7) with the signed distance to the head surface as a seventh. The distance is what
+    one view cannot corrupt: hair hidden behind hair has the hair's layer height whatever
+    colour the lifter gave it, and the bald layer sits on the surface."""
     colour = gaussians.colors.astype(np.float64)
     logs = -np.sort(-np.log(gaussians.scales.astype(np.float64)), axis=1)
+    groups = [(colour, cfg.colour_weight), (logs, cfg.scale_weight)]
+    if surface_distance is not None:
+        # clipped: only "on the surface" vs "above it" matters, not how far out a strand hangs
+        sd, layer = surface_distance
+        groups.append((np.clip(sd, -layer, 3.0 * layer)[:, None], cfg.distance_weight))
     parts = []
-    for x, wgt in ((colour, cfg.colour_weight), (logs, cfg.scale_weight)):
+    for x, wgt in groups:
         mu = x[ref].mean(axis=0)
         sd = float(np.sqrt(((x[ref] - mu) ** 2).sum(axis=1).mean()))
         parts.append((x - mu) * (wgt / max(sd, 1e-6)))
@@ -401,13 +414,19 @@ def _boundary_share(gaussians: GaussianSet, cameras, bands) -> tuple[np.ndarray,
 
 def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Camera],
                       label_images: list[np.ndarray], depths: list[np.ndarray] | None = None,
-                      config: ReassignConfig | None = None, **overrides) -> Reassignment:
+                      config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
+                      **overrides) -> Reassignment:
     """The paper's boundary-aware reassignment (module docstring, step 3).
 
     lift: `lift_labels` of the same Gaussians, cameras and label images.
     depths: K rendered depth images (H, W); default the lift's own. Pixels count as covered
     where the lift's rendered alpha >= min_alpha (or, without it, where depth > 0).
     config / overrides: `ReassignConfig` fields, e.g. `reassign_boundary(..., k=8)`.
+    surface_distance: (N,) signed distance (metres, > 0 outside) of each Gaussian's centre to
+    the fitted head surface, a feature beside colour and scale (weight `distance_weight`).
+    Give it when few views are labelled (the photo's only): the hair behind the visible hair
+    and at the back of the head is then told from the scalp under it by its height over the
+    surface, not by colours the lifter had to guess.
     A candidate that joins the hair gets `hair_label`; one that leaves it (or an unseen one
     that joins the bald class) gets its best non-hair lifted label, or `bald_label`.
     """
@@ -429,6 +448,11 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     if not 0 <= cfg.hair_label < n_labels or not 0 <= cfg.bald_label < n_labels:
         raise InputError(f"hair_label {cfg.hair_label} / bald_label {cfg.bald_label} must lie in "
                          f"0..{n_labels - 1}")
+    if surface_distance is not None:
+        surface_distance = np.asarray(surface_distance, np.float64)
+        if surface_distance.shape != (n,) or not np.isfinite(surface_distance).all():
+            raise InputError(f"surface_distance must be ({n},) finite distances, "
+                             f"got shape {surface_distance.shape}")
     if depths is None:
         depths = lift.depths
     depths = list(depths)
@@ -458,6 +482,28 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
         ref &= lift.labels != cfg.background_label
     hair_ref = ref & (lift.labels == cfg.hair_label)
     bald_ref = ref & (lift.labels != cfg.hair_label)
+    # A class seen only near edges (thin hair seen in one view lies wholly in the band) has no
+    # confident member: its seen, unoccluded members stand in for the reference then.
+    member = lift.seen & ~occluded
+    if cfg.background_label is not None:
+        member &= lift.labels != cfg.background_label
+    if not hair_ref.any():
+        hair_ref = member & (lift.labels == cfg.hair_label)
+    if not bald_ref.any():
+        bald_ref = member & (lift.labels != cfg.hair_label)
+    distance = None
+    if surface_distance is not None:
+        # Seen through the gaps of a hair volume, the scalp carries the hair's pixel labels
+        # without being behind the rendered depth by much: a confident "hair" member that sits
+        # in the bald layer is no reference, it is a candidate like the rest.
+        on_skin = bald_ref & (lift.labels == cfg.bald_label)
+        layer = cfg.min_layer
+        if on_skin.any():
+            layer = max(layer, float(np.quantile(np.abs(surface_distance[on_skin]), cfg.layer_quantile)))
+        in_layer = hair_ref & (surface_distance <= layer)
+        hair_ref &= ~in_layer
+        cand |= in_layer
+        distance = (surface_distance, layer)
 
     # where no hair is known, nothing can join it (and vice versa): candidates keep their
     # lifted labels, unseen ones take the one class there is
@@ -466,8 +512,8 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
         idx = np.flatnonzero(cand)
         to_hair = np.zeros(n, bool)
         if len(idx):
-            to_hair[idx] = _classify(gaussians, _features(gaussians, cfg, hair_ref | bald_ref),
-                                     idx, hair_ref, bald_ref, cfg)
+            feats = _features(gaussians, cfg, hair_ref | bald_ref, distance)
+            to_hair[idx] = _classify(gaussians, feats, idx, hair_ref, bald_ref, cfg)
     else:
         to_hair = np.where(seen, lift.labels == cfg.hair_label, hair_ref.any())
         to_hair &= cand
@@ -508,10 +554,12 @@ class HairSplitReport:
 
 def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list[np.ndarray],
                hair_label: int = HAIR, n_labels: int | None = None, min_weight: float = 0.01,
-               config: ReassignConfig | None = None, **overrides
-               ) -> tuple[GaussianSet, GaussianSet, HairSplitReport]:
+               config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
+               **overrides) -> tuple[GaussianSet, GaussianSet, HairSplitReport]:
     """Lift, reassign, cut: (bald GaussianSet, hair GaussianSet, report).
 
+    surface_distance: (N,) signed distances to the head surface (`reassign_boundary`); give
+    them when only the photo's view is labelled.
     Gaussians whose final label is `hair_label` form the hair set; every other one (skin,
     body, background floaters, and any left unseen) the bald set. Extras travel with them.
     """
@@ -519,7 +567,8 @@ def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list
     lift = lift_labels(gaussians, cameras, label_images, n_labels, min_weight)
     t1 = time.perf_counter()
     overrides = dict(overrides, hair_label=hair_label)
-    re = reassign_boundary(gaussians, lift, cameras, label_images, None, config, **overrides)
+    re = reassign_boundary(gaussians, lift, cameras, label_images, None, config, surface_distance,
+                           **overrides)
     t2 = time.perf_counter()
     is_hair = re.labels == hair_label
     hair_index = np.flatnonzero(is_hair)

@@ -153,43 +153,32 @@ def _labels_for(labels: np.ndarray, camera, side: int = LABEL_SIDE):
     return small, camera.with_size(*size)
 
 
-def clean_hair(bald, hair, camera, labels: np.ndarray, *, reassign: bool = True,
-               min_confidence: float = 0.6):
-    """The 3D hair segmentation (item 6, `recon.labels3d`) of the hair, from the photo's label
-    image seen by `camera`, over bald + hair together. Returns (hair kept, summary dict).
+def clean_hair(bald, hair, camera, labels: np.ndarray, surface_distance=None):
+    """The 3D hair segmentation (item 6, `recon.labels3d.split_hair`) of the hair, from the
+    photo's label image seen by `camera`, over bald + hair together: labels lifted from the
+    view, then the boundary-aware reassignment; hair candidates that end up labelled anything
+    but hair are dropped. Returns (hair kept, summary dict).
 
-    reassign=True (imported splats, whose hair is only a guess): `split_hair`, i.e. labels
-    lifted from the view, then the boundary-aware reassignment; hair candidates the view saw
-    and that end up labelled anything but hair are dropped (unseen ones are kept). reassign=False (the built-in hair, hair by construction):
-    only the lifted labels are used, and only hair Gaussians the camera clearly sees over
-    non-hair pixels (confidence >= min_confidence) are dropped; hidden hair is kept."""
+    surface_distance: a callable (P, 3) points -> (P,) signed distance to the fitted head
+    (e.g. `HeadSDF.query(...)[0]`), or None. With one labelled view it is what keeps the hidden
+    hair (behind the visible hair, at the back) as hair and the scalp seen through the hair's
+    gaps out of it (`reassign_boundary`)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
-    from avatarkit.recon.labels3d import UNSEEN, lift_labels, split_hair
-    from avatarkit.recon.segment import HAIR
+    from avatarkit.recon.labels3d import split_hair
 
     if len(hair) == 0:
         return hair, {"hair_in": 0, "hair_kept": 0}
     lab, cam = _labels_for(np.asarray(labels), camera)
     union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-    if reassign:
-        _, _, report = split_hair(union, [cam], [lab.astype(np.int32)])
-        is_hair = np.zeros(len(union), bool)
-        is_hair[report.hair_index] = True
-        # One view sees the front only. A candidate it never saw is kept: no bald splat explains
-        # it, which is the evidence we have; the k-NN vote of the reassignment, from one view,
-        # sent most hidden hair of our tests to the bald class.
-        unseen = ~report.lift.seen
-        keep = (is_hair | unseen)[len(bald):]
-        extra = {f"split_{k}": v for k, v in report.summary().items()}
-        extra["kept_unseen"] = int((unseen & ~is_hair)[len(bald):].sum())
-    else:
-        lift = lift_labels(union, [cam], [lab.astype(np.int32)])
-        lab_h = lift.labels[len(bald):]
-        conf = lift.confidence[len(bald):]
-        keep = (lab_h == HAIR) | (lab_h == UNSEEN) | (conf < min_confidence)
-        extra = {"seen": int((lab_h != UNSEEN).sum())}
+    sd = None if surface_distance is None else np.asarray(surface_distance(union.means), np.float64)
+    _, _, report = split_hair(union, [cam], [lab.astype(np.int32)], surface_distance=sd)
+    is_hair = np.zeros(len(union), bool)
+    is_hair[report.hair_index] = True
+    keep = is_hair[len(bald):]
+    extra = {f"split_{k}": v for k, v in report.summary().items()}
+    extra["unseen_hair_kept"] = int((keep & ~report.lift.seen[len(bald):]).sum())
     return hair.subset(keep), {"hair_in": len(hair), "hair_kept": int(keep.sum()),
-                               "reassigned": bool(reassign), **extra}
+                               "surface_distance": sd is not None, **extra}
 
 
 def head_mask(segmentation) -> np.ndarray:
@@ -270,7 +259,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         hair = lifted.hair
         if options.clean_hair or isinstance(lifter, ImportLifter):
             hair, summary = clean_hair(lifted.bald, hair, fit.camera, segmentation.labels,
-                                       reassign=isinstance(lifter, ImportLifter))
+                                       lambda p: sdf.query(p)[0])
             report.info["segment3d"] = summary
         if len(hair) == 0:
             raise InputError("no hair was found in the portrait (bald heads are not supported yet: "
@@ -311,6 +300,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         if options.preview:
             previews = render_previews(avatar, options.preview_size)
             avatar.preview = previews["preview.png"]
+            avatar.extra_previews = {k: v for k, v in previews.items() if k != "preview.png"}
     report.info["counts"] = {"bald": len(bald_out), "hair": len(hair_out),
                              "cage_vertices": int(rigged.cage.n_vertices)}
     avatar.provenance["build"] = report.to_json()
