@@ -14,6 +14,10 @@ An avatar folder holds:
                   cage deformer's settings, plus a SHA-256 of its inputs (~2 MB)
     preview.png   a front view (optional)
 
+A hairless avatar (a bald person: its hair part has 0 Gaussians) has no cage and no rig
+(`cage=None`, `rig=None`): its manifest lists only the bald part (and the preview), and the
+folder holds no hair.ply, cage.ply or rig.npz. It bakes without simulation.
+
 The rest pose is the head model with the avatar's identity shape, zero expression, zero pose.
 Triangle-local values of the bald Gaussians are not stored: `TriangleBinding.bind` recomputes
 them on load from the rest head and the `binding` ids (deterministic, so a loaded avatar bakes
@@ -328,7 +332,8 @@ class Avatar:
     head_model: `HeadModel` the bald Gaussians ride; shape: (S,) float32 identity coefficients
     (padded with zeros to the model's S); bald: `GaussianSet` (N) in the rest pose, world space,
     with extras["binding"] (N,) int32 host face ids; hair: `GaussianSet` (M) at rest; cage: the
-    rest `Cage` around the hair; rig: `HairRig` of that hair and cage; head_ref: where the head
+    rest `Cage` around the hair; rig: `HairRig` of that hair and cage (both None when the hair
+    has 0 Gaussians: a hairless avatar, `has_hair` False); head_ref: where the head
     model comes from; sh_frame: how the bald SH turns ("local": with its triangle, "world": not);
     preview: (H, W, 3) uint8 front view or None; path: the folder it was loaded from;
     extra_previews: file name (one of EXTRA_PREVIEW_FILES) -> (H, W, 3) uint8 view.
@@ -337,8 +342,8 @@ class Avatar:
     head_model: Any
     bald: GaussianSet
     hair: GaussianSet
-    cage: Any
-    rig: HairRig
+    cage: Any | None
+    rig: HairRig | None
     shape: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     head_ref: HeadRef = field(default_factory=HeadRef)
     name: str = "avatar"
@@ -376,10 +381,17 @@ class Avatar:
             self.bald = self.bald.replace(extras={**self.bald.extras, "binding": ids.astype(np.int32)})
         if self.sh_frame not in ("local", "world"):
             raise InputError(f"sh_frame must be 'local' or 'world', got {self.sh_frame!r}")
-        if len(self.rig.deformer.rest) != len(self.hair):
+        if len(self.hair) == 0:
+            # a rig needs something to carry: a hairless avatar has neither cage nor rig
+            if self.cage is not None or self.rig is not None:
+                raise InputError("an avatar without hair Gaussians has no cage and no rig "
+                                 "(pass cage=None, rig=None)")
+        elif self.cage is None or self.rig is None:
+            raise InputError("an avatar with hair needs its cage and its rig")
+        elif len(self.rig.deformer.rest) != len(self.hair):
             raise InputError(f"the rig is for {len(self.rig.deformer.rest)} hair Gaussians, "
                              f"the avatar has {len(self.hair)}")
-        if self.rig.model.num_vertices != self.cage.n_vertices:
+        elif self.rig.model.num_vertices != self.cage.n_vertices:
             raise InputError(f"the rig is for a {self.rig.model.num_vertices}-vertex cage, the avatar's "
                              f"has {self.cage.n_vertices}")
         if self.preview is not None:
@@ -404,7 +416,8 @@ class Avatar:
         """An avatar from its parts: builds the cage (unless given) and the hair rig.
 
         bald: rest-pose world Gaussians with a `binding` extra (host face ids), or without one
-        (then each is bound to its nearest head triangle)."""
+        (then each is bound to its nearest head triangle). hair with 0 Gaussians makes a
+        hairless avatar (no cage, no rig; `cage` must then be None)."""
         from avatarkit.cage.build import build_cage
 
         shape = np.zeros(head_model.num_shape, np.float32) if shape is None else np.asarray(shape, np.float32)
@@ -415,9 +428,14 @@ class Avatar:
 
             ids = TriangleBinding.bind(bald, rest, head_model.faces).face_ids
             bald = bald.replace(extras={**bald.extras, "binding": ids})
-        if cage is None:
-            cage = build_cage(hair, target_vertices=cage_vertices)
-        rig = HairRig.build(head_model, rest, hair, cage, method, progress=progress)
+        if len(hair) == 0:
+            if cage is not None:
+                raise InputError("a cage was given but there is no hair to put in it")
+            rig = None
+        else:
+            if cage is None:
+                cage = build_cage(hair, target_vertices=cage_vertices)
+            rig = HairRig.build(head_model, rest, hair, cage, method, progress=progress)
         prov = {"tool": "avatarkit", "version": _tool_version(), "created": _now()}
         prov.update(provenance or {})
         return cls(head_model, bald, hair, cage, rig, shape, head_ref or HeadRef(), name, sh_frame, prov)
@@ -438,12 +456,23 @@ class Avatar:
                                     rotate_sh=self.sh_frame == "local")
 
     @property
+    def has_hair(self) -> bool:
+        """False for a hairless avatar (0 hair Gaussians, no cage, no rig)."""
+        return len(self.hair) > 0
+
+    @property
     def hair_mode(self) -> str:
-        """"cage" (simulated) or "rigid" (short hair that moves with the scalp), as built."""
+        """"cage" (simulated), "rigid" (short hair that moves with the scalp), as built, or
+        "none" (a hairless avatar)."""
+        if not self.has_hair:
+            return "none"
         return "rigid" if self.provenance.get("hair_mode") == "rigid" else "cage"
 
     def hair_driver(self, config=None):
-        """A `HairDriver` for this avatar (shares the rig: no weights are recomputed)."""
+        """A `HairDriver` for this avatar (shares the rig: no weights are recomputed).
+        InputError for a hairless avatar (nothing to simulate)."""
+        if self.rig is None:
+            raise InputError(f"avatar {self.name!r} has no hair: there is no hair to simulate")
         return self.rig.driver(self.head_model, self.rest_head_vertices, config)
 
     def rest_gaussians(self) -> GaussianSet:
@@ -461,23 +490,28 @@ class Avatar:
         return to_uint8(render(gs, frame_camera(gs, width=size, height=size), background).rgb)
 
     def counts(self) -> dict[str, int]:
-        return {"bald": len(self.bald), "hair": len(self.hair), "cage_vertices": self.cage.n_vertices,
+        return {"bald": len(self.bald), "hair": len(self.hair),
+                "cage_vertices": self.cage.n_vertices if self.cage is not None else 0,
                 "head_vertices": self.head_model.num_vertices}
 
     def __repr__(self) -> str:
+        cage = f"cage={self.cage.n_vertices} vertices" if self.cage is not None else "no cage"
         return (f"Avatar(name={self.name!r}, head={self.head_ref.kind}, bald={len(self.bald)}, "
-                f"hair={len(self.hair)}, cage={self.cage.n_vertices} vertices)")
+                f"hair={len(self.hair)}, {cage})")
 
     # --- files ----------------------------------------------------------------------------------
-    def manifest(self, rig_sha256: str, preview_size: tuple[int, int] | None) -> dict:
-        """The avatar.json content for this avatar (rig_sha256: hash of the rig's inputs)."""
+    def manifest(self, rig_sha256: str | None, preview_size: tuple[int, int] | None) -> dict:
+        """The avatar.json content for this avatar (rig_sha256: hash of the rig's inputs; None
+        for a hairless avatar, whose parts are the bald head (and preview) only)."""
         parts: dict[str, Any] = {
             "bald": {"file": BALD_FILE, "count": len(self.bald), "sh_degree": self.bald.sh_degree,
-                     "sh_frame": self.sh_frame},
-            "hair": {"file": HAIR_FILE, "count": len(self.hair), "sh_degree": self.hair.sh_degree},
-            "cage": {"file": CAGE_FILE, "vertices": self.cage.n_vertices, "faces": len(self.cage.faces)},
-            "rig": {"file": RIG_FILE, "deformation": self.rig.method, "inputs_sha256": rig_sha256},
-        }
+                     "sh_frame": self.sh_frame}}
+        if self.has_hair:
+            parts.update({
+                "hair": {"file": HAIR_FILE, "count": len(self.hair), "sh_degree": self.hair.sh_degree},
+                "cage": {"file": CAGE_FILE, "vertices": self.cage.n_vertices, "faces": len(self.cage.faces)},
+                "rig": {"file": RIG_FILE, "deformation": self.rig.method, "inputs_sha256": rig_sha256},
+            })
         if preview_size is not None:
             parts["preview"] = {"file": PREVIEW_FILE, "width": preview_size[1], "height": preview_size[0]}
         # `created` is when the avatar was made (kept across re-saves); `version` what wrote it
@@ -505,13 +539,15 @@ class Avatar:
             image = self.render_preview()
         with atomic_folder(target) as tmp:
             write_ply(tmp / BALD_FILE, self.bald)
-            write_ply(tmp / HAIR_FILE, self.hair)
-            save_cage(tmp / CAGE_FILE, self.cage)
-            # hash what a loader will read back (PLY stores log-scales: the floats may move)
-            sha = rig_inputs_sha256(read_ply(tmp / HAIR_FILE), load_cage(tmp / CAGE_FILE),
-                                    self.rest_head_vertices, self.head_model.faces, self.rig.method)
-            self.rig.save(tmp / RIG_FILE, sha,
-                          sdf_inputs_sha256(self.rest_head_vertices, self.head_model.faces))
+            sha = None
+            if self.has_hair:
+                write_ply(tmp / HAIR_FILE, self.hair)
+                save_cage(tmp / CAGE_FILE, self.cage)
+                # hash what a loader will read back (PLY stores log-scales: the floats may move)
+                sha = rig_inputs_sha256(read_ply(tmp / HAIR_FILE), load_cage(tmp / CAGE_FILE),
+                                        self.rest_head_vertices, self.head_model.faces, self.rig.method)
+                self.rig.save(tmp / RIG_FILE, sha,
+                              sdf_inputs_sha256(self.rest_head_vertices, self.head_model.faces))
             if image is not None:
                 write_png(tmp / PREVIEW_FILE, image)
             for key, extra in self.extra_previews.items():
@@ -603,10 +639,46 @@ def _count_check(path: Path, what: str, got: int, want: int) -> None:
         raise FormatError(f"has {got} {what} but avatar.json says {want}", path)
 
 
-def load_avatar(folder: str | os.PathLike) -> Avatar:
-    """Read and check an avatar folder (see the module docstring)."""
+def _load_hair(folder: Path, parts: dict, head, rest: np.ndarray):
+    """(hair, cage, rig) of an avatar folder that has hair (FormatError naming the file)."""
     from avatarkit.cage.mesh import load_cage
 
+    hair_path = _part_file(folder, parts["hair"])
+    hair = _read_splats(hair_path)
+    _count_check(hair_path, "Gaussians", len(hair), parts["hair"]["count"])
+
+    cage_path = _part_file(folder, parts["cage"])
+    try:
+        cage = load_cage(cage_path)
+    except AvatarKitError as e:
+        raise FormatError(e.message, cage_path) from None
+    _count_check(cage_path, "vertices", cage.n_vertices, parts["cage"]["vertices"])
+    _count_check(cage_path, "faces", len(cage.faces), parts["cage"]["faces"])
+
+    rig_path = _part_file(folder, parts["rig"])
+    method = parts["rig"]["deformation"]
+    data = HairRig.read_file(rig_path)
+    stored = str(data["inputs_sha256"])
+    if stored != parts["rig"]["inputs_sha256"]:
+        raise FormatError("belongs to another avatar (its inputs hash differs from avatar.json's)", rig_path)
+    if str(data["deform_method"]) != method:
+        raise FormatError(f"rig uses {data['deform_method']} deformation, avatar.json says {method}", rig_path)
+    if rig_inputs_sha256(hair, cage, rest, head.faces, method) == stored:
+        rig = HairRig.from_file_arrays(data, hair, cage, rig_path)
+    else:
+        warnings.warn(f"{rig_path}: the hair, cage or head changed since the rig was computed; "
+                      "recomputing it (save the avatar again to keep the result)", RigRebuiltWarning,
+                      stacklevel=3)
+        same_head = str(data["sdf_inputs_sha256"]) == sdf_inputs_sha256(rest, head.faces)
+        try:
+            rig = HairRig.build(head, rest, hair, cage, method, sdf=_stored_sdf(data) if same_head else None)
+        except InputError as e:
+            raise FormatError(f"cannot rebuild the hair rig: {e.message}", rig_path) from None
+    return hair, cage, rig
+
+
+def load_avatar(folder: str | os.PathLike) -> Avatar:
+    """Read and check an avatar folder (see the module docstring)."""
     folder = Path(folder)
     manifest = read_manifest(folder)
     mpath = folder / MANIFEST
@@ -642,38 +714,11 @@ def load_avatar(folder: str | os.PathLike) -> Avatar:
                           f"{head.num_faces} faces (0..{head.num_faces - 1})", bald_path)
     bald = bald.replace(extras={**bald.extras, "binding": ids.astype(np.int32)})
 
-    hair_path = _part_file(folder, parts["hair"])
-    hair = _read_splats(hair_path)
-    _count_check(hair_path, "Gaussians", len(hair), parts["hair"]["count"])
-
-    cage_path = _part_file(folder, parts["cage"])
-    try:
-        cage = load_cage(cage_path)
-    except AvatarKitError as e:
-        raise FormatError(e.message, cage_path) from None
-    _count_check(cage_path, "vertices", cage.n_vertices, parts["cage"]["vertices"])
-    _count_check(cage_path, "faces", len(cage.faces), parts["cage"]["faces"])
-
     rest = _rest_vertices(head, np.concatenate([shape, np.zeros(head.num_shape - len(shape))]).astype(np.float32))
-    rig_path = _part_file(folder, parts["rig"])
-    method = parts["rig"]["deformation"]
-    data = HairRig.read_file(rig_path)
-    stored = str(data["inputs_sha256"])
-    if stored != parts["rig"]["inputs_sha256"]:
-        raise FormatError("belongs to another avatar (its inputs hash differs from avatar.json's)", rig_path)
-    if str(data["deform_method"]) != method:
-        raise FormatError(f"rig uses {data['deform_method']} deformation, avatar.json says {method}", rig_path)
-    if rig_inputs_sha256(hair, cage, rest, head.faces, method) == stored:
-        rig = HairRig.from_file_arrays(data, hair, cage, rig_path)
-    else:
-        warnings.warn(f"{rig_path}: the hair, cage or head changed since the rig was computed; "
-                      "recomputing it (save the avatar again to keep the result)", RigRebuiltWarning,
-                      stacklevel=2)
-        same_head = str(data["sdf_inputs_sha256"]) == sdf_inputs_sha256(rest, head.faces)
-        try:
-            rig = HairRig.build(head, rest, hair, cage, method, sdf=_stored_sdf(data) if same_head else None)
-        except InputError as e:
-            raise FormatError(f"cannot rebuild the hair rig: {e.message}", rig_path) from None
+    if "hair" in parts:
+        hair, cage, rig = _load_hair(folder, parts, head, rest)
+    else:  # a hairless avatar (the schema allows no cage or rig without hair)
+        hair, cage, rig = GaussianSet.empty(bald.sh_degree), None, None
 
     image = None
     if "preview" in parts:
@@ -725,9 +770,12 @@ def inspect_avatar(path: Path):
     s.add("identity shape", f"{len(shape)} coefficients, {nonzero} non-zero")
     parts = m["parts"]
     s.add("bald Gaussians", parts["bald"]["count"]).add("bald SH degree", parts["bald"]["sh_degree"])
-    s.add("hair Gaussians", parts["hair"]["count"]).add("hair SH degree", parts["hair"]["sh_degree"])
-    s.add("cage", f"{parts['cage']['vertices']:,} vertices, {parts['cage']['faces']:,} faces")
-    s.add("hair deformation", parts["rig"]["deformation"])
+    if "hair" in parts:
+        s.add("hair Gaussians", parts["hair"]["count"]).add("hair SH degree", parts["hair"]["sh_degree"])
+        s.add("cage", f"{parts['cage']['vertices']:,} vertices, {parts['cage']['faces']:,} faces")
+        s.add("hair deformation", parts["rig"]["deformation"])
+    else:
+        s.add("hair Gaussians", 0).add("cage", "none (hairless avatar)")
     files = []
     total = 0
     for key, entry in parts.items():

@@ -22,6 +22,10 @@ provenance records a and b). The hair is still simulated from the clip's first f
 k of a ranged bake equals frame a + k of the full bake. Before the first simulated frame the
 hair settles for `preroll` seconds at that pose (`SimConfig.warmup_seconds` by default).
 
+A hairless avatar (`Avatar.has_hair` False) bakes its head only: no simulation; its frames'
+hair is empty (0 Gaussians) and so is the cage (`BakeStatic.cage_faces` (0, 3), frame
+`cage_vertices` (0, 3)); the writers then leave the hair and the cage out.
+
 View-dependent colour: `BakeStatic` holds one set of SH coefficients; a bald avatar whose SH
 bands turn with their triangles (sh_frame "local", degree > 0) is baked with its rest-pose SH.
 """
@@ -277,6 +281,9 @@ class BakeFrames:
         from avatarkit.head.model import HeadParams
 
         avatar, clip, cfg = self.avatar, self.clip, self.config
+        if not avatar.has_hair:
+            yield from self._head_frames()
+            return
         head = avatar.head_model
         binding = avatar.binding
         driver = avatar.hair_driver(cfg.sim)
@@ -338,6 +345,35 @@ class BakeFrames:
                 c2 = time.perf_counter()
 
 
+    def _head_frames(self) -> Iterator[BakeFrame]:
+        """The frames of a hairless avatar: the posed head and its bald Gaussians only."""
+        from avatarkit.head.model import HeadParams
+
+        avatar, clip = self.avatar, self.clip
+        binding = avatar.binding
+        fps = float(clip.fps)
+        t = self.timings
+        no_hair = SplatFrame(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.float32),
+                             np.zeros((0, 3), np.float32))
+        no_cage = np.zeros((0, 3), np.float32)
+        for chunk in range(self.start, self.stop, POSE_CHUNK):
+            idx = np.arange(chunk, min(self.stop, chunk + POSE_CHUNK))
+            c0 = time.perf_counter()
+            params = HeadParams(**{k: getattr(clip, k)[idx] for k in
+                                   ("expr", "rotation", "translation", "neck", "jaw", "eyes")},
+                                shape=avatar.shape)
+            vertices = avatar.head_model.forward(params)[0]
+            t["head"] += time.perf_counter() - c0
+            for k, i in enumerate(idx):
+                c1 = time.perf_counter()
+                v = np.ascontiguousarray(vertices[k], np.float32)
+                face = SplatFrame(*binding_to_world(binding, v))
+                t["bald"] += time.perf_counter() - c1
+                out = int(i - self.start)
+                self.produced += 1
+                yield BakeFrame(out, out / fps, v, face, no_hair, no_cage)
+
+
 def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, BakeFrames]:
     """Bake `clip` (a `MotionClip`) on `avatar` -> (static data, lazy iterator of `BakeFrame`s).
 
@@ -358,7 +394,8 @@ def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, Ba
     static = BakeStatic(fps=float(clip.fps), n_frames=int(stop - start),
                         head_faces=np.ascontiguousarray(avatar.head_model.faces, np.int32),
                         face=avatar.bald, hair=avatar.hair,
-                        cage_faces=np.ascontiguousarray(avatar.cage.faces, np.int32),
+                        cage_faces=(np.ascontiguousarray(avatar.cage.faces, np.int32) if avatar.cage is not None
+                                    else np.zeros((0, 3), np.int32)),
                         provenance=provenance)
     return static, frames
 

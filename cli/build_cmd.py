@@ -81,6 +81,7 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
         for w in build.get("warnings", []):
             click.echo(f"warning: {w}", err=True)
         c = avatar.counts()
-        click.echo(f"wrote {path}: {c['bald']:,} bald + {c['hair']:,} hair Gaussians "
-                   f"({avatar.provenance.get('hair_mode')} hair), {c['cage_vertices']} cage vertices, "
+        hair = (f"{c['hair']:,} hair Gaussians ({avatar.hair_mode} hair), {c['cage_vertices']} cage "
+                "vertices" if avatar.has_hair else "no hair (a bald avatar)")
+        click.echo(f"wrote {path}: {c['bald']:,} bald Gaussians + {hair}, "
                    f"{time.perf_counter() - t0:.1f} s", err=True)

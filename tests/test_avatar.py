@@ -460,3 +460,55 @@ def test_recomputed_weights_bake_like_stored_ones(copy, folder):
     for a, b in zip(bake(new, clip, cfg)[1], bake(old, clip, cfg)[1]):
         for x, y in zip((a.hair.means, a.hair.quats, a.hair.scales), (b.hair.means, b.hair.quats, b.hair.scales)):
             assert np.array_equal(x, y)
+
+
+# --- hairless avatars (a bald person) ------------------------------------------------------------
+
+@functools.cache
+def hairless_avatar() -> Avatar:
+    """The small sample avatar without its hair: no cage, no rig (shared with the bake tests)."""
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    av = small_avatar()
+    return Avatar(av.head_model, av.bald, GaussianSet.empty(), None, None, av.shape, name="bald_sample")
+
+
+def test_hairless_avatar_has_no_cage_or_rig(avatar):
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    bare = hairless_avatar()
+    assert not bare.has_hair and bare.hair_mode == "none"
+    assert bare.counts()["hair"] == 0 and bare.counts()["cage_vertices"] == 0
+    with pytest.raises(InputError, match="no hair"):
+        bare.hair_driver()
+    # a cage or rig without hair, or hair without them, is refused
+    with pytest.raises(InputError, match="no cage and no rig"):
+        Avatar(avatar.head_model, avatar.bald, GaussianSet.empty(), avatar.cage, avatar.rig)
+    with pytest.raises(InputError, match="needs its cage and its rig"):
+        Avatar(avatar.head_model, avatar.bald, avatar.hair, None, None)
+    # assemble of an empty hair builds no cage
+    built = Avatar.assemble(avatar.head_model, avatar.bald, GaussianSet.empty())
+    assert built.cage is None and built.rig is None
+    # the rest splats are the bald head's, and a preview renders
+    rest = bare.rest_gaussians()
+    assert len(rest) == len(avatar.bald) and not rest.extras["part"].any()
+    image = bare.render_preview(size=48)
+    assert image.shape == (48, 48, 3) and (image < 250).any()
+
+
+def test_hairless_avatar_round_trip(tmp_path):
+    bare = hairless_avatar()
+    out = bare.save(tmp_path / "bald", preview=False)
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, BALD_FILE]
+    manifest = read_manifest(out)
+    assert set(manifest["parts"]) == {"bald"}
+    loaded = load_avatar(out)
+    assert not loaded.has_hair and loaded.cage is None and loaded.rig is None
+    np.testing.assert_allclose(loaded.bald.means, bare.bald.means, atol=1e-6)
+    summary = dict(inspect_avatar(out).rows)
+    assert summary["hair Gaussians"] == 0 and "hairless" in summary["cage"]
+    # re-saving the loaded avatar gives the same parts; a cage listed without hair is refused
+    loaded.save(out, preview=False)
+    _edit_manifest(out, lambda m: m["parts"].update(cage={"file": CAGE_FILE, "vertices": 4, "faces": 4}))
+    with pytest.raises(FormatError, match="avatar schema"):
+        load_avatar(out)

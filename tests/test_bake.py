@@ -316,3 +316,45 @@ def test_preview_writer(avatar, shake, tmp_path):
         run_bake(avatar, shake, BakeConfig(sim=SimConfig(static=True)),
                  [PreviewWriter(broken, size=32), _Recorder(fail_at=1)])
     assert not broken.exists() and [p.name for p in tmp_path.iterdir()] == ["preview.gif"]
+
+
+# --- a hairless avatar -------------------------------------------------------------------------
+
+def test_hairless_avatar_bakes_its_head_only(baked, shake, tmp_path):
+    """No simulation; the bald Gaussians move exactly as on the same avatar with hair; the USD
+    stage has no Hair or Cage prim and validates; the PLY frames hold the face only."""
+    import json
+
+    from pxr import Usd
+
+    from avatarkit.bake import make_writer
+    from avatarkit.export.usd_stage import CAGE_PATH, FACE_PATH, HAIR_PATH, HEAD_PATH, validate_stage
+    from avatarkit.gaussians.ply import read_ply
+    from test_avatar import hairless_avatar
+
+    bare = hairless_avatar()
+    static, frames = bake(bare, shake, BakeConfig(sim=FAST, preroll=0.2, hair_batch=3))
+    frames = list(frames)
+    assert len(static.hair) == 0 and static.cage_faces.shape == (0, 3)
+    assert len(frames) == len(baked[1]) == shake.n_frames
+    for got, want in zip(frames, baked[1]):
+        assert got.index == want.index and len(got.hair.means) == 0 and got.cage_vertices.shape == (0, 3)
+        np.testing.assert_allclose(got.head_vertices, want.head_vertices, atol=1e-6)
+        np.testing.assert_allclose(got.face.means, want.face.means, atol=1e-6)
+
+    usd, ply, split, video = (tmp_path / "bald.usda", tmp_path / "frames", tmp_path / "split",
+                              tmp_path / "bald.gif")
+    writers = [make_writer("usd", usd, {"chunk_frames": 3}), make_writer("ply", ply),
+               make_writer("ply", split, {"split": True}), PreviewWriter(video, size=32)]
+    summary = run_bake(bare, shake, BakeConfig(sim=FAST), writers)
+    assert summary.frames == shake.n_frames and summary.timings["simulate"] == 0.0
+    stage = Usd.Stage.Open(str(usd))
+    assert stage.GetPrimAtPath(HEAD_PATH) and stage.GetPrimAtPath(FACE_PATH)
+    assert not stage.GetPrimAtPath(HAIR_PATH) and not stage.GetPrimAtPath(CAGE_PATH)
+    assert validate_stage(stage) == []
+    merged = read_ply(ply / "frame_00003.ply")
+    assert len(merged) == len(bare.bald) and not merged.extras["part"].any()
+    np.testing.assert_allclose(merged.means, frames[3].face.means, atol=1e-6)
+    assert json.loads((ply / "sequence.json").read_text())["parts"].keys() == {"face"}
+    assert sorted(p.name for p in split.glob("*.ply"))[0] == "face_00000.ply"
+    assert not list(split.glob("hair_*")) and video.stat().st_size > 0

@@ -53,6 +53,25 @@ def test_small_build_through_the_cli(tmp_path, capsys):
     assert code == 0 and err == ""
 
 
+def test_bald_portrait_builds_a_hairless_avatar(tmp_path, capsys):
+    """No hair in the portrait (here: an empty --hair-mask): exit 0, a warning, no hair files."""
+    import cv2
+
+    from avatarkit.recon.image_io import read_image
+
+    mask = tmp_path / "no_hair.png"
+    cv2.imwrite(str(mask), np.zeros(read_image(SAMPLE).shape[:2], np.uint8))
+    out_dir = tmp_path / "avatar"
+    code, _, err = _run(["build", SAMPLE, "-o", out_dir, "--hair-mask", mask, "--n-bald", 2000,
+                         "--n-hair", 1500, "--no-preview"], capsys)
+    assert code == 0, err
+    assert "warning: no hair found: building a bald avatar" in err
+    assert "no hair (a bald avatar)" in err
+    manifest = json.loads((out_dir / "avatar.json").read_text())
+    assert set(manifest["parts"]) == {"bald"}
+    assert sorted(p.name for p in out_dir.iterdir()) == ["avatar.json", "bald.ply"]
+
+
 def _bad(capsys, tmp_path, args, *expect):
     out_dir = tmp_path / "out"
     code, _, err = _run(["build", *args, "-o", out_dir], capsys)

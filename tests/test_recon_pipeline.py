@@ -331,3 +331,25 @@ def test_extra_previews_survive_load_and_resave(tmp_path):
         load_avatar(tmp_path / "b")
     with pytest.raises(InputError, match="extra preview"):
         dataclasses.replace(avatar, extra_previews={"x.png": views[EXTRA_PREVIEW_FILES[0]]})
+
+
+def test_a_portrait_without_hair_builds_a_bald_avatar(tmp_path):
+    """An empty hair mask (a bald person): a hairless avatar with a warning instead of a failure."""
+    import cv2
+
+    from avatarkit.avatar import load_avatar
+    from avatarkit.recon.image_io import read_image
+    from avatarkit.recon.pipeline import NO_HAIR_WARNING, BuildOptions, build_avatar, save_avatar
+
+    mask = tmp_path / "no_hair.png"
+    cv2.imwrite(str(mask), np.zeros(read_image(SAMPLE).shape[:2], np.uint8))
+    options = BuildOptions(hair_mask=mask, n_bald=2000, n_hair=1500, refine_iterations=1, preview=False)
+    avatar = build_avatar(SAMPLE, options)
+    build = avatar.provenance["build"]
+    assert NO_HAIR_WARNING in build["warnings"]
+    assert not avatar.has_hair and avatar.cage is None and avatar.rig is None
+    assert build["hair"]["mode"] == "none" and build["counts"]["hair"] == 0
+    out = save_avatar(avatar, tmp_path / "bald")
+    assert sorted(p.name for p in out.iterdir()) == ["avatar.json", "bald.ply"]
+    loaded = load_avatar(out)
+    assert len(loaded.bald) == 2000 and not loaded.has_hair

@@ -72,11 +72,9 @@ def on_small(source, small):
 
 
 def _hairless(avatar: Avatar) -> Avatar:
-    """The avatar with its hair removed (an Avatar cannot be built without a rig for its hair,
-    but one can lose its hair after loading, e.g. a script clearing it)."""
-    bare = copy.copy(avatar)
-    bare.hair = GaussianSet.empty()
-    return bare
+    """The avatar with its hair removed: a hairless avatar (a bald person: no cage, no rig)."""
+    return Avatar(avatar.head_model, avatar.bald, GaussianSet.empty(), None, None, avatar.shape,
+                  name=f"{avatar.name}_bald")
 
 
 def _clearance(points: np.ndarray, avatar: Avatar) -> np.ndarray:
@@ -337,6 +335,19 @@ def test_heads_of_different_topology_are_refused(source):
 def test_source_without_hair_is_refused(source, big):
     with pytest.raises(InputError, match="has no hair Gaussians"):
         transfer_hair(_hairless(source), big)
+
+
+def test_hair_onto_a_hairless_target(source, big, on_big, tmp_path):
+    """Putting hair on a bald head: the hair lands where it lands on the same head with hair (the
+    target's own hair plays no part), with a fresh cage and rig; the result saves and loads."""
+    bald_big = _hairless(big)
+    result = transfer_hair(source, bald_big, cage_vertices=CAGE)
+    assert result.has_hair and result.cage is not None and result.rig is not None
+    assert len(result.hair) == len(on_big.hair)
+    np.testing.assert_allclose(result.hair.means, on_big.hair.means, atol=1e-5)
+    assert np.array_equal(result.bald.means, big.bald.means)
+    loaded = load_avatar(result.save(tmp_path / "haired", preview=False))
+    assert len(loaded.hair) == len(result.hair) and loaded.cage.n_vertices == result.cage.n_vertices
 
 
 def test_head_without_scalp_is_refused(source):

@@ -9,6 +9,8 @@ Files (INRIA property order, binary little endian, via `gaussians.ply.write_ply`
 - merged (default): `frame_00000.ply ...`, face then hair Gaussians in one file with an extra
   uchar property `part` (0 face, 1 hair); SH padded to the higher degree of the two;
 - `split=True`: `face_00000.ply` and `hair_00000.ply` per frame, no extras.
+A bake without hair (a hairless avatar) writes the face only: merged files hold just the face
+Gaussians (all `part` 0), split writes no hair files, and the sidecar lists the face part only.
 The number is the frame's `index` (its USD time code). Other extras (e.g. `binding`) are not
 written: they describe the rig, not the splats a viewer shows.
 
@@ -69,6 +71,7 @@ class PlySequenceWriter(StreamingWriter):
         self._state = "new"
         self._static: BakeStatic | None = None
         self._merged: GaussianSet | None = None   # static attributes of the merged file
+        self._parts: dict[str, int] = dict(PART_IDS)  # the parts written (no hair without hair)
         self._indices: list[int] = []
         self._bytes = 0
 
@@ -92,6 +95,7 @@ class PlySequenceWriter(StreamingWriter):
             raise OutputError(f"cannot write to this folder ({e.strerror})", self.folder) from None
         self._state = "open"
         self._static = static
+        self._parts = {p: i for p, i in PART_IDS.items() if p == "face" or len(getattr(static, p))}
         if not self.split:
             face = static.face.replace(extras={"part": np.full(len(static.face), 0, np.uint8)})
             hair = static.hair.replace(extras={"part": np.full(len(static.hair), 1, np.uint8)})
@@ -113,7 +117,7 @@ class PlySequenceWriter(StreamingWriter):
                                  f"data has {want}")
         try:
             if self.split:
-                for part in PART_IDS:
+                for part in self._parts:
                     gs = frame.gaussians(self._static, part).replace(extras={})
                     self._write(frame_name(part, frame.index), gs)
             else:
@@ -136,7 +140,7 @@ class PlySequenceWriter(StreamingWriter):
         self._bytes += (self._tmp / name).stat().st_size
 
     def _files(self) -> dict[str, list[str]]:
-        prefixes = list(PART_IDS) if self.split else ["frame"]
+        prefixes = list(self._parts) if self.split else ["frame"]
         return {p: [frame_name(p, i) for i in self._indices] for p in prefixes}
 
     def close(self) -> PlySequenceResult:
@@ -156,7 +160,7 @@ class PlySequenceWriter(StreamingWriter):
                     os.replace(self._tmp / name, self.folder / name)
             s = self._static
             parts = {p: {"gaussians": len(getattr(s, p)), "sh_degree": getattr(s, p).sh_degree, "part": i}
-                     for p, i in PART_IDS.items()}
+                     for p, i in self._parts.items()}
             doc = {
                 "format": FORMAT_NAME, "version": FORMAT_VERSION, "layout": "3dgs-inria-ply",
                 "fps": float(s.fps), "frame_count": len(self._indices), "frames": self._indices,

@@ -17,6 +17,9 @@ Stage layout (metres, +Y up, frame i at time code i, `timeCodesPerSecond` = `fra
     every boundable prim has an `extent` sample per frame; provenance in the root layer's
     customLayerData["avatarkit"].
 
+A bake without hair (a hairless avatar: `BakeStatic.hair` has 0 Gaussians and no cage faces)
+has no Hair and no Cage prim.
+
 With `usd_points`, Face and Hair are `UsdGeom.Points` instead (see `PointsPrimWriter`).
 
 Memory: a bake longer than `chunk_frames` writes its samples into one crate layer per chunk,
@@ -149,15 +152,16 @@ def _vt_dict(value):
 class _Prims:
     """The /Avatar prims on one stage (the root, or a chunk layer that only takes samples)."""
 
-    def __init__(self, stage: Usd.Stage, options: UsdWriteOptions):
+    def __init__(self, stage: Usd.Stage, options: UsdWriteOptions, hair: bool = True):
+        """hair: False leaves the Hair and Cage prims out (a hairless avatar)."""
         self.options = options
         self.avatar = UsdGeom.Xform.Define(stage, ROOT_PATH)
         stage.SetDefaultPrim(self.avatar.GetPrim())
         self.head = UsdGeom.Mesh.Define(stage, HEAD_PATH)
         splat = PointsPrimWriter if options.usd_points else SplatPrimWriter
         self.face = splat(stage, FACE_PATH, half=options.half)
-        self.hair = splat(stage, HAIR_PATH, half=options.half)
-        self.cage = UsdGeom.Mesh.Define(stage, CAGE_PATH)
+        self.hair = splat(stage, HAIR_PATH, half=options.half) if hair else None
+        self.cage = UsdGeom.Mesh.Define(stage, CAGE_PATH) if hair else None
         self.normals = None
         if options.head_normals:
             self.normals = self.head.CreateNormalsAttr()
@@ -167,24 +171,31 @@ class _Prims:
         Usd.ModelAPI(self.avatar.GetPrim()).SetKind(Kind.Tokens.component)
         for mesh, faces, color in ((self.head, static.head_faces, SKIN_COLOR),
                                    (self.cage, static.cage_faces, CAGE_COLOR)):
+            if mesh is None:
+                continue
             mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
             mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1).astype(np.int32)))
             mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
             mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([color]))
-        self.cage.CreatePurposeAttr(UsdGeom.Tokens.guide)
         self.face.write_static(static.face)
-        self.hair.write_static(static.hair)
+        if self.hair is not None:
+            self.cage.CreatePurposeAttr(UsdGeom.Tokens.guide)
+            self.hair.write_static(static.hair)
 
     def write_frame(self, frame: BakeFrame, faces: np.ndarray) -> None:
         t = Usd.TimeCode(float(frame.index))
         with Sdf.ChangeBlock():
             for mesh, points in ((self.head, frame.head_vertices), (self.cage, frame.cage_vertices)):
+                if mesh is None:
+                    continue
                 p = np.ascontiguousarray(points, np.float32)
                 mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(p), t)
                 mesh.GetExtentAttr().Set(_box(p), t)
             if self.normals is not None:
                 self.normals.Set(Vt.Vec3fArray.FromNumpy(vertex_normals(frame.head_vertices, faces)), t)
             for writer, part in ((self.face, frame.face), (self.hair, frame.hair)):
+                if writer is None:
+                    continue
                 writer.write_samples(frame.index, part.means, part.quats, part.scales)
 
 
@@ -274,7 +285,7 @@ class UsdStageWriter(StreamingWriter):
             layer.customLayerData = {"avatarkit": _vt_dict({
                 "writer": f"avatarkit {__version__}", "fps": float(static.fps),
                 "provenance": dict(static.provenance or {})})}
-            self._root_prims = _Prims(self._root, self.options)
+            self._root_prims = _Prims(self._root, self.options, has_hair(static))
             self._root_prims.write_static(static)
             if self._use_clips:
                 (self._tmp / self._clips_name).mkdir()
@@ -328,7 +339,7 @@ class UsdStageWriter(StreamingWriter):
     def _start_chunk(self, index: int) -> None:
         name = f"chunk_{len(self._chunk_paths):05d}.usdc"
         stage = self._new_stage(self._tmp / self._clips_name / name)
-        self._chunk = (stage, _Prims(stage, self.options))
+        self._chunk = (stage, _Prims(stage, self.options, has_hair(self._static)))
         self._chunk_paths.append(f"./{self._clips_name}/{name}")
         self._chunk_starts.append(int(index))
         self._in_chunk = 0
@@ -443,6 +454,11 @@ class UsdStageWriter(StreamingWriter):
         self._root = self._root_prims = self._manifest = None
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+def has_hair(static: BakeStatic) -> bool:
+    """Whether a bake has hair (and so a cage): a hairless avatar's has neither."""
+    return len(static.hair) > 0 or len(static.cage_faces) > 0
 
 
 def _check_static(static: BakeStatic) -> None:

@@ -161,7 +161,10 @@ def _source_entry(avatar) -> dict:
 
 def _rest_sdf(avatar):
     """The avatar's rest-head SDF from its rig if it fits the rest head (a loaded avatar's
-    always does: its rig is checked against the head), else None (HairRig.build makes one)."""
+    always does: its rig is checked against the head), else None (HairRig.build makes one, as
+    for a hairless avatar, which has no rig)."""
+    if avatar.rig is None:
+        return None
     sdf = getattr(avatar.rig.model, "sdf", None)
     if sdf is None:
         return None

@@ -15,6 +15,10 @@ Stages (`STAGES`, each timed and reported through the `progress` callback):
     hair_rig    cage + weights + roots, or rigid scalp binding          recon.hair_rig
     previews    front / three-quarter / profile renders                 render
 
+A portrait without hair (a bald person: no hair pixels, or none left after the 3D hair
+segmentation) builds a hairless avatar (no cage, no rig; `Avatar.has_hair` False) with the
+warning `NO_HAIR_WARNING` in the build report; the hair_rig stage then does nothing.
+
 `save_avatar` writes the folder atomically (a temp folder beside the target, renamed into
 place): a failed build never leaves a partial avatar folder.
 """
@@ -37,6 +41,8 @@ STAGES = ("read", "analyse", "segment", "fit", "bald", "lift", "segment3d", "rig
 PREVIEW_VIEWS = {"preview.png": 0.0, "preview_three_quarter.png": 45.0, "preview_profile.png": 90.0}
 #: grid spacing (metres) of the head SDF the hair is grown on
 LIFT_SDF_SPACING = 0.004
+#: the build report's warning when the portrait has no hair
+NO_HAIR_WARNING = "no hair found: building a bald avatar"
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512
 
@@ -262,8 +268,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
                                        lambda p: sdf.query(p)[0])
             report.info["segment3d"] = summary
         if len(hair) == 0:
-            raise InputError("no hair was found in the portrait (bald heads are not supported yet: "
-                             "the avatar format needs hair for its cage)", path)
+            report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):
         binding = rig_bald(lifted.bald, fit)
     with stage("assemble"):
@@ -282,18 +287,24 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours"] = figures
     with stage("hair_rig"):
-        mode, why = detect_hair_mode(segmentation, analysis)
-        if options.hair_mode != "auto":
-            mode = options.hair_mode
-        rigged = rig_hair(fit, hair, mode, cage_vertices=options.cage_vertices)
-        report.info["hair"] = {"mode": mode, "requested": options.hair_mode, **why, **rigged.info}
+        if len(hair) == 0:  # a bald person: nothing to cage or rig
+            mode = "none"
+            hair_out, cage, rig = hair.replace(extras={}), None, None
+            report.info["hair"] = {"mode": mode, "requested": options.hair_mode}
+        else:
+            mode, why = detect_hair_mode(segmentation, analysis)
+            if options.hair_mode != "auto":
+                mode = options.hair_mode
+            rigged = rig_hair(fit, hair, mode, cage_vertices=options.cage_vertices)
+            report.info["hair"] = {"mode": mode, "requested": options.hair_mode, **why, **rigged.info}
+            hair_out = rigged.hair.replace(extras={k: v for k, v in rigged.hair.extras.items()
+                                                   if k == "binding"})
+            cage, rig = rigged.cage, rigged.rig
     bald_out = bald.replace(extras={"binding": bald.extras["binding"].astype(np.int32)})
-    hair_out = rigged.hair.replace(extras={k: v for k, v in rigged.hair.extras.items()
-                                           if k == "binding"})
     provenance = {"tool": "avatarkit", "version": _tool_version(), "created": _now(),
                   "source_image": str(path), "generator": _generator(path, options),
                   "hair_mode": mode}
-    avatar = Avatar(head_model, bald_out, hair_out, rigged.cage, rigged.rig, fit.shape, head_ref,
+    avatar = Avatar(head_model, bald_out, hair_out, cage, rig, fit.shape, head_ref,
                     options.name or path.stem, "local", provenance)
     previews = {}
     with stage("previews"):
@@ -302,7 +313,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             avatar.preview = previews["preview.png"]
             avatar.extra_previews = {k: v for k, v in previews.items() if k != "preview.png"}
     report.info["counts"] = {"bald": len(bald_out), "hair": len(hair_out),
-                             "cage_vertices": int(rigged.cage.n_vertices)}
+                             "cage_vertices": int(cage.n_vertices) if cage is not None else 0}
     avatar.provenance["build"] = report.to_json()
     avatar.build_previews = previews
     return avatar
@@ -367,5 +378,5 @@ def save_avatar(avatar, folder: str | os.PathLike) -> Path:
     return target
 
 
-__all__ = ["BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "build_avatar", "clean_hair",
+__all__ = ["NO_HAIR_WARNING", "BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "build_avatar", "clean_hair",
            "front_view_metrics", "head_mask", "render_previews", "save_avatar"]
