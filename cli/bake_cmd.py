@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from avatarkit.cli.options import cli_warnings, progress, quiet_option
+from avatarkit.cli.options import advance, cli_warnings, progress, quiet_option
 
 _COLLISION = ("none", "vertex", "proxy")  # sim.COLLISION_MODES
 # (kept literal so `--help` imports neither pxr nor numpy; a test checks they agree)
@@ -138,13 +138,7 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
                 deformer.ensure_weights(progress=weights_step)
         t_load = time.perf_counter() - t0
         with progress(range(total), length=total, label="baking", quiet=quiet) as bar:
-            last = [0]
-
-            def step(done, _total):
-                if hasattr(bar, "update"):
-                    bar.update(done - last[0])
-                last[0] = done
-
+            step = advance(bar)
             with warnings.catch_warnings():  # prepare_clip already said it
                 warnings.filterwarnings("ignore", message=".*expression coefficients.*")
                 summary = run_bake(avatar, clip, config, writers, progress=step)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import output_option, progress, quiet_option
+from avatarkit.cli.options import advance, output_option, progress, quiet_option
 
 
 def _size(n: int) -> str:
@@ -52,13 +52,7 @@ def convert_cmd(inputs, output, up_axis, prim_path, half, sh_degree, fps, time_c
     frames = len(resolve_inputs(target))
     if frames > 1:
         with progress(range(frames), length=frames, label="converting", quiet=quiet) as bar:
-            last = [0]
-
-            def step(done, total):
-                if hasattr(bar, "update"):
-                    bar.update(done - last[0])
-                last[0] = done
-
+            step = advance(bar)
             result = convert(target, output, options, progress=step)
     else:
         result = convert(target, output, options)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import progress, quiet_option
+from avatarkit.cli.options import advance, progress, quiet_option
 
 _MARGIN_HELP = ("Metres outside the target head where hair pushed out of it lands (none stays "
                 "closer than half of it).")
@@ -153,13 +153,7 @@ def hair_grid_cmd(head, hair, more_hair, output, views, size, include_own, margi
     sources = [load_avatar(p) for p in paths]
     total = (len(sources) + int(include_own)) * len(names)
     with progress(range(total), length=total, label="rendering", quiet=quiet) as bar:
-        last = [0]
-
-        def step(done, _total):
-            if hasattr(bar, "update"):
-                bar.update(done - last[0])
-            last[0] = done
-
+        step = advance(bar)
         grid = hair_grid(head_avatar, sources, names, size, include_own=include_own, margin=margin,
                          cleanup=not keep_skin, labels=not no_labels,
                          names=[_folder_name(p) for p in paths], progress=step)

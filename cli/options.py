@@ -39,6 +39,18 @@ def cli_warnings(quiet: bool):
         yield
 
 
+def advance(bar):
+    """A library-style `progress(done, total)` callback that moves `bar` to `done`."""
+    last = [0]
+
+    def step(done, _total=None):
+        if hasattr(bar, "update"):
+            bar.update(done - last[0])
+        last[0] = done
+
+    return step
+
+
 class _NullBar:
     def __init__(self, iterable):
         self._it = iterable

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import output_option, progress, quiet_option
+from avatarkit.cli.options import advance, output_option, progress, quiet_option
 
 
 @click.command("render")
@@ -66,13 +66,7 @@ def render_cmd(splats, output, width, height, fov, azimuth, elevation, distance,
     else:
         total = contact_sheet if kind == "contact_sheet" else (turntable or DEFAULT_TURNTABLE_FRAMES)
         with progress(range(total), length=total, label="rendering", quiet=quiet) as bar:
-            last = [0]
-
-            def step(done, _total):
-                if hasattr(bar, "update"):
-                    bar.update(done - last[0])
-                last[0] = done
-
+            step = advance(bar)
             result = render_preview(splats, output, options, progress=step)
     if not quiet:
         what = {"image": "image", "contact_sheet": f"contact sheet of {result.frames} views",
