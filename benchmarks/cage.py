@@ -27,6 +27,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
+from _timing import median_time  # noqa: E402
 
 from avatarkit.cage import (CageDeformer, build_cage, deformation_points, mvc_weights,  # noqa: E402
                             sparse_apply, sparse_error, sparsify)
@@ -45,16 +46,6 @@ def median_wall_cpu(fn, repeats: int = 3, warmup: int = 1) -> tuple[float, float
         cpu.append(time.process_time() - c)
     return float(np.median(wall)), float(np.median(cpu))
 
-
-def median_time(fn, repeats: int = 7, warmup: int = 1) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def read_bandwidth() -> float:

@@ -21,21 +21,12 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 import numpy as np  # noqa: E402
+from _timing import median_time  # noqa: E402
 import scipy.sparse  # noqa: E402
 
 from avatarkit.head import FLAME_PARENTS, HeadModel, HeadParams  # noqa: E402
 from avatarkit.head.lbs import lbs_reference  # noqa: E402
 
-
-def median_time(fn, repeats: int = 5, warmup: int = 1) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times))
 
 
 def flame_sized_model(seed: int = 0) -> HeadModel:
@@ -82,7 +73,7 @@ def bench_generation() -> None:
 
 def bench_lbs(model: HeadModel, T: int) -> None:
     params = random_params(model, T)
-    t_np = median_time(lambda: model.forward(params)) / T
+    t_np = median_time(lambda: model.forward(params), repeats=5) / T
     Tr = min(T, 10)
     sub = params.select(slice(0, Tr))
     vs = model.shaped_vertices(sub)
@@ -94,7 +85,7 @@ def bench_lbs(model: HeadModel, T: int) -> None:
         import torch
 
         with torch.no_grad():
-            t_torch = median_time(lambda: model.forward_torch(params)) / T
+            t_torch = median_time(lambda: model.forward_torch(params), repeats=5) / T
         line += f"  torch {t_torch * 1e3:7.3f} ms/frame ({t_torch / t_np:4.1f}x)"
     except ImportError:
         pass
