@@ -7,6 +7,8 @@ descriptor for that call only, so CLI output and piped data stay clean.
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import os
 import sys
 import threading
@@ -47,6 +49,25 @@ def _threads() -> int:
     return os.cpu_count() or 2
 
 
+def _restore_fp_environment() -> None:
+    """`ti.init` leaves flush-to-zero / denormals-are-zero on in the calling thread (its kernels
+    run with them whatever we do). Left on, numpy in this process would flush subnormals too, and
+    our numpy references would give different bits depending on whether Taichi had started.
+    Put back the C default environment (glibc and musl spell FE_DFL_ENV as (fenv_t *) -1)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libm = ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6")
+        libm.fesetenv(ctypes.c_void_p(-1))
+    except (OSError, AttributeError):  # no libm to call: numpy keeps Taichi's setting
+        pass
+
+
+def taichi_running() -> bool:
+    """Has this process started Taichi? (Callers pick a kernel when its start is already paid.)"""
+    return _ready
+
+
 def ensure_taichi():
     """Initialise Taichi once (arch=cpu, all cores, no version check) and return the module."""
     global _ready
@@ -63,5 +84,6 @@ def ensure_taichi():
                 # arch=gpu/opengl segfaults on our machines; the CPU backend is the product.
                 ti.init(arch=ti.cpu, log_level=ti.WARN, cpu_max_num_threads=_threads(),
                         offline_cache=True)
+                _restore_fp_environment()
                 _ready = True
     return ti

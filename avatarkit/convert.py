@@ -101,12 +101,12 @@ def resolve_inputs(inputs: str | os.PathLike | Sequence[str | os.PathLike]) -> l
     return paths
 
 
-def load_any(path: Path, options: ConvertOptions) -> GaussianSet:
+def load_any(path: Path, options: ConvertOptions, ply_decoder: str = "auto") -> GaussianSet:
     """Read one splat file by extension (USD with the options' prim path and time code)."""
     ext = _ext(path)
     if ext in PLY_EXTENSIONS:
         from avatarkit.gaussians.ply import read_ply
-        return read_ply(path)
+        return read_ply(path, decoder=ply_decoder)
     if ext in SPZ_EXTENSIONS:
         from avatarkit.gaussians.spz import read_spz
         return read_spz(path)
@@ -182,8 +182,10 @@ _FLUSH_BYTES = 256 << 20
 
 def _write_sequence(frames: list[Path], output: Path, options: ConvertOptions,
                     progress: Callable[[int, int], None] | None) -> tuple[int, int]:
+    from avatarkit.gaussians.ply import sequence_decoder
     from avatarkit.gaussians.usd import DEFAULT_PRIM_PATH, SplatPrimWriter, flush_stage, open_output_stage
 
+    decoder = sequence_decoder([p for p in frames if _ext(p) in PLY_EXTENSIONS])
     count = degree = 0
     with open_output_stage(output, up_axis=options.up_axis.upper(), fps=options.fps, start=0,
                            end=len(frames) - 1, comment=f"avatarkit convert: {len(frames)} frames") as stage:
@@ -191,7 +193,7 @@ def _write_sequence(frames: list[Path], output: Path, options: ConvertOptions,
         pending = 0
         for i, path in enumerate(frames):
             try:
-                gs = _reduce(load_any(path, options), options)
+                gs = _reduce(load_any(path, options, decoder), options)
                 writer.write(gs, time=i)
             except AvatarKitError as e:
                 raise e.with_path(path) from None

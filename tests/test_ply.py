@@ -1,4 +1,7 @@
-"""3DGS PLY read/write: round trips, plyfile as the peer reader/writer, bad input, fuzzing."""
+"""3DGS PLY read/write: round trips, plyfile as the peer reader/writer, bad input, fuzzing.
+
+Every test here runs twice: with the numpy reference decoder and with the Taichi kernel
+wherever the file's layout lets `read_ply` take it (see `decoder` below)."""
 from __future__ import annotations
 
 import os
@@ -14,6 +17,7 @@ from plyfile import PlyData, PlyElement
 
 from avatarkit.errors import FormatError, InputError, OutputError
 from avatarkit.gaussians import GaussianSet
+from avatarkit.gaussians import ply as ply_module
 from avatarkit.gaussians.io import load_gaussians, register_format, save_gaussians
 from avatarkit.gaussians.ply import (OPACITY_EPS, VertexTable, parse_header, read_ply,
                                      read_ply_arrays, read_ply_header, write_ply)
@@ -21,6 +25,15 @@ from avatarkit.gaussians.sh import SH_C0
 from helpers import random_gaussians
 
 SH_REST = {0: 0, 1: 9, 2: 24, 3: 45}
+
+
+@pytest.fixture(scope="module", params=["numpy", "kernel"], autouse=True)
+def decoder(request):
+    """The decoder `read_ply`'s default ("auto") picks in this module's tests: the files here
+    are small, so left alone it would always pick numpy. Module-scoped for hypothesis."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ply_module, "_kernel_pays", lambda *args: request.param == "kernel")
+        yield request.param
 
 
 def inria_names(degree: int) -> list[str]:

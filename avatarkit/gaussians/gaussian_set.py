@@ -39,6 +39,18 @@ def _all_finite(a: np.ndarray) -> bool:
     return bool(np.isfinite(a).all())
 
 
+def _checked_extras(extras: dict, n: int) -> dict[str, np.ndarray]:
+    out = {}
+    for key, value in dict(extras).items():
+        arr = np.asarray(value)  # not ascontiguousarray: it would turn a scalar into (1,)
+        if not isinstance(key, str) or not key.isidentifier():
+            raise InputError(f"extra name {key!r} must be an identifier")
+        if arr.ndim == 0 or len(arr) != n:
+            raise InputError(f"extra {key!r} has shape {arr.shape}, first axis must be {n}")
+        out[key] = np.ascontiguousarray(arr)
+    return out
+
+
 @dataclass(eq=False)
 class GaussianSet:
     """N anisotropic 3D Gaussians with SH colour. Validated (and made float32) on construction.
@@ -91,17 +103,23 @@ class GaussianSet:
         if fix.any():
             self.quats = self.quats.copy()
             self.quats[fix] = self.quats[fix].astype(np.float64) / norms[fix, None]
-        extras = {}
-        for key, value in dict(self.extras).items():
-            arr = np.asarray(value)  # not ascontiguousarray: it would turn a scalar into (1,)
-            if not isinstance(key, str) or not key.isidentifier():
-                raise InputError(f"extra name {key!r} must be an identifier")
-            if arr.ndim == 0 or len(arr) != n:
-                raise InputError(f"extra {key!r} has shape {arr.shape}, first axis must be {n}")
-            extras[key] = np.ascontiguousarray(arr)
-        self.extras = extras
+        self.extras = _checked_extras(self.extras, n)
 
     # --- construction -------------------------------------------------------------------
+    @classmethod
+    def from_checked(cls, means: np.ndarray, quats: np.ndarray, scales: np.ndarray,
+                     opacities: np.ndarray, sh: np.ndarray,
+                     extras: dict[str, np.ndarray] | None = None) -> "GaussianSet":
+        """A set from arrays a decoder has already held to every rule the constructor checks:
+        C-contiguous float32 of the right shapes, finite, scales > 0, opacities in [0, 1], quats
+        unit to float32 precision. Only the extras are checked. For readers whose single pass
+        over a file did the checks (`ply`'s kernel): validating again would cost ~20 ms per
+        million splats. Tests hold such readers to `GaussianSet(...)` giving the same bits."""
+        gs = object.__new__(cls)
+        gs.means, gs.quats, gs.scales, gs.opacities, gs.sh = means, quats, scales, opacities, sh
+        gs.extras = _checked_extras(extras or {}, len(means))
+        return gs
+
     @classmethod
     def empty(cls, sh_degree: int = 0) -> "GaussianSet":
         k = SH_COUNTS[sh_degree]

@@ -33,6 +33,7 @@ import io
 import mmap
 import os
 import re
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -470,10 +471,36 @@ def read_ply_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 # --- PLY columns -> GaussianSet ------------------------------------------------------------
-def read_ply(path: str | os.PathLike) -> GaussianSet:
-    """Read a 3DGS PLY file (any property order, binary LE/BE or ASCII) into a GaussianSet."""
+#: `decoder="auto"` weighs the kernel's one-time costs in a process (measured on our 2-core
+#: machine: starting Taichi ~0.25 s, loading the compiled kernel for a row layout ~0.12 s)
+#: against what it saves on the file at hand (~0.28 ns per byte of rows: 1M SH-3 splats read in
+#: ~0.04 s instead of ~0.11 s), and takes it when the saving pays what is still unpaid. So one
+#: read of a 1M-splat file in a fresh process stays with numpy; a file of ~5M, or any file of
+#: >= KERNEL_MIN_ROWS once the kernel is loaded (`decoder="kernel"` loads it), takes the kernel.
+TAICHI_START_S = 0.25
+KERNEL_LOAD_S = 0.12
+KERNEL_SAVES_S_PER_BYTE = 0.28e-9
+#: below this many rows a launch costs about what the kernel saves
+KERNEL_MIN_ROWS = 16_384
+#: the row layouts (`_kernel_offsets`, SH count) the kernel has been compiled for in this process
+_loaded_layouts: set[tuple] = set()
+DECODERS = ("auto", "kernel", "numpy")
+
+
+def read_ply(path: str | os.PathLike, *, decoder: str = "auto") -> GaussianSet:
+    """Read a 3DGS PLY file (any property order, binary LE/BE or ASCII) into a GaussianSet.
+
+    `decoder`: "numpy" is the reference (every layout the reader accepts); "kernel" decodes
+    binary little-endian float32 files whose property groups each lie in one run (the INRIA
+    layout and its variants without normals or with extras) in one parallel Taichi pass, and
+    falls back to numpy for other layouts and for rows it finds invalid (so errors read the
+    same); "auto" takes the kernel where it is faster, start-up included (see TAICHI_START_S).
+    Both give the same bits.
+    """
+    if decoder not in DECODERS:
+        raise ValueError(f"decoder must be one of {DECODERS}, got {decoder!r}")
     _, table = _open_vertex_table(path)
-    return _table_to_gaussians(table, path)
+    return _table_to_gaussians(table, path, decoder)
 
 
 def _indexed(names, prefix: str) -> dict[int, str]:
@@ -524,7 +551,7 @@ def _check_finite(table: VertexTable, names, values: np.ndarray, path) -> None:
     raise FormatError("non-finite value in " + " ".join(names), path)
 
 
-def _table_to_gaussians(table: VertexTable, path) -> GaussianSet:
+def _table_to_gaussians(table: VertexTable, path, decoder: str = "numpy") -> GaussianSet:
     names = table.names
     _require(table, POSITION, "position", path)
     _require(table, ROT, "rotation", path)
@@ -553,6 +580,15 @@ def _table_to_gaussians(table: VertexTable, path) -> GaussianSet:
 
     used = {*POSITION, *NORMAL, *ROT, *SCALE, "opacity", *colour, *rest_names}
     extra_groups = _extra_groups(table, [s for s in names if s not in used], path)
+    offsets = _kernel_offsets(table, rest_names) if colour is DC and decoder != "numpy" else None
+    if offsets is not None:
+        layout = (tuple(offsets.items()), k)
+        if _kernel_pays(table, decoder, layout):
+            gs = _decode_with_kernel(table, offsets, k, extra_groups, path)
+            _loaded_layouts.add(layout)
+            if gs is not None:
+                return gs
+            # a row the kernel flagged: the reference below finds it and names the problem
     # On disk f_rest is channel-major (index = channel*(K-1) + (k-1)). Asking for the names in
     # coefficient-major order makes the gather do the transpose, and with f_dc in front the
     # gathered (N, 3K) block already is the (N, K, 3) SH array.
@@ -605,6 +641,79 @@ def _table_to_gaussians(table: VertexTable, path) -> GaussianSet:
         for g, a in zip(groups, arrays):
             _check_finite(table, g, a, path)
         raise FormatError(f"invalid Gaussian data: {e.message}", path) from None
+
+
+def _kernel_pays(table: VertexTable, decoder: str, layout: tuple) -> bool:
+    """Is the kernel worth it for this table (see TAICHI_START_S)?"""
+    if decoder == "kernel":
+        return True
+    if len(table) < KERNEL_MIN_ROWS:
+        return False
+    from avatarkit._taichi import taichi_running
+
+    unpaid = 0.0 if layout in _loaded_layouts else KERNEL_LOAD_S
+    if not taichi_running():
+        unpaid += TAICHI_START_S
+    return table.raw.nbytes * KERNEL_SAVES_S_PER_BYTE >= unpaid
+
+
+def sequence_decoder(paths) -> str:
+    """The decoder for reading these PLY files one after another (a sequence): "kernel" when
+    what it saves over all of them pays its one-time costs (see TAICHI_START_S), else "auto"."""
+    from avatarkit._taichi import taichi_running
+
+    total = sum(os.path.getsize(p) for p in paths if os.path.isfile(p))
+    unpaid = KERNEL_LOAD_S + (0.0 if taichi_running() else TAICHI_START_S)
+    return "kernel" if total * KERNEL_SAVES_S_PER_BYTE >= unpaid else "auto"
+
+
+def _kernel_offsets(table: VertexTable, rest_names: list[str]) -> dict[str, int] | None:
+    """Word offset of each property group in a row and the span `lo`..`hi` of words they lie
+    in, or None when the kernel cannot read the rows: not little-endian float32 words, or a
+    group not stored as one run in our order."""
+    raw = table.raw
+    if (table.byte_order != "<" or sys.byteorder != "little" or raw.ndim != 2
+            or raw.shape[1] % 4 or not raw.flags.c_contiguous):
+        return None
+    f4 = np.dtype("<f4")
+    groups = {"pos": POSITION, "dc": DC, "rest": rest_names, "opacity": ("opacity",),
+              "scale": SCALE, "rot": ROT}
+    offsets, spans = {}, []
+    for key, group in groups.items():
+        if not group:  # SH degree 0: no f_rest
+            offsets[key] = 0
+            continue
+        start = table.offsets[group[0]]
+        if start % 4 or any(table.dtypes[name] != f4 or table.offsets[name] != start + 4 * i
+                            for i, name in enumerate(group)):
+            return None
+        offsets[key] = start // 4
+        spans.append((start // 4, start // 4 + len(group)))
+    offsets["lo"] = min(a for a, _ in spans)
+    offsets["hi"] = max(b for _, b in spans)
+    return offsets
+
+
+def _decode_with_kernel(table: VertexTable, offsets: dict[str, int], k: int,
+                        extra_groups: list[tuple[str, list[str]]], path) -> GaussianSet | None:
+    """The fast path: one Taichi pass over the rows. None when a row is invalid."""
+    from avatarkit.gaussians import _ply_kernels
+
+    n, row = table.raw.shape
+    words = table.raw.reshape(-1).view(np.float32)  # unaligned when the header length is odd
+    means, quats, scales, opacities, sh, first_bad = _ply_kernels.decode(words, row // 4,
+                                                                         offsets, k)
+    if first_bad < n:
+        return None
+    extras = {}
+    if extra_groups:
+        groups = [cols for _, cols in extra_groups]
+        for (key, cols), a in zip(extra_groups, table.gather(groups)):
+            _check_finite(table, cols, a, path)
+            extras[key] = a[:, 0] if len(cols) == 1 else a
+    # The kernel enforced every rule GaussianSet checks (finite values, scales > 0 and
+    # representable, opacities in [0, 1], unit quaternions): skip checking them again.
+    return GaussianSet.from_checked(means, quats, scales, opacities, sh, extras)
 
 
 def _ranges(idx: list[int]) -> str:
@@ -747,7 +856,7 @@ def write_ply(path: str | os.PathLike, gs: GaussianSet) -> None:
         f.write(rows.reshape(-1).data)
 
 
-__all__ = ["read_ply", "write_ply", "read_ply_arrays", "read_ply_header", "parse_header",
+__all__ = ["read_ply", "write_ply", "read_ply_arrays", "sequence_decoder", "read_ply_header", "parse_header",
            "check_element_sizes",
            "ply_property_names", "PlyHeader", "PlyElement", "PlyProperty", "PLY_TYPES",
            "OPACITY_EPS", "MAX_HEADER_BYTES"]
