@@ -1,7 +1,10 @@
 """Rotation helpers shared by every layer. Quaternions are (w, x, y, z), unit length.
 
-All functions are vectorised over leading axes; float64 inside where precision matters,
-results in the input's float dtype.
+All functions are vectorised over leading axes. The quaternion helpers (`quat_normalize`,
+`quat_multiply`, `quat_to_matrix`) compute in the input's dtype and return it; the conversions
+that need the precision (`matrix_to_quat`, `axis_angle_to_matrix`, `matrix_to_axis_angle`)
+compute in float64 and *return float64* whatever they are given: callers that store float32
+cast.
 """
 from __future__ import annotations
 

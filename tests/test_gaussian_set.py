@@ -274,3 +274,14 @@ def test_repr_and_bounds():
     lo, hi = g.bounds()
     np.testing.assert_array_equal(lo, g.means.min(0))
     np.testing.assert_array_equal(hi, g.means.max(0))
+
+
+def test_from_checked_takes_arrays_as_given_but_checks_extras():
+    gs = random_gaussians(5, 1, seed=2)
+    same = GaussianSet.from_checked(gs.means, gs.quats, gs.scales, gs.opacities, gs.sh,
+                                    {"binding": np.arange(5)})
+    assert same.means is gs.means and same.sh is gs.sh  # no copy, no second pass
+    assert same.extras["binding"].tolist() == [0, 1, 2, 3, 4]
+    with pytest.raises(InputError, match="first axis must be 5"):
+        GaussianSet.from_checked(gs.means, gs.quats, gs.scales, gs.opacities, gs.sh,
+                                 {"binding": np.arange(4)})

@@ -213,3 +213,14 @@ def test_rotate_sh_degree0_and_half_turn():
     sh = np.random.default_rng(1).normal(size=(5, 16, 3))
     d = unit(np.random.default_rng(2).normal(size=(5, 3)))
     np.testing.assert_allclose(eval_sh(rotate_sh(sh, r), d), eval_sh(sh, d @ r), atol=1e-10)
+
+
+def test_dtypes_follow_the_module_contract():
+    # quaternion helpers keep the input's dtype; the conversions return float64
+    q = np.array([[1, 0.1, 0.2, 0.3]], np.float32)
+    for fn in (quat_normalize, quat_to_matrix, lambda x: quat_multiply(x, x)):
+        assert fn(q).dtype == np.float32
+    m = quat_to_matrix(q)
+    for out in (matrix_to_quat(m), axis_angle_to_matrix(np.float32([[0.1, 0.2, 0.3]])),
+                matrix_to_axis_angle(m)):
+        assert out.dtype == np.float64
