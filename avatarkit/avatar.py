@@ -71,6 +71,8 @@ PREVIEW_FILE = "preview.png"
 #: parts allow no extra fields), so they travel as plain files found by name
 EXTRA_PREVIEW_FILES = ("preview_three_quarter.png", "preview_profile.png")
 PREVIEW_SIZE = 512
+#: the `part` extra of `Avatar.rest_gaussians()` / `load_rest_splats()` (uint8)
+PART_BALD, PART_HAIR = 0, 1
 
 HEAD_KINDS = ("template", "flame")
 
@@ -477,9 +479,7 @@ class Avatar:
 
     def rest_gaussians(self) -> GaussianSet:
         """Bald and hair together at rest, with a `part` extra (uint8: 0 bald, 1 hair)."""
-        bald = self.bald.replace(extras={"part": np.zeros(len(self.bald), np.uint8)})
-        hair = self.hair.replace(extras={"part": np.ones(len(self.hair), np.uint8)})
-        return GaussianSet.concat([bald, hair])
+        return _join_parts(self.bald, self.hair)
 
     def render_preview(self, size: int = PREVIEW_SIZE, background=(1.0, 1.0, 1.0)) -> np.ndarray:
         """A front view (size x size, uint8 RGB) of the avatar at rest."""
@@ -632,6 +632,29 @@ def _read_splats(path: Path) -> GaussianSet:
         if isinstance(e, FormatError) and e.path:
             raise
         raise FormatError(e.message, path) from None
+
+
+def _join_parts(bald: GaussianSet, hair: GaussianSet | None) -> GaussianSet:
+    """Bald and hair as one set with a `part` extra (uint8: PART_BALD, PART_HAIR)."""
+    parts = [bald.replace(extras={"part": np.full(len(bald), PART_BALD, np.uint8)})]
+    if hair is not None:
+        parts.append(hair.replace(extras={"part": np.full(len(hair), PART_HAIR, np.uint8)}))
+    return GaussianSet.concat(parts)
+
+
+def load_rest_splats(folder: str | os.PathLike) -> GaussianSet:
+    """The Gaussians of an avatar folder at rest, as `Avatar.rest_gaussians()` gives them, read
+    from its bald and hair PLYs alone: no head model, cage or hair rig (what a preview needs).
+    FormatError naming the file when the manifest or a part is wrong."""
+    folder = Path(folder)
+    parts = read_manifest(folder)["parts"]
+    sets = {}
+    for key in ("bald", "hair"):
+        if key in parts:  # a hairless avatar has no hair part
+            path = _part_file(folder, parts[key])
+            sets[key] = _read_splats(path)
+            _count_check(path, "Gaussians", len(sets[key]), parts[key]["count"])
+    return _join_parts(sets["bald"], sets.get("hair"))
 
 
 def _count_check(path: Path, what: str, got: int, want: int) -> None:
@@ -793,6 +816,6 @@ def inspect_avatar(path: Path):
     return s
 
 
-__all__ = ["Avatar", "HairRig", "HeadModelChangedWarning", "HeadRef", "RigRebuiltWarning", "check_avatar_target", "inspect_avatar",
+__all__ = ["Avatar", "HairRig", "load_rest_splats", "PART_BALD", "PART_HAIR", "HeadModelChangedWarning", "HeadRef", "RigRebuiltWarning", "check_avatar_target", "inspect_avatar",
            "is_avatar_folder",
            "load_avatar", "read_manifest", "rig_inputs_sha256", "sdf_from_values", "sdf_inputs_sha256", "AVATAR_FORMAT", "AVATAR_VERSION"]

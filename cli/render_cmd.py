@@ -7,7 +7,7 @@ from avatarkit.cli.options import advance, output_option, progress, quiet_option
 
 
 @click.command("render")
-@click.argument("splats", type=click.Path(dir_okay=False))
+@click.argument("splats", type=click.Path())
 @output_option("Output: .png (one view, or --contact-sheet), .mp4 or .gif (a turntable).")
 @click.option("--width", type=click.IntRange(min=1), default=None,
               help="Image width in pixels [default: 512, or the --camera file's].")
@@ -37,13 +37,15 @@ from avatarkit.cli.options import advance, output_option, progress, quiet_option
 @quiet_option
 def render_cmd(splats, output, width, height, fov, azimuth, elevation, distance, target, background,
                camera_file, turntable, contact_sheet, columns, fps, quiet):
-    """Render SPLATS (3DGS .ply, .spz or USD) with the standard 3DGS image formation on the CPU.
+    """Render SPLATS (3DGS .ply, .spz, USD, or an avatar folder: its bald and hair Gaussians at
+    rest) with the standard 3DGS image formation on the CPU.
 
     The default camera frames the splats from the front (+Z) with +Y up.
 
     \b
     Examples:
       avatarkit render head.ply -o head.png
+      avatarkit render me/ -o me.gif --turntable 36
       avatarkit render head.ply -o side.png --azimuth 90 --elevation 10 --background white
       avatarkit render head.ply -o spin.mp4 --turntable 72 --fps 24
       avatarkit render head.ply -o spin.gif --turntable 24 --width 256 --height 256

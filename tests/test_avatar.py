@@ -14,7 +14,8 @@ import pytest
 
 from avatarkit.avatar import (AVATAR_FORMAT, BALD_FILE, CAGE_FILE, HAIR_FILE, MANIFEST, PREVIEW_FILE,
                               RIG_FILE, Avatar, HeadModelChangedWarning, HeadRef, RigRebuiltWarning,
-                              check_avatar_target, inspect_avatar, load_avatar, read_manifest)
+                              check_avatar_target, inspect_avatar, load_avatar, load_rest_splats,
+                              read_manifest)
 from avatarkit.errors import FormatError, InputError, OutputError
 from avatarkit.gaussians.ply import read_ply, write_ply
 
@@ -512,3 +513,45 @@ def test_hairless_avatar_round_trip(tmp_path):
     _edit_manifest(out, lambda m: m["parts"].update(cage={"file": CAGE_FILE, "vertices": 4, "faces": 4}))
     with pytest.raises(FormatError, match="avatar schema"):
         load_avatar(out)
+
+
+# --- rest splats without the rig (previews) ------------------------------------------------------
+
+def test_load_rest_splats_is_the_loaded_avatars_rest_set(folder, tmp_path):
+    fast = load_rest_splats(folder)
+    full = load_avatar(folder).rest_gaussians()
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(full, name))
+    assert list(fast.extras) == ["part"]
+    np.testing.assert_array_equal(fast.extras["part"], full.extras["part"])
+    assert (fast.extras["part"] == 1).sum() == N_HAIR
+    bare = hairless_avatar().save(tmp_path / "bald", preview=False)
+    assert len(load_rest_splats(bare)) == N_BALD and not load_rest_splats(bare).extras["part"].any()
+
+
+def test_load_rest_splats_names_the_broken_file(copy):
+    (copy / HAIR_FILE).unlink()
+    with pytest.raises(FormatError, match="file missing") as info:
+        load_rest_splats(copy)
+    assert str(copy / HAIR_FILE) in str(info.value)
+    write_ply(copy / HAIR_FILE, small_avatar().hair.subset(np.arange(10)))
+    with pytest.raises(FormatError, match=f"has 10 Gaussians but avatar.json says {N_HAIR}"):
+        load_rest_splats(copy)
+    with pytest.raises(FormatError, match="no avatar.json"):
+        load_rest_splats(copy.parent)
+
+
+def test_cli_renders_an_avatar_folder(folder, tmp_path, capsys):
+    from avatarkit.cli.main import main
+    from avatarkit.export.images import read_png, to_uint8
+    from avatarkit.render import frame_camera, render
+
+    out = tmp_path / "a.png"
+    assert main(["render", str(folder), "-o", str(out), "--width", "48", "--height", "40", "-q"]) == 0
+    rest = load_avatar(folder).rest_gaussians()
+    expected = to_uint8(render(rest, frame_camera(rest, width=48, height=40)).rgb)
+    np.testing.assert_array_equal(read_png(out), expected)
+    assert main(["render", str(tmp_path), "-o", str(tmp_path / "b.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {tmp_path}") and "no avatar.json" in err and "Traceback" not in err
+    assert not (tmp_path / "b.png").exists()

@@ -137,7 +137,8 @@ def preview_cameras(gaussians: GaussianSet, options: PreviewOptions, kind: str) 
 def render_preview(source: GaussianSet | str | os.PathLike, output: str | os.PathLike,
                    options: PreviewOptions | None = None,
                    progress: Callable[[int, int], None] | None = None) -> PreviewResult:
-    """Render `source` (a GaussianSet or a splat file) to `output` (.png/.mp4/.gif).
+    """Render `source` (a GaussianSet, a splat file or an avatar folder, whose bald and hair
+    Gaussians are drawn at rest) to `output` (.png/.mp4/.gif).
 
     progress(done, total) is called after each frame.
     """
@@ -147,6 +148,9 @@ def render_preview(source: GaussianSet | str | os.PathLike, output: str | os.Pat
     background = check_background(options.background)
     if isinstance(source, GaussianSet):
         gaussians = source
+    elif Path(source).is_dir():  # an avatar folder: bald and hair at rest
+        from avatarkit.avatar import load_rest_splats
+        gaussians = load_rest_splats(source)
     else:
         from avatarkit.gaussians.io import load_gaussians
         gaussians = load_gaussians(source)
