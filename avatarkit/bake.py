@@ -374,6 +374,15 @@ class BakeFrames:
                 yield BakeFrame(out, out / fps, v, face, no_hair, no_cage)
 
 
+def with_avatar_defaults(config: BakeConfig, avatar) -> BakeConfig:
+    """`config` with what it leaves to the avatar decided: `sim.static` None becomes True for an
+    avatar built with short, rigid hair (`hair_mode == "rigid"`), False otherwise."""
+    if config.sim.static is not None:
+        return config
+    static = avatar.hair_mode == "rigid"
+    return dataclasses.replace(config, sim=config.sim.replace(static=static))
+
+
 def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, BakeFrames]:
     """Bake `clip` (a `MotionClip`) on `avatar` -> (static data, lazy iterator of `BakeFrame`s).
 
@@ -381,7 +390,7 @@ def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, Ba
     this returns; the iterator only computes."""
     from avatarkit import __version__
 
-    config = config or BakeConfig()
+    config = with_avatar_defaults(config or BakeConfig(), avatar)
     clip, start, stop = prepare_clip(clip, avatar.head_model, config)
     frames = BakeFrames(avatar, clip, start, stop, config)
     provenance = {

@@ -2,7 +2,6 @@
 sequence and/or a preview video in one pass."""
 from __future__ import annotations
 
-import dataclasses
 import time
 import warnings
 from pathlib import Path
@@ -101,8 +100,8 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         sim["gravity"] = parse_vec3(gravity, "--gravity")
     if collision is not None:
         sim["collision"] = collision
-    if static_hair:
-        sim["static"] = True
+    if static_hair is not None:  # unset: the avatar decides (static for rigid hair)
+        sim["static"] = static_hair
     config = BakeConfig(frames=BakeConfig.parse_frames(frame_range) if frame_range else None, fps=fps,
                         sim=SimConfig(**sim), preroll=preroll)
 
@@ -112,8 +111,6 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         from avatarkit.motion import load_clip
 
         avatar = load_avatar(avatar_dir)
-        if static_hair is None and avatar.hair_mode == "rigid":
-            config = dataclasses.replace(config, sim=dataclasses.replace(config.sim, static=True))
         clip = load_clip(clip_path)
         outputs = (("usd", out_path, {"half": half, "usd_points": usd_points, "chunk_frames": chunk_frames}),
                    ("ply", ply_path, {"split": split}),

@@ -262,6 +262,29 @@ def test_broken_jobs_fail_alone(inputs, tmp_path, capsys):
     assert no_partials(out) == []
 
 
+def test_rigid_hair_avatars_bake_static_unless_the_batch_says(inputs, tmp_path):
+    """As with `avatarkit bake`: an avatar built with rigid hair bakes static by default."""
+    from pxr import Usd
+
+    from avatarkit.avatar import load_avatar
+
+    rigid = load_avatar(inputs / "avatars" / "a")
+    rigid.provenance["hair_mode"] = "rigid"
+    rigid.save(tmp_path / "rigid", preview=False)
+    nod = str(inputs / "clips" / "nod.npz")
+    doc = {"defaults": USD_ONLY,
+           "jobs": [{"avatar": [str(tmp_path / "rigid"), str(inputs / "avatars" / "a")], "clip": nod},
+                    {"name": "{avatar}_dynamic", "avatar": str(tmp_path / "rigid"), "clip": nod,
+                     "sim": {"static": False}}]}
+    (tmp_path / "batch.json").write_text(json.dumps(doc))
+    report = run_batch(load_batch(tmp_path / "batch.json"), tmp_path / "out", engine="inline")
+    assert all(j.status == "done" for j in report.jobs), report.jobs
+    for name, want in (("rigid/nod", True), ("a/nod", False), ("rigid_dynamic", False)):
+        stage = Usd.Stage.Open(str(tmp_path / "out" / f"{name}.usdc"))
+        settings = stage.GetRootLayer().customLayerData["avatarkit"]["provenance"]["settings"]
+        assert settings["sim"]["static"] is want, name
+
+
 def test_bad_batch_file_exits_2(tmp_path, capsys):
     path = tmp_path / "b.json"
     path.write_text(json.dumps({"jobs": [{"avatar": "a", "clip": "c.npz", "sim": {"substeps": 0}}]}))

@@ -228,25 +228,22 @@ def test_sample_command_and_full_bake(tmp_path, capsys):
 
 
 
-def test_rigid_hair_avatars_bake_static_by_default(folder, clip_file, tmp_path, monkeypatch):
-    """An avatar built with short (rigid) hair bakes without dynamics unless asked."""
-    import avatarkit.bake as bake_mod
+def test_rigid_hair_avatars_bake_static_by_default(folder, clip_file, tmp_path):
+    """An avatar built with short (rigid) hair bakes without dynamics unless asked; the stage's
+    provenance records what was decided."""
+    from pxr import Usd
+
     from avatarkit.avatar import load_avatar
 
-    seen = []
-    real = bake_mod.run_bake
-
-    def spy(avatar, clip, config, writers, progress=None):
-        seen.append(config.sim.static)
-        return real(avatar, clip, config, writers, progress=progress)
-
-    monkeypatch.setattr(bake_mod, "run_bake", spy)
     avatar = load_avatar(folder)
     avatar.provenance["hair_mode"] = "rigid"
     rigid = tmp_path / "rigid"
     avatar.save(rigid, preview=False)
     assert load_avatar(rigid).hair_mode == "rigid"
-    for args, want in (([], True), (["--dynamic-hair"], False)):
-        out = tmp_path / f"o{len(seen)}.usda"
-        assert main(["bake", str(rigid), str(clip_file), "-o", str(out), "-q", *FAST, *args]) == 0
-        assert seen[-1] is want
+    for source, args, want in ((rigid, [], True), (rigid, ["--dynamic-hair"], False),
+                               (folder, [], False), (folder, ["--static-hair"], True)):
+        out = tmp_path / f"o{source.name}{len(args)}{want}.usda"
+        assert main(["bake", str(source), str(clip_file), "-o", str(out), "-q", *FAST, *args]) == 0
+        stage = Usd.Stage.Open(str(out))  # held: the layer dies with the stage
+        data = stage.GetRootLayer().customLayerData["avatarkit"]
+        assert data["provenance"]["settings"]["sim"]["static"] is want

@@ -22,7 +22,10 @@ class SimConfig:
     (v *= exp(-damping * h) after every substep). collision_margin: epsilon in metres (a
     collision point is pushed to sdf >= epsilon). collision: "none" | "vertex" (test the cage
     vertex itself) | "proxy" (test the vertex's proxy Gaussian, the paper's method).
-    static: the hair follows the head joint rigidly, no dynamics. max_speed: m/s, a safety clamp
+    static: True: the hair follows the head joint rigidly, no dynamics; False: simulated; None
+    (default): the avatar decides when baking (`bake.bake` takes static for an avatar built with
+    short, rigid hair, dynamic for the rest); a solver or driver used alone simulates. max_speed:
+    m/s, a safety clamp
     on particle speed so a violent pose jump cannot explode the cage. max_substep: the longest
     substep in seconds; a long frame gets more than `substeps` substeps so that gravity's drop per
     substep (g h^2) stays small against what 15 iterations can pull back (with h = 0.1 s a
@@ -42,7 +45,7 @@ class SimConfig:
     damping: float = 2.0
     collision_margin: float = 0.002
     collision: str = "proxy"
-    static: bool = False
+    static: bool | None = None
     max_speed: float = 15.0
     max_substep: float = 1.0 / 60.0
     warmup_seconds: float = 1.0
@@ -67,6 +70,10 @@ class SimConfig:
             raise InputError(f"max_speed must be > 0, got {self.max_speed!r}")
         if not self.max_substep > 0:  # inf allowed: exactly `substeps` substeps per frame
             raise InputError(f"max_substep must be > 0 seconds, got {self.max_substep!r}")
+        if self.static is not None and not isinstance(self.static, (bool, np.bool_)):
+            raise InputError(f"static must be true, false or unset, got {self.static!r}")
+        if self.static is not None:
+            object.__setattr__(self, "static", bool(self.static))
         if self.collision not in COLLISION_MODES:
             raise InputError(f"collision must be one of {', '.join(COLLISION_MODES)}, "
                              f"got {self.collision!r}")
