@@ -125,6 +125,20 @@ def test_folder_of_plys_becomes_one_time_sampled_stage(tmp_path):
     assert validate_stage(stage) == []
 
 
+def test_long_sequences_read_with_the_kernel_give_the_same_stage(tmp_path, monkeypatch):
+    import avatarkit.gaussians.ply as ply
+
+    _sequence(tmp_path / "seq", n_frames=4)
+    convert(tmp_path / "seq", tmp_path / "numpy.usda")
+    calls = []
+    real = ply._decode_with_kernel
+    monkeypatch.setattr(ply, "_decode_with_kernel", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(ply, "sequence_decoder", lambda paths: "kernel")  # as for GBs of frames
+    convert(tmp_path / "seq", tmp_path / "kernel.usda")
+    assert len(calls) == 4
+    assert (tmp_path / "kernel.usda").read_text() == (tmp_path / "numpy.usda").read_text()
+
+
 def test_sequence_count_mismatch_is_clear_and_leaves_nothing(tmp_path):
     _sequence(tmp_path / "seq", n_frames=3)
     write_ply(tmp_path / "seq" / "frame_2.ply", random_gaussians(59, sh_degree=1))
