@@ -22,9 +22,10 @@ nd_i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
 #: float32 exponent bits: all set means inf or NaN. Tested on the bits because Taichi compiles
 #: with fast math, under which LLVM may fold `x != x` and comparisons with inf away.
 EXP_MASK = 0x7F800000
-#: float32's smallest normal number. Taichi's kernels run with flush-to-zero and
-#: denormals-are-zero, so rows whose arithmetic meets a float32 subnormal are flagged for the
-#: numpy reference, which keeps them (they are rare: real files do not hold such values).
+#: float32's smallest normal number. Taichi's worker threads, which run this parallel loop,
+#: flush subnormals to zero (inputs and results), so rows whose arithmetic meets a float32
+#: subnormal are flagged for the numpy reference, which keeps them (real files hold no such
+#: values; copies are bit moves and unaffected).
 FLT_MIN = float(np.finfo(np.float32).tiny)
 #: a quaternion this close to unit norm keeps its bits (as `ply._normalize_quats` does)
 UNIT_SLACK = 4 * float(np.finfo(np.float32).eps)
