@@ -65,7 +65,9 @@ def decode_rows(src: nd_f32_1, stride: ti.i32, lo: ti.template(), hi: ti.templat
             e = ti.cast(ti.exp(ti.cast(src[s + scale + j], f64)), ti.f32)
             scales[i * 3 + j] = e
             bits = ti.bit_cast(e, ti.i32)
-            if bits == 0 or bits == EXP_MASK:  # exp under/overflowed (or was a subnormal)
+            # exp underflowed to 0 or a subnormal (flushed or not, depending on the thread's
+            # FP mode: flag both so the outcome does not) or overflowed to inf
+            if bits & EXP_MASK == 0 or bits == EXP_MASK:
                 worst = EXP_MASK
         w, x, y, z = src[s + rot], src[s + rot + 1], src[s + rot + 2], src[s + rot + 3]
         for j in ti.static(range(4)):
