@@ -223,18 +223,13 @@ class HairRig:
     @staticmethod
     def read_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
         """The arrays of a rig.npz, checked for format and completeness (FormatError)."""
-        import zipfile
-
+        from avatarkit.fileio import read_npz
         from avatarkit.sim.model import CageModel
 
         path = Path(path)
         if not path.is_file():
             raise FormatError("rig file missing", path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise FormatError(f"not a readable .npz file ({e})", path) from None
+        data = read_npz(path)
         if "format" not in data or str(data["format"]) not in RIG_FORMATS_READ:
             raise FormatError(f"not an avatarkit rig (format {' or '.join(map(repr, RIG_FORMATS_READ))} "
                               "expected)", path)

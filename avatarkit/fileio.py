@@ -1,5 +1,6 @@
 """Atomic output files and folders: write to a temporary name beside the target, rename when
-complete.
+complete. And `read_npz`, the one guarded reader of the .npz files we keep (rigs, head models,
+cage weights, trackers' FLAME fits).
 
 A failed or interrupted writer never leaves a half-written file or folder under the requested name.
 """
@@ -9,10 +10,12 @@ import contextlib
 import os
 import shutil
 import tempfile
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterator
 
-from avatarkit.errors import OutputError
+from avatarkit.errors import FormatError, OutputError
 
 
 def _umask() -> int:
@@ -107,3 +110,16 @@ def atomic_folder(path: str | os.PathLike, tag: str = "partial") -> Iterator[Pat
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def read_npz(path: str | os.PathLike, unreadable: str = "not a readable .npz file") -> dict:
+    """Every array of an .npz file (name -> ndarray), pickles refused. A file that is not a
+    readable npz is a FormatError "`unreadable` (why)" naming it; the caller checks that the
+    file exists (its message says what was missing) and which keys it needs."""
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise FormatError(f"{unreadable} ({e})", path) from None

@@ -35,7 +35,7 @@ from avatarkit.cage.mesh import Cage
 from avatarkit.cage.mvc import mvc_weights
 from avatarkit.cage.points import AXIS_SIGMA, METHODS, axis_vectors, deformation_points, principal_axis_index
 from avatarkit.errors import FormatError, InputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, read_npz
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
 
@@ -314,11 +314,7 @@ def load_weights(path: str | os.PathLike) -> CageWeights:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError("file not found", path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as e:  # zipfile/numpy raise several types for broken files
-        raise FormatError(f"not a readable .npz file: {e}", path) from None
+    data = read_npz(path)
     needed = ("format", "weights_t", "cage_vertices", "cage_faces", "method", "axis_sigma",
               "n_gaussians", "fingerprint")
     missing = [k for k in needed if k not in data]

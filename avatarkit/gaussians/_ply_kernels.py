@@ -6,7 +6,7 @@ activate scales and opacity, normalise quaternions and check every value. Each r
 memory once, which is what brings a 1M-splat read close to the cost of `np.fromfile`.
 
 The arithmetic mirrors the reference in float64 (`exp`, the sigmoid and the quaternion norm), so
-both paths give the same float32 bits; `tests/test_ply_fast.py` holds them to it.
+both paths give the same float32 bits; `tests/test_ply_kernel.py` holds them to it.
 """
 
 import numpy as np
@@ -92,8 +92,8 @@ def decode_rows(src: nd_f32_1, stride: ti.i32, lo: ti.template(), hi: ti.templat
 
 def decode(words: np.ndarray, stride: int, offsets: dict, k: int):
     """words: (N*stride,) float32 rows; offsets: word offset of 'pos', 'dc', 'rest', 'opacity',
-    'scale', 'rot' and the span 'lo'..'hi' holding them; k: SH coefficients per channel. -> (means, quats, scales, opacities, sh,
-    first_bad) with first_bad == N when every row is valid."""
+    'scale', 'rot' and the span 'lo'..'hi' holding them; k: SH coefficients per channel.
+    -> (means, quats, scales, opacities, sh, first_bad), first_bad == N when every row is valid."""
     n = len(words) // stride
     means = np.empty((n, 3), np.float32)
     quats = np.empty((n, 4), np.float32)
@@ -102,8 +102,8 @@ def decode(words: np.ndarray, stride: int, offsets: dict, k: int):
     sh = np.empty((n, k, 3), np.float32)
     first_bad = np.full(1, n, np.int64)
     if n:
-        decode_rows(words, stride, offsets["lo"], offsets["hi"], offsets["pos"], offsets["dc"], offsets["rest"],
-                    offsets["opacity"], offsets["scale"], offsets["rot"], k,
+        decode_rows(words, stride, *(offsets[key] for key in ("lo", "hi", "pos", "dc", "rest",
+                                                              "opacity", "scale", "rot")), k,
                     means.reshape(-1), quats.reshape(-1), scales.reshape(-1), opacities,
                     sh.reshape(-1), first_bad)
     return means, quats, scales, opacities, sh, int(first_bad[0])

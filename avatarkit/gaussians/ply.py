@@ -599,18 +599,16 @@ def _table_to_gaussians(table: VertexTable, path, decoder: str = "numpy") -> Gau
     else:
         groups.append(list(RGB))
         groups += [rest_cm] if rest_cm else []
-    n_core = len(groups)
-    groups += [cols for _, cols in extra_groups]
     arrays = table.gather(groups)
     with np.errstate(over="ignore"):  # a double beyond float32's range becomes inf: caught below
-        arrays[:n_core] = [a.astype(np.float32, copy=False) if a.dtype.kind == "f" else a
-                           for a in arrays[:n_core]]
+        arrays = [a.astype(np.float32, copy=False) if a.dtype.kind == "f" else a for a in arrays]
     # The core arrays are checked for NaN/inf by GaussianSet (and its failure is traced back
     # to a property and row below). Opacity and scales are checked here, as the sigmoid turns
     # +-inf into a valid 0 or 1 and exp turns NaN into an error that would mislead; extras
     # are not checked by GaussianSet at all.
-    for i in [2, 3, *range(n_core, len(groups))]:
+    for i in (2, 3):
         _check_finite(table, groups[i], arrays[i], path)
+    extras = _read_extras(table, extra_groups, path)
     means, quats, log_scales, logit = arrays[:4]
 
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
@@ -633,8 +631,6 @@ def _table_to_gaussians(table: VertexTable, path, decoder: str = "numpy") -> Gau
         sh[:, 0] = rgb_to_dc(rgb)
         if k > 1:
             sh[:, 1:] = arrays[5].reshape(n, k - 1, 3)
-    extras = {key: (a[:, 0] if len(cols) == 1 else a)
-              for (key, cols), a in zip(extra_groups, arrays[n_core:])}
     try:
         return GaussianSet(means, quats, scales, opacities, sh, extras)
     except InputError as e:
@@ -643,28 +639,29 @@ def _table_to_gaussians(table: VertexTable, path, decoder: str = "numpy") -> Gau
         raise FormatError(f"invalid Gaussian data: {e.message}", path) from None
 
 
-def _kernel_pays(table: VertexTable, decoder: str, layout: tuple) -> bool:
-    """Is the kernel worth it for this table (see TAICHI_START_S)?"""
-    if decoder == "kernel":
-        return True
-    if len(table) < KERNEL_MIN_ROWS:
-        return False
+def _kernel_repays(nbytes: int, layout: tuple | None = None) -> bool:
+    """Does the kernel save, over `nbytes` of rows, what its start still costs in this process
+    (see TAICHI_START_S)? layout: the row layout, if known (None: not loaded yet)."""
     from avatarkit._taichi import taichi_running
 
     unpaid = 0.0 if layout in _loaded_layouts else KERNEL_LOAD_S
     if not taichi_running():
         unpaid += TAICHI_START_S
-    return table.raw.nbytes * KERNEL_SAVES_S_PER_BYTE >= unpaid
+    return nbytes * KERNEL_SAVES_S_PER_BYTE >= unpaid
+
+
+def _kernel_pays(table: VertexTable, decoder: str, layout: tuple) -> bool:
+    """Is the kernel worth it for this table?"""
+    if decoder == "kernel":
+        return True
+    return len(table) >= KERNEL_MIN_ROWS and _kernel_repays(table.raw.nbytes, layout)
 
 
 def sequence_decoder(paths) -> str:
     """The decoder for reading these PLY files one after another (a sequence): "kernel" when
     what it saves over all of them pays its one-time costs (see TAICHI_START_S), else "auto"."""
-    from avatarkit._taichi import taichi_running
-
     total = sum(os.path.getsize(p) for p in paths if os.path.isfile(p))
-    unpaid = KERNEL_LOAD_S + (0.0 if taichi_running() else TAICHI_START_S)
-    return "kernel" if total * KERNEL_SAVES_S_PER_BYTE >= unpaid else "auto"
+    return "kernel" if _kernel_repays(total) else "auto"
 
 
 def _kernel_offsets(table: VertexTable, rest_names: list[str]) -> dict[str, int] | None:
@@ -705,15 +702,22 @@ def _decode_with_kernel(table: VertexTable, offsets: dict[str, int], k: int,
                                                                          offsets, k)
     if first_bad < n:
         return None
-    extras = {}
-    if extra_groups:
-        groups = [cols for _, cols in extra_groups]
-        for (key, cols), a in zip(extra_groups, table.gather(groups)):
-            _check_finite(table, cols, a, path)
-            extras[key] = a[:, 0] if len(cols) == 1 else a
     # The kernel enforced every rule GaussianSet checks (finite values, scales > 0 and
     # representable, opacities in [0, 1], unit quaternions): skip checking them again.
-    return GaussianSet.from_checked(means, quats, scales, opacities, sh, extras)
+    return GaussianSet.from_checked(means, quats, scales, opacities, sh,
+                                    _read_extras(table, extra_groups, path))
+
+
+def _read_extras(table: VertexTable, extra_groups: list[tuple[str, list[str]]], path) -> dict:
+    """The extras of `_extra_groups` as arrays with their on-disk dtypes ((N,) for a lone
+    column), checked for NaN/inf (GaussianSet does not check extras)."""
+    if not extra_groups:
+        return {}
+    extras = {}
+    for (key, cols), a in zip(extra_groups, table.gather([cols for _, cols in extra_groups])):
+        _check_finite(table, cols, a, path)
+        extras[key] = a[:, 0] if len(cols) == 1 else a
+    return extras
 
 
 def _ranges(idx: list[int]) -> str:
@@ -856,7 +860,7 @@ def write_ply(path: str | os.PathLike, gs: GaussianSet) -> None:
         f.write(rows.reshape(-1).data)
 
 
-__all__ = ["read_ply", "write_ply", "read_ply_arrays", "sequence_decoder", "read_ply_header", "parse_header",
-           "check_element_sizes",
+__all__ = ["read_ply", "write_ply", "read_ply_arrays", "sequence_decoder", "read_ply_header",
+           "parse_header", "check_element_sizes",
            "ply_property_names", "PlyHeader", "PlyElement", "PlyProperty", "PLY_TYPES",
            "OPACITY_EPS", "MAX_HEADER_BYTES"]

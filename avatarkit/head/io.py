@@ -10,13 +10,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, read_npz
 from avatarkit.head.model import NPZ_FORMAT, HeadModel
 
 _REQUIRED = ("faces", "v_template", "shapedirs", "exprdirs", "J_regressor", "kintree_parents", "weights", "meta")
@@ -53,11 +52,7 @@ def load_npz(path: str | os.PathLike) -> HeadModel:
     path = Path(path)
     if not path.is_file():
         raise InputError("head model file not found", path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise FormatError(f"not a readable npz head model ({e})", path) from None
+    data = read_npz(path, "not a readable npz head model")
     for key in _REQUIRED:
         if key not in data:
             raise FormatError(f"missing key {key!r} (not a head model written by avatarkit)", path)

@@ -457,16 +457,12 @@ def load_flame_params(path: str | os.PathLike) -> HeadParams:
     """Read a tracker's FLAME fit (npz with GaussianAvatars / VHAP keys: `shape` (S,) or (1, S),
     optionally rotation, translation, neck_pose, jaw_pose, eyes_pose, expr). Only the identity
     shape (and the first frame's rotation, as a starting point) is used by the build."""
-    import zipfile
+    from avatarkit.fileio import read_npz
 
     p = Path(path)
     if not p.is_file():
         raise InputError("FLAME parameter file not found", p)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise FormatError(f"not a readable .npz file ({e})", p) from None
+    data = read_npz(p)
     if "shape" not in data and "betas" not in data:
         raise FormatError(f"no 'shape' array (keys: {', '.join(sorted(data)) or 'none'}); a FLAME "
                           "tracker's npz stores the identity as 'shape' (S,) or (1, S)", p)
