@@ -336,3 +336,23 @@ def test_headless_chromium_plays_our_mp4(mp4, rendered, tmp_path, monkeypatch):
     with pytest.warns(Mp4vFallbackWarning):
         write_video(tmp_path / "old.mp4", rendered, fps=12)
     assert chromium_reads(exe, tmp_path, tmp_path / "old.mp4").startswith("error")
+
+
+@pytest.mark.slow  # builds and bakes an avatar: ~2 min on a loaded 2-core machine
+def test_cli_bake_preview_enospc_exit_2(tmp_path_factory, tmp_path, monkeypatch, capsys):
+    from avatarkit.motion import make_clip, save_clip
+    from test_avatar import saved_avatar
+
+    folder = saved_avatar(tmp_path_factory)
+    clip = tmp_path / "nod.npz"
+    save_clip(clip, make_clip("nod", frames=4, fps=25))
+    fill_after(monkeypatch, 2000)
+    out = tmp_path / "out"
+    out.mkdir()
+    preview = out / "preview.mp4"
+    code = main(["bake", str(folder), str(clip), "--preview", str(preview), "--preview-size", "48",
+                 "--substeps", "2", "--iterations", "4", "--preroll", "0", "-q"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.strip().splitlines() == [f"error: {preview}: disk full while writing the video (nothing was written)"]
+    assert os.listdir(out) == []
