@@ -277,13 +277,21 @@ def test_real_full_filesystem_leaves_nothing(tiny_fs, fmt):
     assert os.listdir(tiny_fs) == [f"small.{fmt}"]
 
 
-def test_real_full_filesystem_cli_exit_2(tiny_fs, tmp_path, capsys):
+def test_real_full_filesystem_mp4v_fallback_leaves_nothing(tiny_fs, monkeypatch, capfd):
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.warns(Mp4vFallbackWarning), pytest.raises(OutputError, match="not completely written"):
+        write_video(tiny_fs / "clip.mp4", noise(6), fps=12)
+    assert os.listdir(tiny_fs) == []
+    assert capfd.readouterr().err == ""  # OpenCV's FFmpeg complaints are kept off the terminal
+
+
+def test_real_full_filesystem_cli_exit_2(tiny_fs, tmp_path, capfd):
     ply = tmp_path / "h.ply"
     write_ply(ply, head_like(3000))
     out = tiny_fs / "spin.mp4"
     code = main(["render", str(ply), "-o", str(out), "--turntable", "24", "--width", "256", "--height",
                  "256", "--crf", "0", "-q"])
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert code == 2, err
     assert err.strip().splitlines() == [f"error: {out}: disk full while writing the video (nothing was written)"]
     assert os.listdir(tiny_fs) == []
