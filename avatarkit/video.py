@@ -310,7 +310,7 @@ class _FFmpegVideo(VideoReader):
                     rgb = apply_transform(frame.to_ndarray(format="rgb24"), self._transform)
                     yield Frame(index=idx, time=float(self.times[idx]), rgb=rgb)
             except (av.FFmpegError, OSError) as e:  # FFmpeg errors mid-stream: a damaged file
-                raise FormatError(f"the video stops decoding after frame {expected or 0} "
+                raise FormatError(f"the video stops decoding at frame {expected or 0} "
                                   f"({_reason(e)})", self.path) from None
         finally:
             container.close()
