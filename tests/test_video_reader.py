@@ -433,3 +433,15 @@ def test_inspect_video(tmp_path, capsys):
     assert out["kind"] == "video" and out["codec"] == "h264" and out["frames"] == 4
     assert out["size"] == "48x64" and out["rotation_applied"].startswith("90 degrees clockwise")
     assert out["frame_rate"].startswith("variable")
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() == 0,
+                    reason="root reads files whatever their permissions")
+def test_unreadable_file(tmp_path):
+    path = make_video(tmp_path / "locked.mp4", grey_frames(2))
+    path.chmod(0)
+    try:
+        with pytest.raises(InputError, match="permission denied"):
+            open_video(path)
+    finally:
+        path.chmod(0o644)
