@@ -148,15 +148,16 @@ class HeadFit:
     def summary(self) -> dict:
         """JSON-able description (for the avatar's provenance)."""
         r = self.residuals
+        mesh = ({"face_mesh_landmarks": int(r["face_mesh_landmarks"]),
+                 "face_mesh_median_px": round(float(r["face_mesh_median_px"]), 3)}
+                if "face_mesh_landmarks" in r else {})
         return {"source": self.source, "focal_px": round(self.camera.fx, 3),
                 "rotation_deg": [round(float(x), 3) for x in np.degrees(self.rotation)],
                 "translation_m": [round(float(x), 5) for x in self.translation],
                 "shape": [round(float(x), 4) for x in self.shape],
                 "landmark_rms_px": round(float(r.get("landmark_rms_px", float("nan"))), 3),
                 "width_rms_px": round(float(r.get("width_rms_px", float("nan"))), 3),
-                "outside_fraction": round(float(r.get("outside_fraction", float("nan"))), 4),
-                "face_mesh_landmarks": int(r.get("face_mesh_landmarks", 0)),
-                "face_mesh_median_px": round(float(r.get("face_mesh_median_px", float("nan"))), 3)}
+                "outside_fraction": round(float(r.get("outside_fraction", float("nan"))), 4), **mesh}
 
 
 # ---------------------------------------------------------------------------------------------
