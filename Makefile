@@ -14,6 +14,8 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install -q -c constraints.txt -e ".[test]"
 	# NVIDIA's converter is a test-only peer; its metadata pins an older numpy, so no deps.
 	$(PY) -m pip install -q --no-deps usd-convert-gsplat==0.1.15
+	# NVIDIA's validator (nvidia_usd_validate) too: its only pins are in extras (usd-core<26.09).
+	$(PY) -m pip install -q --no-deps usd-validation-nvidia==1.22.0
 	touch $(STAMP)
 
 install: $(STAMP)
