@@ -12,9 +12,10 @@ from avatarkit.errors import InputError, OutputError
 from avatarkit.export import quantize as qz
 from avatarkit.export.ply_sequence import PlySequenceWriter
 from avatarkit.export.splat_frames import open_splat_frames
-from avatarkit.export.web_player import (PlayerOptions, decode_player, delta_planes, encode_frames,
-                                         kabsch_rotation, pack_parts, parse_size, read_player,
-                                         undelta_planes, write_player)
+from avatarkit.export.web_player import (PlayerOptions, decode_player, delta_bytes, delta_planes,
+                                         delta_quat_words, encode_frames, kabsch_rotation, pack_parts,
+                                         parse_size, read_player, undelta_bytes, undelta_planes,
+                                         undelta_quat_words, write_player)
 from avatarkit.gaussians.ply import write_ply
 from avatarkit.gaussians.sh import SH_C0
 from helpers import random_gaussians, random_quats, random_rotation
@@ -68,6 +69,18 @@ def test_position_deltas_round_trip_exactly_with_wrap_around():
     planes = delta_planes(q)
     assert planes.shape == (7, 2, 120) and planes.dtype == np.uint8
     np.testing.assert_array_equal(undelta_planes(planes, 40), q)
+
+
+def test_rotation_and_scale_deltas_round_trip_exactly():
+    rng = np.random.default_rng(5)
+    words = qz.encode_quats(random_quats(6 * 50, rng)).reshape(6, 50)
+    words[2:4] = words[1]  # still frames
+    planes = delta_quat_words(words)
+    assert planes.shape == (6, 4, 50) and planes.dtype == np.uint8
+    assert not planes[2:4].any()  # no change, all zero: what zlib packs away
+    np.testing.assert_array_equal(undelta_quat_words(planes), words)
+    codes = rng.integers(0, 256, size=(6, 50, 3)).astype(np.uint8)
+    np.testing.assert_array_equal(undelta_bytes(delta_bytes(codes)), codes)
 
 
 def test_kabsch_finds_the_rotation():
@@ -159,7 +172,7 @@ def test_layout_arrays_have_their_documented_shapes(bake):
     for spec in specs:
         n, k, a = spec["count"], spec["animated"], spec["arrays"]
         assert a["colors"]["shape"] == [n, 4] and a["rot_static"]["shape"] == [n]
-        assert a["scale_static"]["shape"] == [n, 3] and a["rot_frames"]["shape"] == [6, k]
+        assert a["scale_static"]["shape"] == [n, 3] and a["rot_frames"]["shape"] == [6, 4, k]
         assert a["scale_frames"]["shape"] == [6, k, 3] and a["part_rot"]["shape"] == [6, 4]
         assert a["positions"]["shape"] == [6, 2, 3 * n] and a["positions"]["dtype"] == "uint8"
         for s in a.values():

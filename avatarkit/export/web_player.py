@@ -17,8 +17,11 @@ splats whose rotation or scale moves against the part ("animated", K of them) fi
     colors        (N, 4) uint8    r, g, b over [0, color_scale], opacity over [0, 1]
     rot_static    (N,) uint32     rotation in the part's frame at frame 0 (smallest three)
     scale_static  (N, 3) uint8    log scale over the part's log range, frame 0
-    rot_frames    (F, K) uint32   rotation in the part's frame, per frame, animated splats only
-    scale_frames  (F, K, 3) uint8 per frame, animated splats only
+    rot_frames    (F, 4, K) uint8 rotation in the part's frame, per frame, animated splats only:
+                                  smallest-three words, each bit field as its difference from
+                                  the previous frame, as 4 byte planes (`delta_quat_words`)
+    scale_frames  (F, K, 3) uint8 per frame, animated splats only, as differences mod 256 from
+                                  the previous frame
     part_rot      (F, 4) float32  the part's rotation at each frame (wxyz)
     positions     (F, 2, 3N) uint8 16-bit positions over the part's box (all frames), stored as
                                   the difference from the previous frame mod 2^16, low bytes
@@ -239,6 +242,47 @@ def delta_planes(positions: np.ndarray) -> np.ndarray:
     return np.stack([(d & 0xFF).astype(np.uint8), (d >> 8).astype(np.uint8)], axis=1)
 
 
+#: bit fields of a smallest-three word (see quantize.py), high to low: index, three components
+_QUAT_FIELDS = ((30, 2), (20, 10), (10, 10), (0, 10))
+
+
+def delta_quat_words(words: np.ndarray) -> np.ndarray:
+    """(F, K) uint32 smallest-three words -> (F, 4, K) uint8: each bit field's difference from the
+    previous frame mod its size, packed back into a word, split into its 4 bytes (low first).
+    A slowly turning splat then gives bytes near 0 and 255, which zlib packs well."""
+    w = np.asarray(words, np.uint32)
+    d = w.copy()
+    if len(w) > 1:
+        d[1:] = 0
+        for shift, bits in _QUAT_FIELDS:
+            mask = np.uint32((1 << bits) - 1)
+            f = (w >> np.uint32(shift)) & mask
+            d[1:] |= ((f[1:] - f[:-1]) & mask) << np.uint32(shift)
+    return np.stack([((d >> np.uint32(8 * b)) & np.uint32(0xFF)).astype(np.uint8) for b in range(4)], axis=1)
+
+
+def undelta_quat_words(planes: np.ndarray) -> np.ndarray:
+    """Inverse of `delta_quat_words`: (F, 4, K) uint8 -> (F, K) uint32."""
+    d = sum(planes[:, b].astype(np.uint32) << np.uint32(8 * b) for b in range(4))
+    out = np.zeros_like(d)
+    for shift, bits in _QUAT_FIELDS:
+        mask = np.uint32((1 << bits) - 1)
+        f = np.cumsum((d >> np.uint32(shift)) & mask, axis=0, dtype=np.uint32) & mask
+        out |= f << np.uint32(shift)
+    return out
+
+
+def delta_bytes(codes: np.ndarray) -> np.ndarray:
+    """(F, ...) uint8 -> frame-to-frame differences mod 256 (frame 0 as is)."""
+    d = np.asarray(codes, np.uint8).copy()
+    d[1:] = codes[1:] - codes[:-1]
+    return d
+
+
+def undelta_bytes(deltas: np.ndarray) -> np.ndarray:
+    return np.cumsum(deltas, axis=0, dtype=np.uint8)
+
+
 def undelta_planes(planes: np.ndarray, n: int) -> np.ndarray:
     """Inverse of `delta_planes`: (F, 2, 3N) uint8 -> (F, N, 3) uint16."""
     d = planes[:, 0].astype(np.uint16) | (planes[:, 1].astype(np.uint16) << 8)
@@ -251,7 +295,7 @@ def pack_parts(parts: list[_Part]) -> tuple[bytes, list[dict]]:
     specs = []
     for p in parts:
         arrays = dict(colors=p.colors, rot_static=p.rot_static, scale_static=p.scale_static,
-                      rot_frames=p.rot_frames, scale_frames=p.scale_frames,
+                      rot_frames=delta_quat_words(p.rot_frames), scale_frames=delta_bytes(p.scale_frames),
                       part_rot=p.part_rot.astype(np.float32), positions=delta_planes(p.positions))
         spec = {}
         for key, a in arrays.items():
@@ -427,8 +471,9 @@ def decode_player(header: dict, raw: bytes) -> dict[str, dict[str, np.ndarray]]:
         local = np.broadcast_to(qz.decode_quats(arr("rot_static")), (n_frames, n, 4)).copy()
         scales = np.broadcast_to(qz.decode_log_scales(arr("scale_static"), *p["log_scale"]), (n_frames, n, 3)).copy()
         if k:
-            local[:, :k] = qz.decode_quats(arr("rot_frames").reshape(-1)).reshape(n_frames, k, 4)
-            scales[:, :k] = qz.decode_log_scales(arr("scale_frames"), *p["log_scale"])
+            words = undelta_quat_words(arr("rot_frames"))
+            local[:, :k] = qz.decode_quats(words.reshape(-1)).reshape(n_frames, k, 4)
+            scales[:, :k] = qz.decode_log_scales(undelta_bytes(arr("scale_frames")), *p["log_scale"])
         quats = quat_multiply(arr("part_rot")[:, None].astype(np.float64), local.astype(np.float64)).astype(np.float32)
         colors = arr("colors")
         out[p["name"]] = dict(means=means, quats=quats, scales=scales,
@@ -438,5 +483,6 @@ def decode_player(header: dict, raw: bytes) -> dict[str, dict[str, np.ndarray]]:
 
 
 __all__ = ["check_output", "PlayerOptions", "PlayerResult", "write_player", "read_player", "decode_player",
-           "delta_planes", "undelta_planes", "kabsch_rotation", "encode_frames", "pack_parts",
+           "delta_planes", "undelta_planes", "delta_quat_words", "undelta_quat_words",
+           "delta_bytes", "undelta_bytes", "kabsch_rotation", "encode_frames", "pack_parts",
            "parse_size", "FORMAT_NAME"]
