@@ -62,7 +62,7 @@ def baked(tmp_path_factory):
     return d
 
 
-def _open(browser, page_path, frame=0, camera=None):
+def _open(browser, page_path, frame=0, camera=None, draw=None):
     page = browser.new_page(viewport={"width": 640, "height": 560})
     errors = []
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
@@ -70,6 +70,8 @@ def _open(browser, page_path, frame=0, camera=None):
     h = {"frame": str(frame)}
     if camera is not None:
         h["camera"] = json.dumps(camera.to_dict())
+    if draw is not None:
+        h["draw"] = draw
     page.goto(page_path.as_uri() + "#" + urllib.parse.urlencode(h))
     page.wait_for_function("document.body.dataset.state !== 'loading'", timeout=60_000)
     status = json.loads(page.inner_text("#status") or "{}")
@@ -116,13 +118,13 @@ def _camera(d, azimuth=25.0, elevation=8.0):
 
 def test_page_matches_the_cpu_renderer(browser, baked):
     camera = _camera(baked)
-    for frame in (0, 4):
-        page, errors = _open(browser, baked / "turn.html", frame, camera)
+    for frame, draw in ((0, "expanded"), (4, "expanded"), (4, "instanced")):  # both draw paths
+        page, errors = _open(browser, baked / "turn.html", frame, camera, draw)
         got = _canvas(page)
         assert got.shape == (256, 256, 3)
         want = _cpu_image(baked / "turn.usdc", frame, camera)
         psnr = _psnr(got, want)
-        print(f"frame {frame}: PSNR {psnr:.2f} dB against the CPU renderer")
+        print(f"frame {frame} ({draw}): PSNR {psnr:.2f} dB against the CPU renderer")
         assert psnr > PSNR_MIN_DB, psnr
         # and it is this frame's image, not just any head: the other frame scores lower
         other = _cpu_image(baked / "turn.usdc", 4 - frame, camera)
