@@ -4,7 +4,9 @@ The page (`web_player.html`, package data) holds a WebGL2 Gaussian splat rendere
 renderer's image formation (`avatarkit/render/pipeline.py`: EWA projection with the same
 Jacobian clamp, 0.3 px^2 low-pass, alpha = min(0.99, o exp(-d^T conic d / 2)) skipped below
 1/255, near plane 0.01 m, OpenCV camera axes, pixel centres at i + 0.5, background under the
-splats) drawn as instanced quads back to front, in an order from a 16-bit counting sort of the
+splats) drawn back to front as quads along each splat's projected axes (6 vertices per splat
+from gl_VertexID by default, instanced quads with `#draw=instanced`: the same image, but
+SwiftShader ran the instanced draw ~3x slower here), in an order from a 16-bit counting sort of the
 camera-space depths run in a Web Worker. SH degree 0 only: colour = max(0, SH_C0 dc + 0.5),
 higher bands are dropped (the result says so). The CPU renderer stops a pixel once its
 transmittance would fall below 1e-4 and ties depths exactly; the browser does neither, which
