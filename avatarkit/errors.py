@@ -35,3 +35,15 @@ class FormatError(InputError):
 
 class OutputError(AvatarKitError):
     """An output cannot be written (unwritable folder, unknown extension)."""
+
+
+def last_line(exc: BaseException, default: str = "unreadable") -> str:
+    """The last non-empty line of a foreign exception's text (OpenUSD's Tf errors put the useful
+    part last), safe when the text itself cannot be decoded (a damaged file's bytes quoted in a
+    USD parse error are not always UTF-8)."""
+    try:
+        text = str(exc)
+    except Exception:  # noqa: BLE001 - e.g. UnicodeDecodeError inside Tf.ErrorException.__str__
+        return f"{default} (the error text is not valid UTF-8)"
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[-1] if lines else default
