@@ -6,6 +6,7 @@ prints its message on one line and exits with code 2. Anything else is a bug (ex
 from __future__ import annotations
 
 import os
+import re
 
 
 class AvatarKitError(Exception):
@@ -46,4 +47,8 @@ def last_line(exc: BaseException, default: str = "unreadable") -> str:
     except Exception:  # noqa: BLE001 - e.g. UnicodeDecodeError inside Tf.ErrorException.__str__
         return f"{default} (the error text is not valid UTF-8)"
     lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1] if lines else default
+    if not lines:
+        return default
+    # OpenUSD: "Error in 'pxrInternal_...::UsdStage::Open' at line 1287 in file ...cpp : 'the text'"
+    m = re.match(r"^Error in '.*' at line \d+ in file .* : '(?P<text>.*)'$", lines[-1])
+    return m["text"] if m else lines[-1]

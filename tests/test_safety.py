@@ -520,3 +520,13 @@ def test_a_bald_hair_source_names_its_folder(folder, tmp_path, capsys):
                        "-o", tmp_path / "out")
     assert code == 2
     one_error_line(err, tmp_path / "bald")
+
+
+def test_usd_warnings_are_held_not_printed_before_the_error(tmp_path, capfd):
+    """OpenUSD prints `Warning: ... Could not open asset` lines straight to stderr; they become
+    held warnings, so a failing command still prints one line."""
+    path = tmp_path / "r.usda"
+    path.write_text('#usda 1.0\ndef Xform "A" (\n    references = @missing.usda@\n)\n{\n}\n')
+    code, _, err = run(capfd, "render", path, "-o", tmp_path / "r.png")  # fd 2 too: USD writes there
+    assert code == 2
+    one_error_line(err, path)

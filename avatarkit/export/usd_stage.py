@@ -55,6 +55,7 @@ from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
 from avatarkit.fileio import make_temp_folder, write_failed
+from avatarkit.native_output import native_stderr_as_warnings
 from avatarkit.gaussians.usd import (USD_EXTENSIONS, PointsPrimWriter, SplatPrimWriter, bounding_box,
                                      check_frame_arrays, find_splat_prims, validate_stage)
 
@@ -559,7 +560,8 @@ def inspect_usd(path: Path):
 
     path = Path(path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
         raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
     if stage is None:

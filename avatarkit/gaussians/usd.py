@@ -39,6 +39,7 @@ from pxr import Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
 from avatarkit.fileio import atomic_path, temp_prefix
+from avatarkit.native_output import native_stderr_as_warnings
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.gaussians.sh import SH_C0, SH_COUNTS
 
@@ -507,7 +508,8 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
     if not path.is_file():
         raise InputError("file not found", path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
         raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
     if stage is None:
