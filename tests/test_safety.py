@@ -530,3 +530,38 @@ def test_usd_warnings_are_held_not_printed_before_the_error(tmp_path, capfd):
     code, _, err = run(capfd, "render", path, "-o", tmp_path / "r.png")  # fd 2 too: USD writes there
     assert code == 2
     one_error_line(err, path)
+
+
+@pytest.mark.slow
+def test_sigterm_during_a_build_leaves_nothing(tmp_path):
+    portrait = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
+    out = tmp_path / "av"
+    proc = subprocess.Popen([EXE, "build", str(portrait), "-o", str(out), "--n-bald", "2000", "--n-hair", "2000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert _wait_for(lambda: any(tmp_path.glob(".av.build-*")), timeout=300, proc=proc), proc.communicate()
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert entries(tmp_path) == []
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not __import__("faults").real_enospc_available(), reason="no user namespaces for a tmpfs")
+@pytest.mark.parametrize("command", [
+    "{exe} motion make talk --frames 20000 --expr-dims 100 -o clip.npz",
+    "{exe} motion make talk --frames 20000 --expr-dims 100 -o clip.json",
+    "{exe} avatar sample -o av --n-hair 2000 --n-bald 2000 --no-preview -q",
+])
+def test_a_real_full_disk_is_one_line_and_leaves_nothing(command, tmp_path):
+    """A real ENOSPC: the command runs on a 64 kB tmpfs (in a user namespace)."""
+    from faults import run_on_full_disk
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    r = run_on_full_disk(command.format(exe=EXE) + "; echo rc=$?; ls -A", disk, 64)
+    out = r.stdout.strip().splitlines()
+    assert "rc=2" in out, (r.stdout, r.stderr)
+    assert out[-1] == "rc=2", out  # `ls -A` printed nothing after it: no output, no temporary
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "No space left on device" in lines[0], r.stderr
