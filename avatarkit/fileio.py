@@ -95,6 +95,18 @@ def sweep_stale(folder: str | os.PathLike) -> list[Path]:
     return removed
 
 
+_swept: set[str] = set()
+
+
+def _sweep_once(folder: Path) -> None:
+    """`sweep_stale(folder)` the first time this process writes there: what a killed run left is
+    there before we start, and a writer of thousands of frames should not list them every time."""
+    key = os.path.abspath(folder)
+    if key not in _swept:
+        _swept.add(key)
+        sweep_stale(folder)
+
+
 def check_output_folder(folder: str | os.PathLike) -> Path:
     """Raise OutputError unless `folder` (a target's parent; "" is the current folder) exists
     and new entries can be made in it. Returns it as a Path."""
@@ -123,7 +135,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     target = Path(path)
     folder = check_output_folder(target.parent)
-    sweep_stale(folder)
+    _sweep_once(folder)
     suffix = target.suffix if suffix is None else suffix
     try:
         fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target.name), suffix=suffix, dir=folder)
@@ -183,7 +195,7 @@ def make_temp_folder(target: str | os.PathLike, tag: str = "partial", inside: bo
     for writers that fill an existing folder). Stale ones of killed runs are swept first."""
     target = Path(target)
     parent = target if inside else (target.parent if str(target.parent) else Path("."))
-    sweep_stale(parent)
+    _sweep_once(parent)
     try:
         return Path(tempfile.mkdtemp(prefix=temp_prefix(target.name, tag), dir=parent))
     except OSError as e:

@@ -22,10 +22,7 @@ class NativeWarning(UserWarning):
 def native_stderr_as_warnings(label: str):
     """Capture file descriptor 2 for the block; each line printed there becomes a
     `NativeWarning` "`label`: line" (OpenUSD's source locations trimmed, repeats merged)."""
-    try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # stderr replaced (pytest capture, notebooks)
-        fd = 2
+    fd = 2  # native code writes to file descriptor 2, whatever sys.stderr is (a capture, a notebook)
     try:
         sys.stderr.flush()
     except (AttributeError, OSError, ValueError):
