@@ -136,6 +136,11 @@ def ensure_taichi():
     # With stdout swapped during import Taichi thinks it runs in a GUI shell, logs that on
     # stderr and flushes a print buffer after every launch; its plain-stdout mode avoids both.
     os.environ.setdefault("TI_ENABLE_PYBUF", "0")
+    # Taichi asks "is torch (paddle) installed?" by importing it under a bare `except:` the first
+    # time a kernel argument's dtype is converted, i.e. while modules decorate kernels: seconds
+    # of import in which a Ctrl-C was swallowed. Our kernels take numpy arrays only.
+    os.environ.setdefault("TI_ENABLE_TORCH", "0")
+    os.environ.setdefault("TI_ENABLE_PADDLE", "0")
     with _lock:
         with _quiet_stdout():
             with _signals_held():
