@@ -251,7 +251,8 @@ def test_fast_end_to_end_build(tmp_path):
     analysis = analyze_portrait(image)
     m = front_view_metrics(loaded, image, segment_portrait(image, analysis))
     assert m["hair_inside_share"] == 0.0
-    assert m["psnr_db"] > 20.0 and m["label_agreement"] > 0.8
+    # measured 22.85 dB (6 colour rounds); 22.4 dB after 3 rounds, 21.1 after 1, 17.3 with none
+    assert m["psnr_db"] > 22.0 and m["label_agreement"] > 0.8
 
 
 @pytest.mark.slow
