@@ -175,6 +175,9 @@ def test_stage_reads_its_animated_attributes_through_the_clip_manifest(tmp_path,
     assert asset.path == "./clip_clips/manifest.usda"
     assert os.path.samefile(asset.resolvedPath, manifest_file)
     assert [a.path for a in clips.GetClipAssetPaths()] == [f"./clip_clips/chunk_{k:05d}.usdc" for k in range(3)]
+    for k in range(3):  # each chunk opened on its own still plays at the bake's rate
+        chunk = Sdf.Layer.FindOrOpen(str(tmp_path / "clip_clips" / f"chunk_{k:05d}.usdc"))
+        assert chunk.HasTimeCodesPerSecond() and chunk.timeCodesPerSecond == FPS
     manifest = Sdf.Layer.FindOrOpen(str(manifest_file))
     for p in (FACE_PATH, HAIR_PATH):
         for name in ("positions", "orientations", "scales", "extent"):
