@@ -333,7 +333,7 @@ def test_ray_engine_without_ray_says_how_to_install(tmp_path, monkeypatch, capsy
 
 def fake_execute(task):
     """Stands in for worker.execute. The clip's name says what to do: ok, oserror-once,
-    badinput, die-once, die-always. Counts its calls per job in outdir/calls/."""
+    oserror-always, badinput, bug, die-once, die-always. Counts its calls per job in outdir/calls/."""
     calls = Path(task.outdir) / "calls"
     calls.mkdir(exist_ok=True)
     marker = calls / task.job.clip.stem
@@ -345,10 +345,12 @@ def fake_execute(task):
         time.sleep(0.2)  # let the neighbour start, so the pool breaks with both in it
         os._exit(3)
     result = None
-    if how == "oserror-once" and n == 1:
+    if how == "oserror-always" or (how == "oserror-once" and n == 1):
         result = failure(task, OSError(5, "Input/output error (a flaky share)"), 0.0)
     elif how == "badinput":
         result = failure(task, InputError("no such thing", task.job.clip), 0.0)
+    elif how == "bug":
+        result = failure(task, ValueError("a bug, not a flaky share"), 0.0)
     if result is not None:
         result.attempts = task.attempt  # as worker.execute does
         return result
@@ -388,6 +390,28 @@ def test_transient_failures_are_retried_bad_input_is_not(tmp_path, monkeypatch):
     report = run_batch(fake_batch(tmp_path / "again", ["oserror-once"]), tmp_path / "out2", engine="inline",
                        retries=0, execute_fn=fake_execute)
     assert report.jobs[0].status == "failed" and report.jobs[0].transient and "flaky" in report.jobs[0].error
+
+
+def test_retries_counts_the_attempts_after_the_first(tmp_path, monkeypatch):
+    """`retries=1`: a job that fails transiently once is retried once and succeeds; one that
+    always fails is tried exactly twice; a bug (not an OSError) is final at once."""
+    from avatarkit.batch import runner
+
+    monkeypatch.setattr(runner, "BACKOFF", 0.01)
+    batch = fake_batch(tmp_path, ["oserror-once", "oserror-always", "bug"])
+    events = []
+    report = run_batch(batch, tmp_path / "out", engine="inline", retries=1, execute_fn=fake_execute,
+                       on_event=events.append)
+    jobs = {j.name: j for j in report.jobs}
+    assert jobs["av/oserror-once"].status == "done" and jobs["av/oserror-once"].attempts == 2
+    always = jobs["av/oserror-always"]
+    assert always.status == "failed" and always.transient and always.attempts == 2
+    bug = jobs["av/bug"]
+    assert bug.status == "failed" and not bug.transient and bug.attempts == 1
+    assert bug.error_type == "ValueError" and "a bug" in bug.error
+    calls = tmp_path / "out" / "calls"
+    assert (calls / "oserror-once").read_text() == "xx" and (calls / "oserror-always").read_text() == "xx"
+    assert sorted(e.job for e in events if e.kind == "retry") == ["av/oserror-always", "av/oserror-once"]
 
 
 def test_dead_workers_are_retried_and_the_culprit_found(tmp_path):

@@ -60,15 +60,24 @@ def test_check_reports_a_flipped_face():
 
 def test_check_reports_a_non_manifold_vertex():
     # an icosahedron and its mirror image through one of its vertices, sharing only that vertex:
-    # every edge still has two faces, but the shared vertex has two separate fans
+    # every edge still has two faces, but the shared vertex has two separate fans. The mirror's
+    # copy of vertex 0 is dropped, so non-manifoldness is the only thing wrong with this cage.
     a = trimesh.creation.icosphere(subdivisions=0)
     n = len(a.vertices)
-    v = np.concatenate([a.vertices, 2 * a.vertices[0] - a.vertices])
-    f = np.concatenate([a.faces, a.faces[:, ::-1] + n])
-    f[f == n] = 0  # the mirror's copy of vertex 0 is vertex 0 itself
+    v = np.concatenate([a.vertices, 2 * a.vertices[0] - a.vertices[1:]])
+    mirror = np.concatenate([[0], np.arange(n, 2 * n - 1)])  # the mirror's vertex 0 is vertex 0 itself
+    f = np.concatenate([a.faces, mirror[a.faces[:, ::-1]]])
     check = check_cage(Cage(v, f))
-    assert check.watertight and check.oriented and not check.manifold
-    assert check.unused_vertices == 1 and not check.ok
+    assert check.watertight and check.oriented and check.outward and not check.manifold
+    assert check.unused_vertices == 0 and check.degenerate_faces == 0
+    assert len(check.problems) == 1 and "not manifold" in check.problems[0], check.problems
+
+
+def test_check_reports_an_unused_vertex():
+    c = sphere_cage(1)
+    check = check_cage(Cage(np.concatenate([c.vertices, [[0.0, 0.0, 0.0]]]), c.faces))
+    assert check.manifold and check.unused_vertices == 1 and check.components == 1
+    assert check.problems == ["1 vertices are not used by any face"]
 
 
 def test_check_reports_degenerate_faces():
@@ -93,6 +102,18 @@ def test_check_points_inside_with_margin():
     outside = np.concatenate([deep, [[1.5, 0, 0], [0, 0, -3]]])
     check = check_cage(c, outside, margin=0.1)
     assert check.points_outside == 2 and check.min_depth < 0
+
+
+def test_shallow_points_at_the_margin():
+    # a cube of half-size 1: a point on the +x axis at depth d is exactly d from the nearest face,
+    # so points 1 % either side of the margin test the threshold itself (not "much shallower")
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    cage = Cage(box.vertices, box.faces)
+    for margin in (0.1, 0.3):
+        for depth, shallow in ((0.99 * margin, 1), (1.01 * margin, 0)):
+            check = check_cage(cage, [[1.0 - depth, 0.0, 0.0], [0.0, 0.0, 0.0]], margin=margin)
+            assert check.points_shallow == shallow and check.points_outside == 0, (margin, depth)
+            assert check.ok is (not shallow) and check.min_depth == pytest.approx(depth, rel=1e-9)
 
 
 def test_clipped_depth_matches_brute_force():

@@ -69,7 +69,8 @@ def test_bald_lifting_reproduces_the_photo(view):
     assert 0.3 < info["bald_seen_share"] < 0.7          # about the half that faces the camera
     again = render(bald.replace(extras={}), view.truth.camera, background=(0.47, 0.59, 0.73)).rgb
     mask = view.alpha > 0.5
-    assert psnr(again, view.image / 255.0, mask) > 27.0
+    # measured 30.6 dB; colours sampled half a pixel off reach 28.6 dB, one pixel off 26.9 dB
+    assert psnr(again, view.image / 255.0, mask) > 30.0
     # the back of the head was never seen: it gets the skin model's colour
     back = bald.means[:, 2] < np.percentile(bald.means[:, 2], 5)
     skin = view.segmentation.skin_model.rgb / 255.0

@@ -129,8 +129,10 @@ def test_refine_colours_brings_the_render_to_the_photo(view):
     grey = bald.with_colors(np.full((len(bald), 3), 0.5))        # all colour information gone
     mask = view.alpha > 0.5
     out, figures = refine_colours(grey, fit.camera, view.image, mask, iterations=4)
-    assert figures["psnr_after"] > figures["psnr_before"] + 8
-    assert figures["psnr_after"] > 25.0
+    # measured: 14.6 dB before; 27.6, 30.1, 31.5, 32.4 dB after 1, 2, 3, 4 rounds. The bound
+    # sits 0.4 dB under what 4 rounds reach, above what 3 reach: every round must do its part
+    assert figures["psnr_before"] < 15.0
+    assert figures["psnr_after"] > 32.0
     # Gaussians the camera cannot see keep their colour
     from avatarkit.recon.labels3d import accumulate_weights
 
@@ -249,7 +251,8 @@ def test_fast_end_to_end_build(tmp_path):
     analysis = analyze_portrait(image)
     m = front_view_metrics(loaded, image, segment_portrait(image, analysis))
     assert m["hair_inside_share"] == 0.0
-    assert m["psnr_db"] > 20.0 and m["label_agreement"] > 0.8
+    # measured 22.85 dB (6 colour rounds); 22.4 dB after 3 rounds, 21.1 after 1, 17.3 with none
+    assert m["psnr_db"] > 22.0 and m["label_agreement"] > 0.8
 
 
 @pytest.mark.slow

@@ -165,6 +165,23 @@ def test_two_opaque_gaussians_composite_in_depth_order():
     np.testing.assert_allclose(render_reference(b, cam, (0, 0, 1)).rgb, ra.rgb, atol=1e-5)
 
 
+@pytest.mark.parametrize("opacity", [0.995, 1.0])
+def test_alpha_is_clamped_to_0_99(opacity):
+    # 3DGS clamps each splat's alpha to 0.99, so one splat never hides what is behind it
+    # completely: at the peak, alpha is 0.99 whatever the opacity above it
+    cam = head_on_camera()
+    front = single([0, 0, 1.0], 0.05, opacity, [1.0, 0.0, 0.0])
+    back = single([0, 0, 2.0], 0.1, 0.5, [0.0, 1.0, 0.0])
+    for res in (render(front, cam, (0, 0, 1)), render_reference(front, cam, (0, 0, 1))):
+        assert res.alpha[32, 32] == pytest.approx(0.99, rel=1e-6)
+        np.testing.assert_allclose(res.rgb[32, 32], [0.99, 0.0, 0.01], rtol=1e-5, atol=1e-7)
+    both = GaussianSet.concat([front, back])
+    for res in (render(both, cam, (0, 0, 1)), render_reference(both, cam, (0, 0, 1))):
+        # T is 0.01 after the front splat, 0.005 after the back one (alpha 0.5)
+        np.testing.assert_allclose(res.rgb[32, 32], [0.99, 0.005, 0.005], rtol=1e-4, atol=1e-7)
+        assert 1 - res.alpha[32, 32] == pytest.approx(0.005, rel=1e-4)
+
+
 def test_early_termination_stops_before_the_splat_that_would_cross_1e_4():
     # alpha 0.95 each: T = 0.05, 0.0025, 1.25e-4, then 6.25e-6 < 1e-4 -> the 4th is never drawn
     cam = head_on_camera()

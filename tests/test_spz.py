@@ -194,6 +194,37 @@ def test_corrupt_files_are_format_errors(tmp_path, case):
         read_spz(path)
 
 
+@pytest.mark.parametrize("version", [2, 3, 4])
+def test_a_header_count_that_disagrees_with_the_data_is_refused(tmp_path, version):
+    """Counts one below and one above the real one, and one no file of this size could hold: each
+    refused with its own reason (a count too low would otherwise read shifted attributes)."""
+    if version == 4:
+        pytest.importorskip("zstandard", reason="SPZ v4 streams are zstd-compressed")
+    good = spz_bytes(spz_in_range(50, degree=1), version=version)
+    path = tmp_path / "count.spz"
+    path.write_bytes(good)
+    assert len(read_spz(path)) == 50
+    reasons = {49: "count is wrong" if version < 4 else "a stream holds",
+               51: "truncated" if version < 4 else "a stream holds", 2**30: "claims"}
+    for n, reason in reasons.items():
+        if version < 4:
+            raw = bytearray(gzip.decompress(good))
+            struct.pack_into("<I", raw, 8, n)
+            data = gzip.compress(bytes(raw))
+        else:
+            data = bytearray(good)
+            struct.pack_into("<I", data, 8, n)
+        path.write_bytes(bytes(data))
+        with pytest.raises(FormatError, match=reason):
+            read_spz(path)
+    if version < 4:  # the same surplus is fine where the flags announce extension records
+        raw = bytearray(gzip.decompress(good))
+        struct.pack_into("<I", raw, 8, 49)
+        raw[14] |= 0x2
+        path.write_bytes(gzip.compress(bytes(raw)))
+        assert len(read_spz(path)) == 49
+
+
 def test_write_errors_leave_nothing(tmp_path):
     gs = spz_in_range(10)
     far = gs.replace(means=gs.means + np.float32(5000))  # beyond 24-bit fixed point at 12 bits

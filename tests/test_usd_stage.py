@@ -161,6 +161,50 @@ def test_motion_interpolates_across_chunk_boundaries(tmp_path, bake):
         np.testing.assert_allclose(pos, (1 - w) * frames[a].face.means + w * frames[b].face.means, atol=1e-6)
 
 
+def test_stage_reads_its_animated_attributes_through_the_clip_manifest(tmp_path, bake):
+    """The stage names `<name>_clips/manifest.usda` as its value-clip manifest, and USD takes
+    the list of clip-animated attributes from that file (without one it would scan every clip
+    layer itself): an attribute struck from the manifest stops reading the clips."""
+    from pxr import Sdf
+
+    static, frames = bake
+    path = tmp_path / "clip.usdc"
+    write_bake(path, static, frames, UsdWriteOptions(chunk_frames=4))
+    manifest_file = tmp_path / "clip_clips" / "manifest.usda"
+    stage = Usd.Stage.Open(str(path))
+    clips = Usd.ClipsAPI(stage.GetPrimAtPath(ROOT_PATH))
+    asset = clips.GetClipManifestAssetPath()
+    assert asset.path == "./clip_clips/manifest.usda"
+    assert os.path.samefile(asset.resolvedPath, manifest_file)
+    assert [a.path for a in clips.GetClipAssetPaths()] == [f"./clip_clips/chunk_{k:05d}.usdc" for k in range(3)]
+    for k in range(3):  # each chunk opened on its own still plays at the bake's rate
+        chunk = Sdf.Layer.FindOrOpen(str(tmp_path / "clip_clips" / f"chunk_{k:05d}.usdc"))
+        assert chunk.HasTimeCodesPerSecond() and chunk.timeCodesPerSecond == FPS
+    manifest = Sdf.Layer.FindOrOpen(str(manifest_file))
+    for p in (FACE_PATH, HAIR_PATH):
+        for name in ("positions", "orientations", "scales", "extent"):
+            assert manifest.GetAttributeAtPath(f"{p}.{name}"), (p, name)
+        assert not manifest.GetAttributeAtPath(f"{p}.opacities")  # static: in the root layer
+    for p in (HEAD_PATH, CAGE_PATH):
+        assert manifest.GetAttributeAtPath(f"{p}.points")
+    hair = np.asarray(stage.GetPrimAtPath(HAIR_PATH).GetAttribute("positions").Get(5))
+    np.testing.assert_array_equal(hair, frames[5].hair.means)
+    del stage
+
+    # strike the hair's positions from the manifest: a fresh stage no longer finds them in the
+    # clips, while everything the manifest still lists reads as before
+    spec = Sdf.Layer.FindOrOpen(str(manifest_file)).GetPrimAtPath(HAIR_PATH)
+    spec.RemoveProperty(spec.properties["positions"])
+    manifest.Save()
+    stage = Usd.Stage.Open(str(path))
+    attr = stage.GetPrimAtPath(HAIR_PATH).GetAttribute("positions")
+    assert attr.GetNumTimeSamples() == 0
+    got = attr.Get(5)
+    assert got is None or not np.array_equal(np.asarray(got), frames[5].hair.means)
+    np.testing.assert_array_equal(np.asarray(stage.GetPrimAtPath(FACE_PATH).GetAttribute("positions").Get(5)),
+                                  frames[5].face.means)
+
+
 def test_short_bake_is_one_self_contained_file(tmp_path, bake):
     static, frames = bake
     path = tmp_path / "short.usdc"
@@ -433,6 +477,22 @@ def test_unwritable_folder(tmp_path, bake):
             UsdStageWriter(locked / "x.usdc").begin(bake[0])
     finally:
         locked.chmod(0o700)
+
+
+def test_unwritable_folder_as_any_user(tmp_path, bake, monkeypatch):
+    """The same case for root (as CI runs), who may write anywhere: the folder refuses the
+    writer's temporary folder (injected EACCES), and nothing is left."""
+    import errno
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+    monkeypatch.setattr(tempfile, "mkdtemp", refuse)
+    with pytest.raises(OutputError, match="not writable") as e:
+        UsdStageWriter(tmp_path / "x.usdc").begin(bake[0])
+    assert str(tmp_path) in str(e.value)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_bad_frames_are_input_errors_and_leave_nothing(tmp_path, bake):

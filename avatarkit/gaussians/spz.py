@@ -12,7 +12,8 @@ DC * 0.15 * 255 + 127.5), scales (uint8 = (ln s + 10) * 16), rotations (v2: 3 by
 largest component, then three 10-bit (sign + 9-bit magnitude of |q| / sqrt(1/2)) fields, first
 non-largest component in the highest bits), SH bands 1..degree (uint8 = x * 128 + 128, colour
 channel fastest, coefficient next, in 3DGS coefficient order). Extension records, if the flag
-says so, follow the attributes and are skipped here.
+says so, follow the attributes and are skipped here; other bytes after the attributes mean
+the header's point count is wrong, and the file is refused.
 
 Version 4 (Niantic's current library) is a plain 32-byte header (magic, version, numPoints,
 shDegree, fractionalBits, flags, numStreams, uint32 tocByteOffset, 12 reserved bytes),
@@ -159,7 +160,7 @@ def _read_legacy(data: bytes) -> GaussianSet:
         head = d.decompress(data, _LEGACY_HEADER.size)
         if len(head) < _LEGACY_HEADER.size:
             raise FormatError("truncated: the gzip stream ends inside the SPZ header")
-        magic, version, n, degree, fbits, _flags, _ = _LEGACY_HEADER.unpack(head)
+        magic, version, n, degree, fbits, flags, _ = _LEGACY_HEADER.unpack(head)
         if magic != SPZ_MAGIC:
             raise FormatError(f"not an SPZ file (magic {magic:#010x}, expected {SPZ_MAGIC:#010x})")
         if version == 4:
@@ -175,9 +176,13 @@ def _read_legacy(data: bytes) -> GaussianSet:
         if len(payload) < need:
             raise FormatError(f"truncated: {n} Gaussians need {need} bytes of data, the file has "
                               f"{len(payload)}")
-        d.decompress(d.unconsumed_tail, _MAX_TRAILING_BYTES)
+        trailing = d.decompress(d.unconsumed_tail, _MAX_TRAILING_BYTES)
         if not d.eof:
             raise FormatError("truncated or oversized gzip stream (no end of stream after the data)")
+        if trailing and not flags & FLAG_EXTENSIONS:
+            # a count below the real one would otherwise shift every attribute after positions
+            raise FormatError(f"{len(trailing)} bytes follow the data of the {n} Gaussians the header "
+                              "claims, and its flags announce no extensions: the count is wrong")
     except zlib.error as e:
         raise FormatError(f"corrupt gzip stream ({e})") from None
     offsets = np.cumsum([0] + sizes)

@@ -1,0 +1,289 @@
+"""Mutation testing on our own list of edits: does the fast suite notice when the code is wrong?
+
+Each mutation is a small deliberate bug (file, old text, new text) with the test files (or test
+ids) that should catch it. For each one the script applies the edit, runs those tests of the
+default (fast) suite, puts the file back byte for byte, and reports the mutation "killed" (the
+tests failed) or "survived" (they still passed: a gap in the tests). The score is killed /
+total, per package and overall.
+
+    .venv/bin/python tools/mutate.py                 # every mutation (tens of minutes on 2 cores)
+    .venv/bin/python tools/mutate.py cage render     # the mutations of some packages
+    .venv/bin/python tools/mutate.py --id render.alpha_clamp --id cage.shallow_half
+    .venv/bin/python tools/mutate.py --list          # what there is, without running anything
+    .venv/bin/python tools/mutate.py --check         # every `old` text still matches exactly once
+
+It edits the working tree in place (and restores it, also on Ctrl-C), so run it on a tree with
+no uncommitted changes to the mutated files, and nothing else (no other test run) at the same
+time. Exit status: 0 when every mutation run was killed, 1 when some survived, 2 for bad
+arguments or a mutation whose `old` text no longer matches (the code moved: update the list).
+
+Why our own list and not mutmut: mutmut generates hundreds of mutants per module and runs the
+suite against each; with Taichi kernels, ~10 s of start-up per pytest process and a shared
+2-core machine that does not fit in a working session. A curated list of edits, each a bug
+someone could plausibly write, keeps a full run under an hour and every result readable.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutation:
+    id: str                          # "<package>.<name>"
+    edits: tuple                     # ((file, old, new), ...): all applied together
+    tests: tuple                     # pytest arguments: files, file::test ids, or "-k", "expr"
+    why: str                         # the bug, in words
+
+    @property
+    def package(self) -> str:
+        return self.id.split(".")[0]
+
+
+def M(id, file, old, new, tests, why, more=()):
+    return Mutation(id, ((file, old, new), *more), tuple(tests), why)
+
+
+MUTATIONS = [
+    # --- sim ------------------------------------------------------------------------------------
+    M("sim.warmup_3_steps", "avatarkit/sim/config.py", "warmup_seconds: float = 1.0",
+      "warmup_seconds: float = 0.1", ["tests/test_sim_avatar.py"],
+      "the default warm-up cut from 1 s to 3 steps at 30 fps"),
+    M("sim.no_collision_margin", "avatarkit/sim/config.py", "collision_margin: float = 0.002",
+      "collision_margin: float = 0.0", ["tests/test_sim.py", "-k", "collision or defaults"],
+      "default collision margin 2 mm -> 0"),
+    M("sim.no_damping", "avatarkit/sim/solver.py", "np.exp(-config.damping * h)", "1.0",
+      ["tests/test_sim.py", "-k", "kernel_matches or settles"], "the kernel ignores damping"),
+    M("sim.gravity_halved", "avatarkit/sim/solver.py", "*config.gravity, config.max_speed",
+      "*(0.5 * g for g in config.gravity), config.max_speed",
+      ["tests/test_sim.py", "-k", "kernel_matches or settles"],
+      "the kernel applies half the gravity"),
+    M("sim.contact_pulls", "avatarkit/sim/_kernels.py", "new = ti.max(fb[li] + dl, 0.0)  # contact only pushes",
+      "new = fb[li] + dl", ["tests/test_sim.py", "-k", "kernel_matches or collision"],
+      "a collision contact may pull a vertex into the head"),
+    # --- cage -----------------------------------------------------------------------------------
+    M("cage.manifold_unreported", "avatarkit/cage/mesh.py",
+      '        problems.append("not manifold: some vertex joins two separate fans of faces")',
+      "        pass", ["tests/test_cage.py", "-k", "check"],
+      "a non-manifold vertex is no longer reported as a problem"),
+    M("cage.unused_unreported", "avatarkit/cage/mesh.py",
+      '        problems.append(f"{unused} vertices are not used by any face")', "        pass",
+      ["tests/test_cage.py", "-k", "check"], "unused vertices are no longer reported"),
+    M("cage.shallow_half", "avatarkit/cage/mesh.py", "((depth > 0) & (depth < margin))",
+      "((depth > 0) & (depth < margin / 2))", ["tests/test_cage.py", "-k", "check or shallow"],
+      "the shallow-point threshold halved"),
+    M("cage.depth_search_radius", "avatarkit/cage/inside.py",
+      "hits = tree.query_ball_point(centroid, circum + radius, workers=-1, return_sorted=False)",
+      "hits = tree.query_ball_point(centroid, circum, workers=-1, return_sorted=False)",
+      ["tests/test_cage.py", "-k", "clipped_depth or check"],
+      "the depth search misses triangles whose circumsphere the point lies outside"),
+    M("cage.mvc_unnormalised", "avatarkit/cage/mvc.py",
+      "kept = kept / np.where(np.abs(total) > 1e-12, total, 1.0)", "kept = kept",
+      ["tests/test_mvc.py"], "sparse top-k weights no longer renormalised to sum 1"),
+    # --- render ---------------------------------------------------------------------------------
+    M("render.alpha_clamp", "avatarkit/render/pipeline.py", "ALPHA_MAX = 0.99", "ALPHA_MAX = 1.0",
+      ["tests/test_render.py"], "the 0.99 alpha clamp removed (fast and reference renderer)",
+      more=(("avatarkit/render/_kernels.py", "ALPHA_MAX = 0.99", "ALPHA_MAX = 1.0"),)),
+    M("render.alpha_min", "avatarkit/render/pipeline.py", "ALPHA_MIN = 1.0 / 255.0", "ALPHA_MIN = 0.1 / 255.0",
+      ["tests/test_render.py"], "splats below 1/255 alpha drawn (both renderers)",
+      more=(("avatarkit/render/_kernels.py", "ALPHA_MIN = 1.0 / 255.0", "ALPHA_MIN = 0.1 / 255.0"),)),
+    M("render.no_early_stop", "avatarkit/render/pipeline.py", "TRANSMITTANCE_MIN = 1e-4",
+      "TRANSMITTANCE_MIN = 0.0", ["tests/test_render.py"],
+      "no early termination at T < 1e-4 (both renderers)",
+      more=(("avatarkit/render/_kernels.py", "T_MIN = 1e-4", "T_MIN = 0.0"),)),
+    M("render.no_dilation", "avatarkit/render/_kernels.py", "DILATION = 0.3", "DILATION = 0.0",
+      ["tests/test_render.py"], "the fast renderer forgets the 0.3 px low-pass dilation"),
+    # --- export ---------------------------------------------------------------------------------
+    M("export.manifest_unlinked", "avatarkit/export/usd_stage.py",
+      '                clips.SetClipManifestAssetPath(Sdf.AssetPath(f"./{self._clips_name}/{manifest_name}"))',
+      "                pass", ["tests/test_usd_stage.py", "-k", "manifest"],
+      "the stage no longer links its value-clip manifest"),
+    M("export.fps_unset", "avatarkit/export/usd_stage.py",
+      "        stage.SetTimeCodesPerSecond(float(self._static.fps))", "        pass",
+      ["tests/test_usd_stage.py", "-k", "layout or manifest"], "clip layers without timeCodesPerSecond"),
+    M("export.tmp_mkdtemp_unguarded", "avatarkit/export/usd_stage.py",
+      "        except OSError as e:\n            raise OutputError(f\"output folder is not writable",
+      "        except ValueError as e:\n            raise OutputError(f\"output folder is not writable",
+      ["tests/test_usd_stage.py", "-k", "unwritable"],
+      "an unwritable folder escapes as a raw PermissionError"),
+    M("export.sequence_fps", "avatarkit/export/ply_sequence.py", '"fps": float(s.fps), "frame_count"',
+      '"fps": 30.0, "frame_count"', ["tests/test_ply_sequence.py"],
+      "sequence.json always says 30 fps"),
+    # --- gaussians ------------------------------------------------------------------------------
+    M("gaussians.spz_ratio_check", "avatarkit/gaussians/spz.py",
+      "        if need > len(data) * _MAX_RATIO:", "        if False:",
+      ["tests/test_spz.py"], "SPZ v2/v3: a point count no file of this size could hold is not refused"),
+    M("gaussians.spz_count_low", "avatarkit/gaussians/spz.py",
+      "        if trailing and not flags & FLAG_EXTENSIONS:", "        if False:",
+      ["tests/test_spz.py"], "SPZ v2/v3: a point count below the data's is read shifted"),
+    M("gaussians.spz_stream_size", "avatarkit/gaussians/spz.py", "        if usize != want:",
+      "        if usize < want:", ["tests/test_spz.py"],
+      "SPZ v4: a stream larger than the header's count needs is accepted"),
+    M("gaussians.ply_kernel_never", "avatarkit/gaussians/ply.py",
+      "    offsets = _kernel_offsets(table, rest_names) if colour is DC and decoder != \"numpy\" else None",
+      "    offsets = None", ["tests/test_ply.py", "-k", "round_trip"], "read_ply never takes the kernel"),
+    M("gaussians.ply_rest_order", "avatarkit/gaussians/ply.py",
+      "rest_cm = [rest_names[c * (k - 1) + j] for j in range(k - 1) for c in range(3)]",
+      "rest_cm = [rest_names[j * 3 + c] for j in range(k - 1) for c in range(3)]",
+      ["tests/test_ply.py", "-k", "numpy and round_trip"], "f_rest read coefficient-major (the numpy decoder)"),
+    M("gaussians.sh_c1_sign", "avatarkit/gaussians/sh.py", "cols += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]",
+      "cols += [SH_C1 * y, SH_C1 * z, -SH_C1 * x]", ["tests/test_rotations_sh.py"],
+      "band-1 SH basis with the wrong sign on y"),
+    # --- batch ----------------------------------------------------------------------------------
+    M("batch.retries_off_by_one", "avatarkit/batch/runner.py",
+      "if r.status == \"failed\" and r.transient and item.attempts <= retries:",
+      "if r.status == \"failed\" and r.transient and item.attempts < retries:",
+      ["tests/test_batch.py", "-k", "retr or transient"], "--retries 1 never retries"),
+    M("batch.retries_one_more", "avatarkit/batch/runner.py",
+      "if r.status == \"failed\" and r.transient and item.attempts <= retries:",
+      "if r.status == \"failed\" and r.transient and item.attempts <= retries + 1:",
+      ["tests/test_batch.py", "-k", "retr or transient"], "one retry more than asked"),
+    M("batch.all_transient", "avatarkit/batch/worker.py",
+      "result.transient = isinstance(error, OSError)", "result.transient = True",
+      ["tests/test_batch.py", "-k", "retr or transient"], "every failure is retried, bugs included"),
+    # --- bake and its CLI -----------------------------------------------------------------------
+    M("bake.preroll_ignored", "avatarkit/bake.py", "warmup=cfg.preroll, dt=dt", "warmup=None, dt=dt",
+      ["tests/test_cli_bake.py", "-k", "flags"], "bake ignores its preroll"),
+    M("cli.preroll_ignored", "cli/bake_cmd.py", "sim=SimConfig(**sim), preroll=preroll)",
+      "sim=SimConfig(**sim), preroll=None)", ["tests/test_cli_bake.py", "-k", "flags"],
+      "`bake --preroll` ignored"),
+    M("cli.collision_ignored", "cli/bake_cmd.py", '        sim["collision"] = collision', "        pass",
+      ["tests/test_cli_bake.py", "-k", "flags"], "`bake --collision` ignored"),
+    M("cli.half_ignored", "cli/bake_cmd.py", '{"half": half, "usd_points"', '{"half": False, "usd_points"',
+      ["tests/test_cli_bake.py", "-k", "flags"], "`bake --half` ignored"),
+    M("cli.usd_points_ignored", "cli/bake_cmd.py", '"usd_points": usd_points, "chunk_frames"',
+      '"usd_points": False, "chunk_frames"', ["tests/test_cli_bake.py", "-k", "flags"],
+      "`bake --usd-points` ignored"),
+    # --- recon (thresholds set from what the code reaches) --------------------------------------
+    M("recon.refine_one_round", "avatarkit/recon/assemble.py", "    for it in range(iterations + 1):",
+      "    iterations = min(iterations, 1)\n    for it in range(iterations + 1):",
+      ["tests/test_recon_pipeline.py", "-k", "refine_colours"], "colour refinement stops after one round"),
+    M("recon.build_one_round", "avatarkit/recon/pipeline.py", "    refine_iterations: int = 6",
+      "    refine_iterations: int = 1", ["tests/test_recon_pipeline.py", "-k", "fast_end_to_end_build"],
+      "the build's colour matching does one round instead of six"),
+    M("recon.lift_half_pixel", "avatarkit/recon/lift.py",
+      "    p = np.asarray(px, np.float32).reshape(-1, 2) - 0.5",
+      "    p = np.asarray(px, np.float32).reshape(-1, 2)", ["tests/test_recon_lift.py", "-k", "bald_lifting"],
+      "photo colours sampled half a pixel off"),
+]
+
+
+def _apply(m: Mutation) -> tuple[dict[Path, bytes], dict[Path, str]]:
+    """The edits of `m` worked out in memory (nothing is written): the original bytes and the
+    mutated text of each file it touches."""
+    originals: dict[Path, bytes] = {}
+    texts: dict[Path, str] = {}
+    for file, old, new in m.edits:
+        path = ROOT / file
+        if path not in texts:
+            originals[path] = path.read_bytes()
+            texts[path] = originals[path].decode("utf-8")
+        count = texts[path].count(old)
+        if count != 1:
+            raise LookupError(f"{m.id}: {file}: the text to mutate occurs {count} times (expected once):\n{old}")
+        texts[path] = texts[path].replace(old, new)
+    return originals, texts
+
+
+def check(mutations) -> list[str]:
+    problems = []
+    for m in mutations:
+        try:
+            _apply(m)
+        except LookupError as e:
+            problems.append(str(e))
+    return problems
+
+
+def run_one(m: Mutation, timeout: float) -> tuple[str, float, str]:
+    """Apply, test, restore. Returns (outcome, seconds, last line of the test output)."""
+    originals, texts = _apply(m)
+    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-m", "not slow", *m.tests]
+    env = dict(os.environ, TI_SKIP_VERSION_CHECK="ON", ENABLE_TAICHI_HEADER_PRINT="0")
+    t0 = time.perf_counter()
+    try:
+        for path, text in texts.items():
+            path.write_text(text, encoding="utf-8")
+        try:
+            proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return "killed (timeout)", time.perf_counter() - t0, f"no result within {timeout:.0f} s"
+    finally:
+        for path, data in originals.items():
+            path.write_bytes(data)
+    lines = [ln for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip()]
+    last = lines[-1] if lines else ""
+    if proc.returncode == 0:
+        return "survived", time.perf_counter() - t0, last
+    if proc.returncode == 5:  # no tests collected: the test selection is wrong, not a kill
+        return "no tests", time.perf_counter() - t0, last
+    return "killed", time.perf_counter() - t0, last
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("packages", nargs="*", help="packages to mutate (default: all): "
+                    + ", ".join(sorted({m.package for m in MUTATIONS})))
+    ap.add_argument("--id", action="append", default=[], help="run only this mutation (repeatable)")
+    ap.add_argument("--list", action="store_true", help="list the mutations and exit")
+    ap.add_argument("--check", action="store_true", help="check that every edit still applies, and exit")
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mutation's test run")
+    args = ap.parse_args(argv)
+
+    chosen = [m for m in MUTATIONS if (not args.packages or m.package in args.packages)
+              and (not args.id or m.id in args.id)]
+    unknown = set(args.id) - {m.id for m in MUTATIONS}
+    unknown |= set(args.packages) - {m.package for m in MUTATIONS}
+    if unknown or not chosen:
+        print(f"error: unknown or empty selection: {', '.join(sorted(unknown)) or '(none chosen)'}", file=sys.stderr)
+        return 2
+    if args.list:
+        for m in chosen:
+            print(f"{m.id:32} {m.why}  [{' '.join(m.tests)}]")
+        return 0
+    problems = check(chosen)
+    if problems:
+        for p in problems:
+            print(f"error: {p}", file=sys.stderr)
+        return 2
+    if args.check:
+        print(f"{len(chosen)} mutations apply cleanly")
+        return 0
+
+    # Ctrl-C: let the current run's finally clause restore the files, then stop
+    signal.signal(signal.SIGTERM, lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    results = []
+    try:
+        for m in chosen:
+            outcome, seconds, last = run_one(m, args.timeout)
+            results.append((m, outcome))
+            print(f"{outcome:17} {m.id:32} {seconds:6.1f} s  {m.why}", flush=True)
+            if outcome != "killed":
+                print(f"{'':17} {last}", flush=True)
+    except KeyboardInterrupt:
+        print("interrupted; files restored", file=sys.stderr)
+        return 130
+    print()
+    by_pkg: dict[str, list[int]] = {}
+    for m, outcome in results:
+        k = by_pkg.setdefault(m.package, [0, 0])
+        k[0] += outcome.startswith("killed")
+        k[1] += 1
+    for pkg, (killed, total) in by_pkg.items():
+        print(f"{pkg:10} {killed}/{total} killed")
+    killed = sum(k for k, _ in by_pkg.values())
+    total = sum(t for _, t in by_pkg.values())
+    print(f"{'score':10} {killed}/{total} killed ({100 * killed / total:.0f} %)")
+    return 0 if killed == total else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
