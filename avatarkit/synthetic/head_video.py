@@ -75,3 +75,24 @@ class HeadVideo:
     def frames(self) -> Iterator[SyntheticFrame]:
         for i in range(len(self)):
             yield self.frame(i)
+
+
+def avatar_video(avatar, clip, camera: Camera, background=(1.0, 1.0, 1.0), static_hair: bool = True
+                 ) -> Iterator[SyntheticFrame]:
+    """Frames of a baked avatar (bald + hair) driven by `clip`, rendered by `camera`: a video
+    whose motion and camera are known exactly (what `avatarkit evaluate` and the tracker's
+    benchmark compare against)."""
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.export.images import to_uint8
+    from avatarkit.gaussians import GaussianSet
+    from avatarkit.render import render
+    from avatarkit.sim.config import SimConfig
+
+    config = BakeConfig(sim=SimConfig(static=static_hair))
+    static, frames = bake(avatar, clip, config)
+    for frame in frames:
+        parts = [frame.gaussians(static, "face").replace(extras={})]
+        if avatar.has_hair:
+            parts.append(frame.gaussians(static, "hair").replace(extras={}))
+        r = render(GaussianSet.concat(parts), camera, background)
+        yield SyntheticFrame(frame.index, frame.index / clip.fps, to_uint8(r.rgb))

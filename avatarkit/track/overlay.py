@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-_C = np.diag([1.0, -1.0, -1.0])
+WIRE_ALPHA = 0.3
 
 
 def _face_edges(model) -> np.ndarray:
@@ -34,8 +34,12 @@ def draw_frame(rgb: np.ndarray, vertices_px: np.ndarray | None, edges: np.ndarra
 
     out = np.ascontiguousarray(rgb).copy()
     if vertices_px is not None:
-        segs = vertices_px[edges].astype(np.int32)          # (E, 2, 2)
-        cv2.polylines(out, list(segs), False, (235, 235, 235), 1, cv2.LINE_AA)
+        ok = np.isfinite(vertices_px[edges]).all(axis=(1, 2))
+        segs = vertices_px[edges[ok]].astype(np.int32)      # (E, 2, 2)
+        wire = out.copy()
+        cv2.polylines(wire, list(segs), False, (255, 255, 255), 1, cv2.LINE_AA)
+        # a see-through wireframe: the face under it stays readable
+        out = cv2.addWeighted(wire, WIRE_ALPHA, out, 1.0 - WIRE_ALPHA, 0.0)
     for pts, colour in ((detected_px, (230, 40, 40)), (fitted_px, (40, 220, 60))):
         if pts is None:
             continue

@@ -69,6 +69,15 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
         raise InputError("give either an avatar or a head model, not both")
     options = options or TrackOptions()
     p = os.fspath(path)
+    try:
+        return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress)
+    except InputError as e:
+        raise e.with_path(p) from None   # messages without a file name get the video's
+
+
+def _track(p, avatar, head_model, landmark_embedding, start, end, options, progress) -> TrackResult:
+    from avatarkit.video import open_video, resample
+
     with open_video(p, fps=30.0 if os.path.isdir(p) else None) as video:
         start, end = video.check_range(start, end)
         info = video.info
