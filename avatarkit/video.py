@@ -49,6 +49,7 @@ import abc
 import math
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -58,6 +59,8 @@ import numpy as np
 from avatarkit.errors import FormatError, InputError
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".bmp")
+#: names `avatarkit inspect` routes here (the reader itself goes by content, not by name)
+VIDEO_FILE_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".gif")
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ class VideoInfo:
     kind: str                   # "video" (a file FFmpeg reads) or "images" (a folder)
     width: int                  # upright (displayed) size in pixels, rotation applied
     height: int
-    fps: float                  # average frames per second (the caller's for image folders)
+    fps: float                  # frames per second: (N - 1) / span of the timestamps (the caller's for image folders)
     frame_count: int
     duration: float             # seconds: the last frame's time plus one average frame period
     codec: str                  # FFmpeg's decoder name ("h264", "hevc", ...) or "images"
@@ -100,11 +103,11 @@ def display_transform(matrix) -> tuple[str, int, bool]:
     filters it inserts), so our frames look like ffmpeg's and players'.
     """
     m = [int(v) for v in matrix]
-    # av_display_rotation_get: counter-clockwise degrees, from the normalised first column
+    # av_display_rotation_get (what PyAV's VideoFrame.rotation returns): counter-clockwise degrees
     sx, sy = math.hypot(m[0], m[3]), math.hypot(m[1], m[4])
     if sx == 0 or sy == 0:
         return "none", 0, False
-    ccw = math.degrees(math.atan2(m[1] / sy, m[0] / sx))
+    ccw = -math.degrees(math.atan2(m[1] / sy, m[0] / sx))
     theta = -round(ccw)  # clockwise, as fftools' get_rotation
     theta -= 360 * math.floor(theta / 360 + 0.9 / 360)
     theta = (round(theta / 90) * 90) % 360  # non-right angles: nearest quarter turn (see module doc)
@@ -254,7 +257,9 @@ class _FFmpegVideo(VideoReader):
                 raise FormatError("no frame of the video stream decodes", self.path)
             matrix = _display_matrix(frame)
             if matrix is None:
-                matrix = _rotate_tag_matrix(stream.metadata.get("rotate"))
+                # Matroska upper-cases tag names
+                tag = next((v for k, v in stream.metadata.items() if k.lower() == "rotate"), None)
+                matrix = _rotate_tag_matrix(tag)
             transform, rotation, mirrored = display_transform(matrix) if matrix else ("none", 0, False)
             rgb = apply_transform(frame.to_ndarray(format="rgb24"), transform)
             rates = [stream.average_rate, stream.guessed_rate]
@@ -305,7 +310,7 @@ class _FFmpegVideo(VideoReader):
                     rgb = apply_transform(frame.to_ndarray(format="rgb24"), self._transform)
                     yield Frame(index=idx, time=float(self.times[idx]), rgb=rgb)
             except (av.FFmpegError, OSError) as e:  # FFmpeg errors mid-stream: a damaged file
-                raise FormatError(f"the video stops decoding after frame {expected or 0} "
+                raise FormatError(f"the video stops decoding at frame {expected or 0} "
                                   f"({_reason(e)})", self.path) from None
         finally:
             container.close()
@@ -374,6 +379,27 @@ def read_frame(path: str | os.PathLike, index: int, fps: float | None = None) ->
     """Frame `index` of a video file or image folder (what `build VIDEO --frame N` needs)."""
     with open_video(path, fps) as video:
         return video.frame(index)
+
+
+def inspect_video(path: Path):
+    """A `Summary` of a video file for `avatarkit inspect`."""
+    from avatarkit.inspect import Summary
+
+    with open_video(path) as video:
+        info, times = video.info, video.times
+    s = Summary("video", str(path))
+    s.add("codec", info.codec).add("size", f"{info.width}x{info.height}")
+    s.add("frames", info.frame_count).add("fps", round(info.fps, 4))
+    s.add("duration (s)", round(info.duration, 4))
+    turn = f"{info.rotation} degrees clockwise" if info.rotation else "none"
+    s.add("rotation applied", turn + (", mirrored" if info.mirrored else ""))
+    if info.variable_frame_rate:
+        gaps = np.diff(times) * 1000.0
+        s.add("frame rate", f"variable: frames {gaps.min():.1f}..{gaps.max():.1f} ms apart "
+                            "(timestamps kept)")
+    else:
+        s.add("frame rate", "constant")
+    return s
 
 
 # --- constant frame rate ----------------------------------------------------------------------
@@ -457,19 +483,59 @@ def _open_container(path: Path):
     except IsADirectoryError:
         raise InputError("is a folder", path) from None
     except (av.FFmpegError, OSError, UnicodeDecodeError, ValueError) as e:
+        if _mp4_without_index(path):
+            raise FormatError("an MP4/MOV without its index (no 'moov' box): cut short while "
+                              "recording or copying?", path) from None
         raise FormatError(f"not a video FFmpeg can read ({_reason(e)})", path) from None
+
+
+def _mp4_without_index(path: Path) -> bool:
+    """Whether `path` starts like an MP4/MOV (an 'ftyp' box) but none of its top-level boxes is
+    the 'moov' index, which a recorder writes last. Walks box headers only."""
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            pos, first = 0, True
+            while pos + 8 <= size:
+                f.seek(pos)
+                head = f.read(16)
+                n, kind = int.from_bytes(head[:4], "big"), head[4:8]
+                if first and kind != b"ftyp":
+                    return False
+                first = False
+                if kind == b"moov":
+                    return False
+                if n == 1 and len(head) == 16:
+                    n = int.from_bytes(head[8:16], "big")
+                elif n == 0:  # the box runs to the end of the file
+                    break
+                if n < 8:
+                    return False  # not box structure after all
+                pos += n
+            return not first
+    except OSError:
+        return False
 
 
 def _video_stream(container, path: Path):
     import av
 
+    if not container.streams:
+        raise FormatError("not a readable video: no streams found (a file cut short before its "
+                          "index?)", path)
     pictures = av.stream.Disposition.attached_pic
     streams = [s for s in container.streams.video if not (s.disposition & pictures)]
     if not streams:
         raise FormatError("has no video stream", path)
-    if streams[0].codec_context is None or not streams[0].codec_context.name:
-        raise FormatError("its video codec is not one FFmpeg decodes", path)
+    cc = streams[0].codec_context
+    if cc is None or not cc.name or not cc.width or not cc.height:
+        raise FormatError("the video stream is damaged or cut short: it has no codec or picture "
+                          "size", path)
     return streams[0]
+
+
+class TruncatedVideoWarning(UserWarning):
+    """A video file ends before all the frames its index lists."""
 
 
 def _packet_times(container, stream, path: Path) -> np.ndarray:
@@ -490,6 +556,11 @@ def _packet_times(container, stream, path: Path) -> np.ndarray:
         # a truncated file: keep the packets before the damage
     if not pts:
         raise FormatError("the video stream has no frames", path)
+    listed = int(stream.frames or 0)
+    if listed > len(pts):
+        warnings.warn(TruncatedVideoWarning(
+            f"{path}: the file is cut short: {len(pts)} of the {listed} frames its index lists are "
+            "there; reading those"), stacklevel=4)
     return np.asarray(pts, dtype=np.int64)
 
 
@@ -509,13 +580,15 @@ def _display_matrix(frame) -> list[int] | None:
 
 
 def _average_fps(times: np.ndarray, rates) -> float:
-    """The stream's average rate, else its guessed rate, else measured from the timestamps."""
-    for r in rates:
-        if r is not None and float(r) > 0 and math.isfinite(float(r)):
-            return float(r)
+    """Frames per second over the timestamps ((N - 1) / span: exact for a constant rate, the
+    mean rate otherwise). The stream's own rate (e.g. exactly 30000/1001) is used when it agrees
+    within 0.5%; containers' rates alone mislead (an AVI of variable timing says 1000 fps, its
+    time base; Matroska repeats the rate it was muxed with)."""
+    rates = [float(r) for r in rates if r is not None and float(r) > 0 and math.isfinite(float(r))]
     if len(times) > 1 and times[-1] > 0:
-        return (len(times) - 1) / float(times[-1])
-    return 1.0
+        measured = (len(times) - 1) / float(times[-1])
+        return next((r for r in rates if abs(r - measured) <= 0.005 * measured), measured)
+    return rates[0] if rates else 1.0
 
 
 def _is_variable(times: np.ndarray, tick: float) -> bool:

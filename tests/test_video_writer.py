@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import io
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -276,13 +277,21 @@ def test_real_full_filesystem_leaves_nothing(tiny_fs, fmt):
     assert os.listdir(tiny_fs) == [f"small.{fmt}"]
 
 
-def test_real_full_filesystem_cli_exit_2(tiny_fs, tmp_path, capsys):
+def test_real_full_filesystem_mp4v_fallback_leaves_nothing(tiny_fs, monkeypatch, capfd):
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.warns(Mp4vFallbackWarning), pytest.raises(OutputError, match="not completely written"):
+        write_video(tiny_fs / "clip.mp4", noise(6), fps=12)
+    assert os.listdir(tiny_fs) == []
+    assert capfd.readouterr().err == ""  # OpenCV's FFmpeg complaints are kept off the terminal
+
+
+def test_real_full_filesystem_cli_exit_2(tiny_fs, tmp_path, capfd):
     ply = tmp_path / "h.ply"
     write_ply(ply, head_like(3000))
     out = tiny_fs / "spin.mp4"
     code = main(["render", str(ply), "-o", str(out), "--turntable", "24", "--width", "256", "--height",
                  "256", "--crf", "0", "-q"])
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert code == 2, err
     assert err.strip().splitlines() == [f"error: {out}: disk full while writing the video (nothing was written)"]
     assert os.listdir(tiny_fs) == []
@@ -295,16 +304,13 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-back
                   "--autoplay-policy=no-user-gesture-required"]
 
 
-@pytest.mark.slow
-def test_headless_chromium_plays_our_mp4(mp4, tmp_path):
-    exe = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")
-                if shutil.which(n)), None)
-    if exe is None:
-        pytest.skip("Chromium is not installed (Debian: apt-get install chromium)")
-    shutil.copy(mp4, tmp_path / "turn.mp4")
+def chromium_reads(exe: str, folder: Path, video: Path) -> str:
+    """What a <video> element in headless Chromium says of `video` once it has loaded a frame:
+    "WxH duration readyState", or "error CODE MESSAGE"."""
+    shutil.copy(video, folder / "clip.mp4")
     token = uuid.uuid4().hex
-    (tmp_path / "page.html").write_text(f"""<!doctype html><html><body>
-<video id="v" src="turn.mp4" muted preload="auto"></video><pre id="out">pending</pre>
+    (folder / "page.html").write_text(f"""<!doctype html><html><body>
+<video id="v" src="clip.mp4" muted preload="auto"></video><pre id="out">pending</pre>
 <script>
 const v = document.getElementById('v'), out = document.getElementById('out');
 v.addEventListener('loadeddata', () => {{
@@ -314,13 +320,47 @@ v.addEventListener('error', () => {{
   out.textContent = '{token} error ' + (v.error ? v.error.code + ' ' + v.error.message : '');
 }});
 </script></body></html>""")
-    r = subprocess.run([exe, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
-                        "--virtual-time-budget=10000", "--allow-file-access-from-files",
-                        "--dump-dom", (tmp_path / "page.html").as_uri()],
+    profile = folder / f"profile-{token}"
+    r = subprocess.run([exe, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--virtual-time-budget=10000",
+                        "--allow-file-access-from-files", "--dump-dom", (folder / "page.html").as_uri()],
                        capture_output=True, text=True, timeout=120)
-    line = next((ln for ln in r.stdout.splitlines() if token in ln), None)
-    assert line is not None, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
-    fields = line.split(token, 1)[1].split("<")[0].split()
-    assert fields[0] == "128x128", line  # "error ..." when Chromium cannot decode it
-    assert float(fields[1]) == pytest.approx(8 / 12, abs=0.05)
-    assert int(fields[2]) >= 2  # HAVE_CURRENT_DATA: a frame was decoded
+    m = re.search(f'<pre id="out">{token} ([^<]*)</pre>', r.stdout)
+    assert m, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    return m.group(1)
+
+
+@pytest.mark.slow
+def test_headless_chromium_plays_our_mp4(mp4, rendered, tmp_path, monkeypatch):
+    exe = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome")
+                if shutil.which(n)), None)
+    if exe is None:
+        pytest.skip("Chromium is not installed (Debian: apt-get install chromium)")
+    size, duration, ready = chromium_reads(exe, tmp_path, mp4).split()
+    assert size == "128x128"
+    assert float(duration) == pytest.approx(8 / 12, abs=0.05)
+    assert int(ready) >= 2  # HAVE_CURRENT_DATA: a frame was decoded
+    # the check tells players apart: the mp4v fallback's file is refused
+    monkeypatch.setitem(sys.modules, "av", None)
+    with pytest.warns(Mp4vFallbackWarning):
+        write_video(tmp_path / "old.mp4", rendered, fps=12)
+    assert chromium_reads(exe, tmp_path, tmp_path / "old.mp4").startswith("error")
+
+
+@pytest.mark.slow  # builds and bakes an avatar: ~2 min on a loaded 2-core machine
+def test_cli_bake_preview_enospc_exit_2(tmp_path_factory, tmp_path, monkeypatch, capsys):
+    from avatarkit.motion import make_clip, save_clip
+    from test_avatar import saved_avatar
+
+    folder = saved_avatar(tmp_path_factory)
+    clip = tmp_path / "nod.npz"
+    save_clip(clip, make_clip("nod", frames=4, fps=25))
+    fill_after(monkeypatch, 2000)
+    out = tmp_path / "out"
+    out.mkdir()
+    preview = out / "preview.mp4"
+    code = main(["bake", str(folder), str(clip), "--preview", str(preview), "--preview-size", "48",
+                 "--substeps", "2", "--iterations", "4", "--preroll", "0", "-q"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.strip().splitlines() == [f"error: {preview}: disk full while writing the video (nothing was written)"]
+    assert os.listdir(out) == []

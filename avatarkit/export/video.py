@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import sys
 import warnings
 from fractions import Fraction
 from pathlib import Path
@@ -74,6 +75,27 @@ def pad_to_even(img: np.ndarray) -> np.ndarray:
     if h % 2 == 0 and w % 2 == 0:
         return img
     return np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+@contextlib.contextmanager
+def _silenced_stderr():
+    """OpenCV's FFmpeg logs its complaints ("moov atom not found") on the process's stderr,
+    which would break the CLI's one-line errors; our own checks report the failure."""
+    fd = 2  # C libraries write to descriptor 2 whatever sys.stderr is
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(fd)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
 
 
 def _write_failure(exc: OSError, path: Path) -> OutputError:
@@ -226,7 +248,8 @@ class VideoWriter:
             if self._encoder is not None:
                 self._encoder.encode(img)
             elif self._cv_writer is not None:
-                self._cv_writer.write(np.ascontiguousarray(img[..., ::-1]))
+                with _silenced_stderr():
+                    self._cv_writer.write(np.ascontiguousarray(img[..., ::-1]))
             else:
                 from PIL import Image
 
@@ -250,7 +273,8 @@ class VideoWriter:
             return
         import cv2
 
-        writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, size)
+        with _silenced_stderr():
+            writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, size)
         if not writer.isOpened():
             writer.release()
             raise OutputError("OpenCV cannot encode MP4 (mp4v) here; install PyAV (`pip install av`)",
@@ -288,10 +312,12 @@ class VideoWriter:
             file.close()  # flushes the last buffered bytes: may itself fail on a full disk
             check_mp4(self._tmp, self.frame_count, "h264")
         elif self._cv_writer is not None:
-            self._cv_writer.release()
-            self._cv_writer = None
-            # OpenCV reports no write errors: read the file back
-            if _count_cv2_frames(self._tmp) != self.frame_count:
+            with _silenced_stderr():
+                self._cv_writer.release()
+                self._cv_writer = None
+                # OpenCV reports no write errors: read the file back
+                complete = _count_cv2_frames(self._tmp) == self.frame_count
+            if not complete:
                 raise OutputError("the MP4 was not completely written (is the disk full?)", self.path)
         else:
             first, *rest = self._gif_frames
