@@ -194,3 +194,46 @@ def test_levenberg_marquardt_reaches_the_reference_fit(video):
     assert np.linalg.norm(ours.translation - ref.translation) < 2e-3
     assert abs(ours.jaw[0] - ref.jaw[0]) < 0.02
     assert ours.loss["total"] <= sum(ref.loss.values()) * 1.02
+
+
+def test_identity_is_recovered_from_exact_landmarks():
+    """The identity fit (shape coefficients in the same Levenberg-Marquardt problem) gives a
+    known shape back from the landmarks of a head with that shape."""
+    from avatarkit.face.correspondence import template_embedding
+    from avatarkit.face.fit import LandmarkModel, LandmarkTargets
+    from avatarkit.head.model import HeadParams
+    from avatarkit.track.solve import FrameProblem, fit_frame, rest_points
+    from avatarkit.face.fit import initial_pose
+
+    model = HeadModel.template()
+    emb = template_embedding()
+    lm = LandmarkModel(model, emb)
+    camera = head_video_camera(SIZE, distance=0.45)
+    truth = np.array([1.6, -1.0, 0.6, 0.0, 1.2, -0.8, 0.0, 0.4])[:model.num_shape]
+    params = HeadParams(shape=truth.astype(np.float32), rotation=np.array([[0.05, 0.2, 0.0]]),
+                        expr=np.zeros((1, model.num_expr)))
+    px, _ = camera.project(emb.points(model.forward(params)[0][0], model.faces))
+    idx = emb.mesh_index
+    targets = LandmarkTargets(px, np.zeros(len(idx)), np.ones(len(idx)), np.zeros((len(idx), 2)),
+                              float(np.linalg.norm(px[idx == 33][0] - px[idx == 263][0])), (SIZE, SIZE))
+    problem = FrameProblem.from_landmark_model(lm, np.zeros(model.num_shape), model.num_expr,
+                                               shape_components=model.num_shape)
+    from avatarkit.recon.fit import portrait_focal
+    f = portrait_focal(SIZE, SIZE)
+    fit = fit_frame(problem, targets, f, initial=initial_pose(rest_points(problem), targets, f),
+                    iterations=60, depth_weight=0.0, shape=np.zeros(model.num_shape), shape_prior=1e-6)
+    assert fit.median_error < 0.05
+    # not every coefficient is seen by face landmarks (neck width, head depth behind the
+    # face; overall size trades against distance), so compare the landmark geometry itself
+    from avatarkit.head.model import HeadParams as P
+    got = emb.points(model.forward(P(shape=fit.shape.astype(np.float32),
+                                     expr=np.zeros((1, model.num_expr))))[0][0], model.faces)
+    want = emb.points(model.forward(P(shape=truth.astype(np.float32),
+                                      expr=np.zeros((1, model.num_expr))))[0][0], model.faces)
+    got, want = got - got.mean(0), want - want.mean(0)
+    scale = np.linalg.norm(want) / np.linalg.norm(got)
+    fitted_error = np.median(np.linalg.norm(got * scale - want, axis=1))
+    zero = emb.points(model.v_template, model.faces)
+    zero = zero - zero.mean(0)
+    template_error = np.median(np.linalg.norm(zero - want, axis=1))
+    assert template_error > 2e-3 and fitted_error < 0.2 * template_error, (fitted_error, template_error)
