@@ -695,12 +695,12 @@ def _load_hair(folder: Path, parts: dict, head, rest: np.ndarray):
     return hair, cage, rig
 
 
-def load_avatar(folder: str | os.PathLike) -> Avatar:
-    """Read and check an avatar folder (see the module docstring)."""
+def load_avatar_head(folder: str | os.PathLike) -> tuple[Any, np.ndarray, HeadRef, dict]:
+    """The head model, identity shape (S,) float64, head reference and manifest of an avatar
+    folder, without reading the splats (what a tracker needs to drive this avatar)."""
     folder = Path(folder)
     manifest = read_manifest(folder)
     mpath = folder / MANIFEST
-    parts = manifest["parts"]
     ref_json = manifest["head_model"]
     ref = HeadRef() if ref_json["kind"] == "template" else HeadRef("flame", ref_json["path"], ref_json["sha256"])
     head = ref.load(folder, mpath)
@@ -711,11 +711,20 @@ def load_avatar(folder: str | os.PathLike) -> Avatar:
     if ref.kind == "template" and "sha256" in ref_json and ref_json["sha256"] != head_geometry_sha256(head):
         warnings.warn(f"{mpath}: the built-in template head has changed since this avatar was made "
                       f"({ref_json.get('source', 'unknown version')}); its bald Gaussians may not lie on "
-                      "the head any more: make the avatar again", HeadModelChangedWarning, stacklevel=2)
+                      "the head any more: make the avatar again", HeadModelChangedWarning, stacklevel=3)
     shape = np.asarray(manifest["identity"]["shape"], np.float64)
     if len(shape) > head.num_shape:
         raise FormatError(f"identity shape has {len(shape)} coefficients, the head model "
                           f"{head.num_shape}", mpath)
+    return head, shape, ref, manifest
+
+
+def load_avatar(folder: str | os.PathLike) -> Avatar:
+    """Read and check an avatar folder (see the module docstring)."""
+    folder = Path(folder)
+    head, shape, ref, manifest = load_avatar_head(folder)
+    mpath = folder / MANIFEST
+    parts = manifest["parts"]
 
     bald_path = _part_file(folder, parts["bald"])
     bald = _read_splats(bald_path)

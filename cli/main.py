@@ -35,6 +35,7 @@ COMMANDS: dict[str, str] = {
     "bake-batch": "avatarkit.cli.batch_cmd:bake_batch_cmd",
     "transfer-hair": "avatarkit.cli.hair_cmd:transfer_hair_cmd",
     "hair-grid": "avatarkit.cli.hair_cmd:hair_grid_cmd",
+    "track": "avatarkit.cli.track_cmd:track_cmd",
     "view": "avatarkit.cli.view_cmd:view_cmd",
 }
 

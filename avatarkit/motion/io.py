@@ -114,8 +114,9 @@ def _load_npz(path: Path, fps: float | None) -> MotionClip:
     return _build(path, channels, shape, fps if fps is not None else file_fps, name or path.stem)
 
 
-def _save_npz(path: Path, clip: MotionClip) -> None:
-    arrays = {NPZ_KEYS[c]: getattr(clip, c).astype(np.float32) for c in CHANNELS}
+def _save_npz(path: Path, clip: MotionClip, extras: dict | None = None) -> None:
+    arrays = dict(extras or {})
+    arrays.update({NPZ_KEYS[c]: getattr(clip, c).astype(np.float32) for c in CHANNELS})
     arrays["shape"] = clip.shape.astype(np.float32)
     # float64 so readers that keep only float32 arrays (GaussianAvatars) skip it
     arrays["fps"] = np.array(clip.fps, np.float64)
@@ -195,7 +196,10 @@ def _load_json(path: Path, fps: float | None) -> MotionClip:
                   doc.get("name") or path.stem)
 
 
-def _save_json(path: Path, clip: MotionClip) -> None:
+def _save_json(path: Path, clip: MotionClip, extras: dict | None = None) -> None:
+    if extras:
+        raise OutputError("extra arrays (a tracked clip's camera, confidence) are kept only in .npz "
+                          "clips", path)
     doc = {"format": JSON_FORMAT, "version": JSON_VERSION, "name": clip.name, "fps": clip.fps,
            "shape": _json_numbers(clip.shape),
            "frames": {c: _json_numbers(getattr(clip, c)) for c in CHANNELS}}
@@ -249,11 +253,14 @@ def load_clip(path: str | os.PathLike, fps: float | None = None) -> MotionClip:
         raise InputError(f"cannot read: {e.strerror}", p) from None
 
 
-def save_clip(path: str | os.PathLike, clip: MotionClip) -> None:
-    """Write `clip` as `.npz` (GaussianAvatars/VHAP keys + fps) or `.json`, atomically."""
+def save_clip(path: str | os.PathLike, clip: MotionClip, extras: dict | None = None) -> None:
+    """Write `clip` as `.npz` (GaussianAvatars/VHAP keys + fps) or `.json`, atomically.
+
+    extras: more named arrays to keep in an .npz (a tracked clip's camera and confidence);
+    readers of the motion ignore keys they do not know."""
     p = Path(path)
     saver = _savers.get(p.suffix.lower())
     if saver is None:
         raise OutputError(f"cannot write a motion clip as {p.suffix or '(no extension)'!r}: "
                           f"use {' or '.join(_savers)}", p)
-    saver(p, clip)
+    saver(p, clip, extras)

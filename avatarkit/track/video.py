@@ -1,0 +1,129 @@
+"""`track_video`: open a video, choose the head model and identity, track, return the result.
+
+Identity. With an avatar (`avatar=`), its head model and identity shape are used as they are,
+so the clip drives that avatar exactly. Otherwise (the template, or `head_model=` a FLAME file)
+the identity is fitted over the first frames: `IDENTITY_FRAMES` frames spread over the first
+`IDENTITY_SECONDS` seconds that have a face, each fitted for pose + shape (+ expression and jaw,
+so a talking mouth does not bend the face shape) by the tracker's Levenberg-Marquardt solver
+(shape coefficients join the expression ones in `solve.FrameProblem`), and the shape is their
+per-coefficient median.
+
+Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
+(`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
+each clip frame); a constant-rate one keeps its frames and rate.
+"""
+from __future__ import annotations
+
+import os
+from typing import Callable
+
+import numpy as np
+
+from avatarkit.errors import InputError
+from avatarkit.track.tracker import FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
+
+IDENTITY_FRAMES = 8
+IDENTITY_SECONDS = 3.0
+
+
+def fit_identity(frames: list, model, size: tuple[int, int], options: TrackOptions, embedding) -> np.ndarray:
+    """(S,) identity shape from a few frames (module docstring). InputError if none has a face."""
+    from avatarkit.face.fit import LandmarkTargets, initial_pose
+    from avatarkit.track.solve import FrameProblem, fit_frame, rest_points
+
+    ft = FrameTracker(model, np.zeros(model.num_shape), size, options, embedding)
+    problem = FrameProblem.from_landmark_model(ft.lm, np.zeros(model.num_shape), ft.expr_components,
+                                               shape_components=model.num_shape)
+    shapes = []
+    for frame in frames:
+        ft.reset()
+        mesh = ft.landmarks(frame.rgb)
+        if mesh is None:
+            continue
+        targets = LandmarkTargets.from_mesh(mesh, ft.embedding, size)
+        initial = initial_pose(rest_points(problem), targets, ft.focal)
+        fit = fit_frame(problem, targets, ft.focal, initial=initial, iterations=40,
+                        depth_weight=options.depth_weight, expr_prior=options.expr_prior,
+                        jaw_prior=options.jaw_prior, shape=np.zeros(model.num_shape))
+        shapes.append(fit.shape)
+    if not shapes:
+        raise InputError(f"no face found in the first {len(frames)} frames used to fit the identity")
+    return np.median(np.stack(shapes), axis=0)
+
+
+def _identity_frames(video, start: int, end: int) -> list:
+    fps = video.info.fps
+    stop = min(end, start + max(int(IDENTITY_SECONDS * fps), 1))
+    pick = np.unique(np.linspace(start, stop - 1, IDENTITY_FRAMES).round().astype(int))
+    return [f for f in video.frames(start, stop) if f.index in set(pick.tolist())]
+
+
+def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = None,
+                head_model: str | os.PathLike | None = None,
+                landmark_embedding: str | os.PathLike | None = None, start: int = 0,
+                end: int | None = None, options: TrackOptions | None = None,
+                progress: Callable[[int, int], None] | None = None) -> TrackResult:
+    """Track the face in the video (or image folder at 30 fps) at `path`, frames start..end-1.
+
+    avatar: an avatar folder whose head model and identity drive the fit; head_model: a head
+    model file (FLAME .pkl/.npz) whose identity is fitted; neither: the built-in template.
+    landmark_embedding: FLAME's mediapipe_landmark_embedding.npz for a FLAME model.
+    progress(done, total) after each frame. Raises AvatarKitError subclasses naming the file.
+    """
+    from avatarkit.video import open_video, resample
+
+    if avatar is not None and head_model is not None:
+        raise InputError("give either an avatar or a head model, not both")
+    options = options or TrackOptions()
+    p = os.fspath(path)
+    try:
+        return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress)
+    except InputError as e:
+        raise e.with_path(p) from None   # messages without a file name get the video's
+
+
+def _track(p, avatar, head_model, landmark_embedding, start, end, options, progress) -> TrackResult:
+    from avatarkit.video import open_video, resample
+
+    with open_video(p, fps=30.0 if os.path.isdir(p) else None) as video:
+        start, end = video.check_range(start, end)
+        info = video.info
+        size = (info.width, info.height)
+        if avatar is not None:
+            from avatarkit.avatar import load_avatar_head
+
+            model, shape, _, _ = load_avatar_head(avatar)
+        else:
+            from avatarkit.head.io import load_head_model
+            from avatarkit.head.model import HeadModel
+
+            model = HeadModel.template() if head_model is None else load_head_model(head_model)
+            shape = None
+        embedding = model_embedding(model, landmark_embedding)
+        if shape is None:
+            shape = fit_identity(_identity_frames(video, start, end), model, size, options, embedding)
+        frames = video.frames(start, end)
+        fps = info.fps
+        total = end - start
+        if info.variable_frame_rate:
+            frames = resample(frames, fps)
+            total = int(np.floor((video.times[end - 1] - video.times[start]) * fps + 1e-6)) + 1
+        frames = _with_source_index(frames)
+        step = (lambda i: progress(i + 1, total)) if progress is not None else None
+        name = os.path.splitext(os.path.basename(p.rstrip("/")))[0]
+        return track_frames(frames, model, shape, size, fps, options, step, name, embedding)
+
+
+class _Indexed:
+    __slots__ = ("index", "rgb")
+
+    def __init__(self, index, rgb):
+        self.index, self.rgb = index, rgb
+
+
+def _with_source_index(frames):
+    """Frames whose `.index` is the source video's frame number (resampled frames carry it in
+    `source_index`)."""
+    for f in frames:
+        src = getattr(f, "source_index", None)
+        yield _Indexed(f.index if src is None else src, f.rgb)

@@ -1,0 +1,106 @@
+"""`avatarkit track`: FLAME-style motion from a monocular video."""
+from __future__ import annotations
+
+import click
+
+from avatarkit.cli.options import FiniteFloatRange, _is_terminal, cli_warnings, quiet_option
+
+_FILE = click.Path(dir_okay=False)
+
+
+@click.command("track")
+@click.argument("video", type=click.Path())
+@click.option("-o", "--output", required=True, type=_FILE,
+              help="Tracked clip to write (.npz: the motion bake reads, plus the camera and confidence).")
+@click.option("--avatar", type=click.Path(file_okay=False),
+              help="Drive this avatar: use its head model and identity shape.")
+@click.option("--head-model", type=_FILE, help="A head model (FLAME .pkl / avatarkit .npz) whose "
+              "identity is fitted over the first frames (default: the built-in template).")
+@click.option("--landmark-embedding", type=_FILE, help="FLAME's mediapipe_landmark_embedding.npz "
+              "(needed with a FLAME head model).")
+@click.option("--start", type=click.IntRange(min=0), default=0, show_default=True,
+              help="First frame to track (0-based).")
+@click.option("--end", type=click.IntRange(min=1), help="Frame after the last one to track "
+              "(default: the video's end).")
+@click.option("--face-index", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Which face, numbered left to right from 0, when the first frame has several.")
+@click.option("--smoothing", type=FiniteFloatRange(min=0), default=4.0, show_default=True,
+              help="Temporal smoothing (frames^4; 0 = none). It does not lag: see docs/tracking.md.")
+@click.option("--preview", type=_FILE, help="Also write the video with the fitted head's landmarks "
+              "and mesh drawn on it (.mp4 or .gif).")
+@quiet_option
+def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
+              smoothing, preview, quiet):
+    """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
+    write its motion as a clip that `avatarkit bake` takes.
+
+    \b
+    Examples:
+      avatarkit track talk.mp4 -o talk.npz
+      avatarkit track talk.mp4 -o talk.npz --avatar me/ --preview talk_overlay.mp4
+      avatarkit bake me/ talk.npz -o talk.usdc --preview talk_avatar.mp4
+    """
+    from pathlib import Path
+
+    from avatarkit.fileio import check_output_folder
+    from avatarkit.track import TrackOptions, save_tracking
+    from avatarkit.track.video import track_video
+
+    from avatarkit.errors import OutputError
+
+    if Path(output).suffix.lower() != ".npz":
+        raise OutputError("a tracked clip is written as .npz", output)
+    check_output_folder(Path(output).parent)
+    if preview is not None:
+        from avatarkit.export.video import video_format
+
+        video_format(preview)
+        check_output_folder(Path(preview).parent)
+    options = TrackOptions(face_index=face_index, smoothing=smoothing)
+    with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:
+        result = track_video(video, avatar=avatar, head_model=head_model,
+                             landmark_embedding=landmark_embedding, start=start, end=end,
+                             options=options, progress=bar.step)
+    with cli_warnings(quiet):
+        save_tracking(output, result)
+        if preview is not None:
+            from avatarkit.track.overlay import write_overlay
+
+            with _LazyBar("preview", quiet) as bar:
+                write_overlay(video, result, preview, progress=bar.step)
+    if not quiet:
+        found = int(result.found.sum())
+        import numpy as np
+
+        err = np.nanmedian(result.landmark_error)
+        click.echo(f"tracked {result.num_frames} frames at {result.clip.fps:g} fps: face in {found}, "
+                   f"interpolated {result.num_frames - found}; median landmark error {err:.2f} px", err=True)
+        click.echo(f"wrote {output}" + (f" and {preview}" if preview else ""), err=True)
+
+
+class _LazyBar:
+    """A progress bar made on the first `step(done, total)`, when the total is known; like
+    `options.progress`, none with -q or when stderr is not a terminal."""
+
+    def __init__(self, label: str, quiet: bool):
+        self.label, self.quiet, self.bar, self.done = label, quiet, None, 0
+
+    def step(self, done: int, total: int) -> None:
+        import sys
+
+        if self.quiet or not _is_terminal(sys.stderr):
+            return
+        if self.bar is None:
+            self.bar = click.progressbar(length=total, label=self.label, file=sys.stderr,
+                                         show_eta=True, show_pos=True)
+            self.bar.__enter__()
+        self.bar.update(done - self.done)
+        self.done = done
+
+    def __enter__(self) -> "_LazyBar":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+        return False

@@ -1,0 +1,93 @@
+"""`avatarkit track` from the command line: a small rendered video end to end, and bad input."""
+import numpy as np
+import pytest
+
+from avatarkit.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def head_mp4(tmp_path_factory):
+    from avatarkit.export.video import write_video
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.synthetic.head_video import HeadVideo, head_video_camera
+
+    T = 6
+    rot = np.stack([np.zeros(T), np.linspace(-0.2, 0.2, T), np.zeros(T)], axis=1)
+    clip = MotionClip(fps=24, rotation=rot, translation=np.zeros((T, 3)), neck=np.zeros((T, 3)),
+                      jaw=np.zeros((T, 3)), eyes=np.zeros((T, 6)), expr=np.zeros((T, 9)))
+    hv = HeadVideo(clip, head_video_camera(192, distance=0.45), n_gaussians=12000)
+    path = tmp_path_factory.mktemp("v") / "head.mp4"
+    write_video(path, [f.rgb for f in hv.frames()], fps=24)
+    return path
+
+
+def run(capsys, *args):
+    code = main(list(args))
+    return code, capsys.readouterr()
+
+
+def test_track_writes_a_clip_bake_reads_and_a_preview(tmp_path, capsys, head_mp4):
+    from avatarkit.motion.io import load_clip
+    from avatarkit.track import load_tracking
+    from avatarkit.video import open_video
+
+    out, prev = tmp_path / "clip.npz", tmp_path / "overlay.mp4"
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(out), "--preview", str(prev), "--start", "1")
+    assert code == 0, cap.err
+    r = load_tracking(out)
+    assert r.num_frames == 5 and r.found.all() and list(r.frame_index) == [1, 2, 3, 4, 5]
+    assert r.camera.width == 192 and r.clip.fps == pytest.approx(24.0)
+    # yaw increases over the clip as the rendered head turns
+    assert np.all(np.diff(r.clip.rotation[:, 1]) > 0)
+    assert load_clip(out).n_frames == 5
+    with open_video(prev) as v:
+        assert v.info.frame_count == 5 and v.info.codec == "h264"
+    assert "tracked 5 frames" in cap.err
+
+
+def _one_error_line(cap):
+    lines = [l for l in cap.err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
+    assert "Traceback" not in cap.err
+    return lines[0]
+
+
+def test_not_a_video(tmp_path, capsys):
+    bad = tmp_path / "notes.mp4"
+    bad.write_text("not a video")
+    code, cap = run(capsys, "track", str(bad), "-o", str(tmp_path / "c.npz"))
+    assert code == 2 and str(bad) in _one_error_line(cap)
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_video_without_faces(tmp_path, capsys):
+    from avatarkit.export.video import write_video
+
+    path = tmp_path / "grey.mp4"
+    write_video(path, [np.full((64, 64, 3), 100, np.uint8)] * 3, fps=10)
+    code, cap = run(capsys, "track", str(path), "-o", str(tmp_path / "c.npz"), "-q")
+    line = _one_error_line(cap)
+    assert code == 2 and "no face found in the first 3 frames" in line and str(path) in line
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_frame_range_outside_the_video(tmp_path, capsys, head_mp4):
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--start", "40")
+    assert code == 2 and "outside the video" in _one_error_line(cap)
+
+
+def test_unwritable_output_is_refused_before_any_work(tmp_path, capsys, head_mp4):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")          # a path under a regular file: unwritable even as root
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(blocker / "c.npz"))
+    assert code == 2 and "output folder" in _one_error_line(cap)
+
+
+def test_wrong_output_extension(tmp_path, capsys, head_mp4):
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.json"))
+    assert code == 2 and ".npz" in _one_error_line(cap)
+
+
+def test_missing_video(tmp_path, capsys):
+    code, cap = run(capsys, "track", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "c.npz"))
+    assert code == 2 and "not found" in _one_error_line(cap)
