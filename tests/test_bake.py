@@ -189,11 +189,13 @@ def test_batched_hair_equals_the_single_frame_reference(avatar, shake, baked, ba
         np.testing.assert_allclose(b.hair.means, s.hair.means, atol=2e-7)
         np.testing.assert_allclose(b.hair.quats, s.hair.quats, atol=2e-5)
         np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=2e-5)
-    # and the single-frame path is CageDeformer.deform_arrays of the frame's cage
+    # and the single-frame path is CageDeformer.deform_arrays of the frame's cage, the centres
+    # then pushed out of the posed head (by a few millimetres at most, issue 18)
     d = avatar.rig.deformer
     for s in single[::3]:
-        for got, want in zip((s.hair.means, s.hair.quats, s.hair.scales), d.deform_arrays(s.cage_vertices)):
-            assert np.array_equal(got, want)
+        means, quats, scales = d.deform_arrays(s.cage_vertices)
+        assert np.array_equal(s.hair.quats, quats) and np.array_equal(s.hair.scales, scales)
+        assert np.abs(s.hair.means - means).max() < 0.005
 
 
 def test_frame_range_equals_the_same_frames_of_the_full_bake(avatar, shake, baked):
