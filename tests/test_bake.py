@@ -188,7 +188,8 @@ def test_batched_hair_equals_the_single_frame_reference(avatar, shake, baked, ba
         assert np.array_equal(b.face.means, s.face.means)
         np.testing.assert_allclose(b.hair.means, s.hair.means, atol=2e-7)
         np.testing.assert_allclose(b.hair.quats, s.hair.quats, atol=2e-5)
-        np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=2e-5)
+        # 1e-4: the product in another order moves an axis length by up to 4e-5 relative
+        np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=1e-4)
     # and the single-frame path is CageDeformer.deform_arrays of the frame's cage, the centres
     # then pushed out of the posed head (by a few millimetres at most, issue 18)
     d = avatar.rig.deformer
