@@ -142,13 +142,14 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
 
 @ti.func
 def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj,
-              origin, inv_h, skin_origin, skin_inv_h):
+              origin, inv_h, skin_origin, skin_inv_h, enough):
     """[distance, unit world normal] of world point p to the posed head of substep s; q1: p in
     the head joint's rest frame, rs its rotation. The posed head is the union of its skinned
     pieces: the rest SDF at the inverse of the LBS blend with the weights found at q1 and, for
     every other joint j, at T_j^-1 p where that point lies in j's region (weight > 1/2); the
     smallest wins (a point the jaw swung onto is inside the jaw wherever the skull's preimage
-    puts it)."""
+    puts it). enough: when the first value is at least this, the other pieces are not tried
+    (pass +inf to always try them)."""
     q = q1
     lin = rs
     if nj > 1:
@@ -164,7 +165,7 @@ def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1,
     hit = sdf_lookup(sdf, q, origin, inv_h)
     n = ti.math.inverse(lin).transpose() @ vec3(hit[1], hit[2], hit[3])
     for j in ti.static(range(1, JMAX)):
-        if j < nj:
+        if j < nj and hit[0] < enough:
             rj = joint_rotation(fb, o_rot, s, j)
             qj = rj.transpose() @ (p - joint_translation(fb, o_trans, s, j))
             if skin_lookup(skin, qj, skin_origin, skin_inv_h)[j] > 0.5:
@@ -326,7 +327,7 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             # this substep's deviation bound of q1.
                             if fb[li] > 0.0 or LIPSCHITZ * ((q1 - cq).norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin:
                                 hit = posed_sdf(sdf, skin, fb, p, q1, rs, o_rot, o_trans, s, nj, origin, inv_h,
-                                                skin_origin, skin_inv_h)
+                                                skin_origin, skin_inv_h, ti.math.inf)
                                 fb[o_cache + 3 * i] = q1[0]
                                 fb[o_cache + 3 * i + 1] = q1[1]
                                 fb[o_cache + 3 * i + 2] = q1[2]
@@ -360,7 +361,8 @@ def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.n
                     nj: ti.i32, clearance: ti.f32, rounds: ti.i32):
     """Move every point (N,) closer than `clearance` to the posed head out along the head's
     normal to `clearance` (`rounds` Newton steps on the SDF). fb: [sdf origin (3), 1 / spacing,
-    skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX)] of one pose."""
+    skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX), deviation bound
+    (`solver.skin_deviation`)] of one pose."""
     origin = vec3(fb[0], fb[1], fb[2])
     inv_h = fb[3]
     skin_origin = vec3(fb[4], fb[5], fb[6])
@@ -371,8 +373,11 @@ def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.n
         p = points[i]
         for _r in range(rounds):
             q1 = r0.transpose() @ (p - t0)
+            # another piece can only be nearer than the first value by twice the bound on how
+            # far the pieces move against the skull (fb[8 + 12 JMAX])
             hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
-                            skin_origin, skin_inv_h)
-            if hit[0] < clearance:
-                p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
+                            skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
+            if hit[0] >= clearance:
+                break
+            p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
         points[i] = p

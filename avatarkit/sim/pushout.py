@@ -28,8 +28,11 @@ def _pose_buffer(sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray) -> np.nda
     trans = np.zeros((JMAX, 3))
     rot[:len(t)] = t[:, :3, :3]
     trans[:len(t)] = t[:, :3, 3]
+    from avatarkit.sim.solver import skin_deviation
+
+    dev = skin_deviation(skin, sdf, rot[None], trans[None], len(t))[0]
     return np.concatenate([sdf.origin, [1.0 / sdf.spacing], skin.origin, [1.0 / skin.spacing],
-                           rot.ravel(), trans.ravel()]).astype(np.float32)
+                           rot.ravel(), trans.ravel(), [dev]]).astype(np.float32)
 
 
 def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,
