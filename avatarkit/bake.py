@@ -310,12 +310,12 @@ class BakeFrames:
                                     shape=avatar.shape)
                 v, a = head.forward(params)
                 vertices.append(v)
-                transforms.append(a[:, driver.head_joint])
+                transforms.append(a)  # every joint: collision follows the jaw and neck
             vertices = np.concatenate(vertices)
             transforms = np.concatenate(transforms).astype(np.float64)
             c1 = time.perf_counter()
             t["head"] += c1 - c0
-            cages = []
+            cages, head_frames = [], []
             for k, i in enumerate(idx):
                 if i == first:
                     cage = driver.reset(vertices[k], transforms[k], warmup=cfg.preroll, dt=dt)
@@ -323,6 +323,7 @@ class BakeFrames:
                     cage = driver.step(vertices[k], transforms[k], dt)
                 if i >= self.start:
                     cages.append(np.ascontiguousarray(cage, np.float32))
+                    head_frames.append(driver.frame)
             c2 = time.perf_counter()
             t["simulate"] += c2 - c1
             if not cages:
@@ -331,7 +332,8 @@ class BakeFrames:
             if batch == 1:
                 hairs = (driver.hair_arrays(cages[0]),)
             else:
-                hairs = deformer.deform_batch(np.stack(cages), chunk=len(cages))
+                hairs = ((driver.pushed_out(h[0], f), *h[1:]) for h, f in
+                         zip(deformer.deform_batch(np.stack(cages), chunk=len(cages)), head_frames))
             for k, (cage, hair_arrays) in enumerate(zip(cages, hairs)):
                 c3 = time.perf_counter()
                 v = vertices[lead + k]

@@ -3,7 +3,7 @@
 Run: `.venv/bin/python benchmarks/sim.py [--hair 50000] [--frames 90] [--ablation-hair 10000]`
 
 Prints, for the test avatar (template head, long straight hair, ~500-vertex cage), with
-4 substeps x 15 iterations per frame at 30 fps on the whip clip:
+the default substeps x iterations (40 x 1) per frame at 30 fps on the whip clip:
   - ms per frame of the simulation alone (solver step, and the driver step that adds the root
     targets from the posed head), median over the clip, wall and CPU time;
   - ms per frame of simulation + deforming the hair Gaussians through the cage, as the bake does
@@ -76,10 +76,9 @@ def main(argv=None) -> int:
     clip = make_clip("whip", fps=30)
     dt = 1.0 / clip.fps
     vertices, transforms = avatar.head_model.forward(HeadParams.from_clip(clip))
-    joint = driver.head_joint
-    frames = [m.head_frame(v, a[joint]) for v, a in zip(vertices, transforms.astype(np.float64))]
-    driver.reset(vertices[0], transforms[0, joint].astype(np.float64), dt=dt)
-    solver = XPBDSolver(m, config)
+    frames = [driver.head_frame(v, a) for v, a in zip(vertices, transforms.astype(np.float64))]
+    driver.reset(vertices[0], transforms[0].astype(np.float64), dt=dt)
+    solver = XPBDSolver(m, config, skin=driver.skin)
     state = driver.state.copy()
     solver.step(state, state, frames[0], frames[0], dt)  # compile outside the timing
 
@@ -98,7 +97,7 @@ def main(argv=None) -> int:
 
     def driver_step():
         i = next(k, None) or 1
-        driver.step(vertices[i], transforms[i, joint].astype(np.float64), dt)
+        driver.step(vertices[i], transforms[i].astype(np.float64), dt)
 
     wall_d, cpu_d = timed(driver_step, n)
     print(f"driver step (root targets + XPBD)            {wall_d:7.2f} / {cpu_d:6.2f} ms")
@@ -106,30 +105,34 @@ def main(argv=None) -> int:
 
     def full_step():
         i = next(j, None) or 1
-        cage = driver.step(vertices[i], transforms[i, joint].astype(np.float64), dt)
+        cage = driver.step(vertices[i], transforms[i].astype(np.float64), dt)
         driver.hair_arrays(cage)
 
     wall_f, cpu_f = timed(full_step, n)
     b = iter(range(1, 10 ** 9))
 
     def batch_step():
-        cages = []
+        cages, poses = [], []
         for _ in range(HAIR_BATCH):
             i = (next(b) - 1) % (len(frames) - 1) + 1
-            cages.append(driver.step(vertices[i], transforms[i, joint].astype(np.float64), dt))
-        for _ in deformer.deform_batch(np.stack(cages), chunk=HAIR_BATCH):
-            pass
+            cages.append(driver.step(vertices[i], transforms[i].astype(np.float64), dt))
+            poses.append(driver.frame)
+        for (means, _, _), pose in zip(deformer.deform_batch(np.stack(cages), chunk=HAIR_BATCH), poses):
+            driver.pushed_out(means, pose)  # as the bake does: centres out of the posed head
 
     wall_b, cpu_b = (x / HAIR_BATCH for x in timed(batch_step, max(3, n // HAIR_BATCH)))
     print(f"driver step + deform {len(hair)} Gaussians, {HAIR_BATCH} frames per product (the bake's path)\n"
           f"                                             {wall_b:7.2f} / {cpu_b:6.2f} ms   target <= 15")
     print(f"  baseline: one product per frame            {wall_f:7.2f} / {cpu_f:6.2f} ms   "
           f"({wall_f / wall_b:.1f}x wall, {cpu_f / cpu_b:.1f}x CPU)")
-    wall_h, cpu_h = timed(lambda: driver.hair_arrays(driver.state.positions), 20)
+    wall_h, cpu_h = timed(lambda: deformer.deform_arrays(driver.state.positions), 20)
     print(f"  of which the cage deformation (one frame)  {wall_h:7.2f} / {cpu_h:6.2f} ms")
+    means = deformer.deform_arrays(driver.state.positions)[0]
+    wall_p, cpu_p = timed(lambda: driver.pushed_out(means), 20)
+    print(f"  and the push-out of the centres (one frame){wall_p:7.2f} / {cpu_p:6.2f} ms")
 
     t0 = time.perf_counter()
-    reference_step(m, config, driver.state, frames[0], frames[1], dt)
+    reference_step(m, config, driver.state, frames[0], frames[1], dt, skin=driver.skin)
     ref_ms = 1e3 * (time.perf_counter() - t0)
     print(f"numpy reference solver, one frame (baseline) {ref_ms:7.0f} ms   -> Taichi is "
           f"{ref_ms / wall:.0f}x faster")

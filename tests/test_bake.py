@@ -188,14 +188,15 @@ def test_batched_hair_equals_the_single_frame_reference(avatar, shake, baked, ba
         assert np.array_equal(b.face.means, s.face.means)
         np.testing.assert_allclose(b.hair.means, s.hair.means, atol=2e-7)
         np.testing.assert_allclose(b.hair.quats, s.hair.quats, atol=2e-5)
-        # float32 products of ~500-term rows: how they round depends on the BLAS kernel the CPU
-        # gets (3.6e-5 seen on AMD EPYC, under 2e-5 on Intel), so 1e-4 relative
+        # 1e-4: the product in another order moves an axis length by up to 4e-5 relative
         np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=1e-4)
-    # and the single-frame path is CageDeformer.deform_arrays of the frame's cage
+    # and the single-frame path is CageDeformer.deform_arrays of the frame's cage, the centres
+    # then pushed out of the posed head (by a few millimetres at most, issue 18)
     d = avatar.rig.deformer
     for s in single[::3]:
-        for got, want in zip((s.hair.means, s.hair.quats, s.hair.scales), d.deform_arrays(s.cage_vertices)):
-            assert np.array_equal(got, want)
+        means, quats, scales = d.deform_arrays(s.cage_vertices)
+        assert np.array_equal(s.hair.quats, quats) and np.array_equal(s.hair.scales, scales)
+        assert np.abs(s.hair.means - means).max() < 0.005
 
 
 def test_frame_range_equals_the_same_frames_of_the_full_bake(avatar, shake, baked):

@@ -59,7 +59,7 @@ def test_expansion_merging_and_templates(tree):
     assert first.output("usd").options == {**DEFAULT_OPTIONS["usd"], "half": True}
     # sim merges key by key over SimConfig's defaults; the job's own keys win
     assert first.config.sim.substeps == 2 and first.config.sim.gravity == (0.0, -5.0, 0.0)
-    assert first.config.sim.iterations == 15 and not first.config.sim.static
+    assert first.config.sim.iterations == 1 and not first.config.sim.static  # the default
     assert first.config.preroll == 0.5 and first.config.frames is None
     last = batch.jobs[-1]
     assert last.config.sim.static and last.config.sim.substeps == 2

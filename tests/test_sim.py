@@ -83,7 +83,8 @@ def tips(model):
 # --- config and model ------------------------------------------------------------------------
 def test_config_defaults_and_validation():
     cfg = SimConfig()
-    assert cfg.substeps == 4 and cfg.iterations == 15 and cfg.collision == "proxy"
+    assert cfg.substeps == 40 and cfg.iterations == 1 and cfg.collision == "proxy"
+    assert cfg.compliance_stretch == cfg.compliance_volume == 0.0
     assert cfg.gravity == (0.0, -9.81, 0.0) and not cfg.static
     for bad in [dict(substeps=0), dict(iterations=1.5), dict(collision="mesh"),
                 dict(gravity=(0, 1)), dict(compliance_bending=-1.0), dict(damping=float("nan")),
@@ -274,9 +275,12 @@ def test_head_turn_makes_hair_lag_then_recover(scene):
         a, b = settled.positions[t].mean(axis=0), p[t].mean(axis=0)
         return np.angle(complex(b[2], b[0]) / complex(a[2], a[0]))
 
+    # The solver holds the 22 cm box's edges and volume (it converges): the tail turns almost
+    # as a rigid body, and its lag comes from the bending compliance alone (measured 0.025 rad;
+    # the old 4 x 15 sweeps left the box soft and lagging 0.1 rad).
     lag_at_end_of_turn = 0.8 - turned(positions[8])
-    assert lag_at_end_of_turn > 0.1   # the tips are behind the head
-    assert abs(0.8 - turned(positions[-1])) < 0.05 < lag_at_end_of_turn / 2
+    assert lag_at_end_of_turn > 0.015   # the tips are behind the head
+    assert abs(0.8 - turned(positions[-1])) < lag_at_end_of_turn / 2
 
 
 def test_whip_clip_stays_bounded(scene):
@@ -317,7 +321,7 @@ def test_one_substep_per_long_frame_stays_finite(scene):
     model, head, _ = scene
     transforms = [np.eye(4)] + [rigid((0, 1.2 * np.sin(i), 0.5 * np.sin(0.7 * i))) for i in range(20)]
     cfg = SimConfig(substeps=1, max_substep=float("inf"))
-    assert cfg.substeps_for(0.25) == 1 and SimConfig().substeps_for(0.25) == 15
+    assert cfg.substeps_for(0.25) == 1 and SimConfig(substeps=4).substeps_for(0.25) == 15
     positions, _ = run(model, head, cfg, transforms, dt=0.25)
     assert np.isfinite(positions).all()
     assert np.linalg.norm(positions - PIVOT, axis=2).max() < 0.4
@@ -341,7 +345,8 @@ def test_collision_keeps_cage_vertices_out_of_the_head(scene):
         positions, _ = run(model, head, cfg, [np.eye(4)] * 30)
         d, _ = model.sdf.query(positions[-1][model.free])
         depth[mode] = d.min()
-    assert depth["vertex"] > SimConfig().collision_margin - 0.001
+    # a fixed number, not the default margin: a default margin of 0 must fail here
+    assert depth["vertex"] > 0.002 - 0.001
     assert depth["none"] < -0.005
 
 
@@ -371,3 +376,110 @@ def test_sdf_build_rejects_bad_meshes():
         HeadSDF.build(np.zeros((4, 3)), np.array([[0, 1, 9]]))
     with pytest.raises(InputError, match="vertices"):
         HeadSDF.build(np.zeros((4, 2)), np.array([[0, 1, 2]]))
+
+
+# --- posed head: a hinged "jaw" -----------------------------------------------------------------
+HINGE_PIVOT = np.array([0.0, 0.03, 0.03])  # above and in front of the centre: the lower part swings back
+
+
+def hinge(theta: float) -> np.ndarray:
+    """The jaw joint's transform: a turn of theta about +X through HINGE_PIVOT and a slide
+    back (-Z) of 6 cm per radian, straight into the tail (4, 4)."""
+    t = np.eye(4)
+    r = axis_angle_to_matrix(np.array([theta, 0.0, 0.0]))
+    t[:3, :3] = r
+    t[:3, 3] = HINGE_PIVOT - r @ HINGE_PIVOT + np.array([0.0, 0.0, -0.06 * theta])
+    return t
+
+
+@pytest.fixture(scope="module")
+def jaw_skin(scene):
+    """The sphere's lower cap (y < -0.065) on joint 1, the rest on joint 0."""
+    from avatarkit.sim.sdf import HeadSkin
+
+    model, head, _ = scene
+    lower = head[:, 1] < -0.065  # below every root: the roots ride the skull
+    weights = np.stack([~lower, lower], axis=1).astype(float)
+    return HeadSkin.build(head, weights, 0, joints=[1], sdf=model.sdf), lower
+
+
+def jaw_frame(model, head, lower, theta, head_transform=None) -> HeadFrame:
+    t = np.eye(4) if head_transform is None else head_transform
+    j = t @ hinge(theta)
+    posed = head @ t[:3, :3].T + t[:3, 3]
+    posed[lower] = head[lower] @ j[:3, :3].T + j[:3, 3]
+    return model.head_frame(posed, t, np.stack([t, j]))
+
+
+@pytest.mark.parametrize("mode", ["vertex", "proxy"])
+def test_kernel_matches_numpy_reference_with_a_jaw(scene, jaw_skin, mode):
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    cfg = SimConfig(collision=mode, substeps=2, iterations=3, compliance_collision=1e-8, max_speed=0.6)
+    rng = np.random.default_rng(7)
+    state = CageState(model.rest_positions + rng.normal(scale=0.003, size=model.rest_positions.shape),
+                      rng.normal(scale=0.3, size=model.rest_positions.shape))
+    state.positions[model.roots] = model.rest_positions[model.roots]
+    f0 = jaw_frame(model, head, lower, 0.0)
+    f1 = jaw_frame(model, head, lower, 0.45, rigid((0.05, 0.1, 0.0)))
+    out = CageState(state.positions, state.velocities)
+    XPBDSolver(model, cfg, skin=skin).step(state, out, f0, f1, 1 / 30)
+    ref = reference_step(model, cfg, state, f0, f1, 1 / 30, skin=skin)
+    rigid_ref = reference_step(model, cfg, state, f0, f1, 1 / 30)
+    # the jaw changes the answer (the comparison below sees the skinned path)
+    assert np.abs(rigid_ref.positions - ref.positions).max() > 1e-3
+    np.testing.assert_allclose(out.positions, ref.positions, atol=2e-5)
+    np.testing.assert_allclose(out.velocities, ref.velocities, atol=2e-3)
+
+
+def proxies(model, x):
+    return np.einsum("ik,ikc->ic", model.proxy_weight, x[model.proxy_index])
+
+
+def test_opening_jaw_pushes_the_hair_proxies_out(scene, jaw_skin):
+    """The jaw swings back into the tail: with the skinned head no proxy of a free vertex ends
+    inside the jaw; collision with the rest head carried by the head joint alone (what the
+    solver did before) lets the jaw swallow them."""
+    from avatarkit.sim.sdf import HeadSkin
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    thetas = [0.0] * 20 + [0.5 * min(i / 8, 1.0) for i in range(1, 25)]
+    frames = [jaw_frame(model, head, lower, th) for th in thetas]
+    depth = {}
+    for name, sk in (("skinned", skin), ("rigid", HeadSkin.rigid())):
+        solver = XPBDSolver(model, SimConfig(), skin=sk)
+        state = model.rest_state()
+        worst = np.inf
+        for a, b in zip([frames[0]] + frames[:-1], frames):
+            solver.step(state, state, a, b, 1 / 30)
+            p = proxies(model, state.positions)[model.free]
+            jaw = b.joint_transforms[1]
+            q = (p - jaw[:3, 3]) @ jaw[:3, :3]  # in the jaw's rest frame
+            in_jaw = skin.weights_at(q)[:, 1] > 0.5
+            d, _ = model.sdf.query(q[in_jaw])
+            worst = min(worst, d.min() if in_jaw.any() else np.inf)
+        depth[name] = worst
+    assert depth["skinned"] > -0.0005, depth
+    assert depth["rigid"] < -0.005, depth
+
+
+def test_push_out_matches_reference_and_clears_the_posed_head(scene, jaw_skin):
+    from avatarkit.sim.pushout import CLEARANCE, push_out, push_out_reference
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.4, rigid((0.2, -0.3, 0.1), (0.01, 0.0, 0.02))).joint_transforms
+    rng = np.random.default_rng(8)
+    dirs = rng.normal(size=(3000, 3))
+    pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * rng.uniform(0.08, 0.11, (3000, 1))
+    pts = pts @ t[0, :3, :3].T + t[0, :3, 3]
+    d0, _ = skin.query_posed(model.sdf, pts, t)
+    assert (d0 < -0.003).sum() > 300  # plenty start inside, also in the jaw
+    fast = push_out(pts, model.sdf, skin, t)
+    ref = push_out_reference(pts, model.sdf, skin, t)
+    np.testing.assert_allclose(fast, ref, atol=2e-5)
+    d1, _ = skin.query_posed(model.sdf, fast, t)
+    assert d1.min() > CLEARANCE - 2e-4
+    outside = d0 > CLEARANCE
+    np.testing.assert_array_equal(fast[outside], pts[outside].astype(np.float32))

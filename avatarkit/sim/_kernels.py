@@ -12,21 +12,35 @@ compare-and-swap loop, which cost more than the arithmetic of a constraint.
 Inputs are packed into four buffers because Taichi's Python side spends ~15 us per kernel
 argument: the launch costs about as much as 10 constraint sweeps otherwise. Layout (offsets in
 the `ibuf` header, filled by `solver.PackedModel`):
-  xbuf (vec3): [x (C) | v (C) | x_prev (C) | volume gradient (C) | proxy offset (C) |
-                root targets at frame start (R) | at frame end (R) | volume linearisation point (C)]
+  xbuf (vec3): [x (C) | v (C) | x_prev (C) | volume gradient (C) | volume linearisation point (C) |
+                root targets at frame start (R) | at frame end (R)]
   ibuf (i32):  header (H_COUNT) | edges (2E) | bend pairs (2B) | faces (3F) | tether root (C) |
                proxy index (C*K) | roots (R)
   fbuf (f32):  params (FP_COUNT) | inv_mass (C) | edge data (8E) | bend data (8B) |
                tether length (C) | proxy weight (C*K) | multipliers (1 + 2C) |
-               head rotation per substep (9S, row-major) | head translation per substep (3S) |
-               collision cache: last tested rest-frame point (3C) and its distance (C)
+               joint rotations per substep (9 S JMAX, row-major) | translations (3 S JMAX) |
+               collision cache: last tested rest-frame point (3C) and its distance (C) |
+               collision denominator sum_k w_k^2 / m_k of each proxy (C) |
+               per substep, a bound on how far inverse LBS puts a point from where the head
+               joint alone would (S)
   A distance constraint's record is [rest length l0, k = 1 / (w_a + w_b + alpha~), w_a k, w_b k,
   multiplier, alpha~, -, -]: one 32-byte aligned block instead of scattered reads and a
   division (filled per time step; the multiplier reset per substep). Edges and bend pairs, and
   their records, are adjacent, so one loop sweeps stretch then bending in the usual order.
-  sdf (vec4, 3-D): the head SDF grid, [distance, unit gradient].
+  sdf (vec4, 3-D): the rest head SDF grid, [distance, unit gradient].
+  skin (vec4, 3-D): the skinning weights of up to JMAX joints (joint 0: the head joint) of the
+  rest head surface nearest each node of a coarse grid (`sdf.HeadSkin`).
+
+Collision (mode 1: the vertex, mode 2: its proxy p = sum_k w_k x_k, evaluated from the current
+cage at every test) is C(x) = sdf(p) - margin >= 0 with gradient w_k n for cage vertex k, so an
+XPBD step moves x_k by w_k / m_k * dlambda * n with dlambda = (margin - sdf - alpha~ lambda) /
+(sum_k w_k^2 / m_k + alpha~). The posed head is the rest SDF seen through inverse LBS: a world
+point is taken to the rest frame by the head joint; where the skinning field there is not all
+head joint (jaw, neck), by the inverse of the blend sum_j w_j T_j of this substep's joint
+transforms instead.
 """
 from avatarkit._taichi import ensure_taichi
+from avatarkit.sim._skin_math import JMAX, RIGID_WEIGHT
 
 ti = ensure_taichi()
 
@@ -36,8 +50,8 @@ vec4 = ti.math.vec4
 # ibuf header slots
 (H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_BENDS, H_FACES,
  H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_BEND_DATA, H_TETHER_LEN, H_PROXY_W,
- H_LAMBDA, H_ROT, H_TRANS, H_CACHE) = range(24)
-H_COUNT = 24
+ H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(27)
+H_COUNT = 27
 #: a bound on |grad| of the trilinear grid SDF (sqrt(3) for samples of a 1-Lipschitz field, plus
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
@@ -45,8 +59,9 @@ LIPSCHITZ = 2.0
 
 # fbuf parameter slots (compliances already divided by h^2)
 (FP_H, FP_ALPHA_S, FP_ALPHA_B, FP_ALPHA_V, FP_ALPHA_T, FP_ALPHA_C, FP_DAMP, FP_MARGIN,
- FP_GX, FP_GY, FP_GZ, FP_VMAX, FP_VOLUME, FP_OX, FP_OY, FP_OZ, FP_SDF_INV) = range(17)
-FP_COUNT = 17
+ FP_GX, FP_GY, FP_GZ, FP_VMAX, FP_VOLUME, FP_OX, FP_OY, FP_OZ, FP_SDF_INV,
+ FP_SKIN_OX, FP_SKIN_OY, FP_SKIN_OZ, FP_SKIN_INV) = range(21)
+FP_COUNT = 21
 
 
 @ti.func
@@ -72,6 +87,39 @@ def sdf_lookup(sdf: ti.template(), q, origin, inv_h):
 
 
 @ti.func
+def skin_lookup(skin: ti.template(), q, origin, inv_h):
+    """Trilinear joint weights (vec4) at rest-frame point q, clamped to the grid (outside it the
+    nearest surface's weights are those of the border nodes)."""
+    nx, ny, nz = skin.shape[0], skin.shape[1], skin.shape[2]
+    uc = ti.math.clamp((q - origin) * inv_h, 0.0, vec3(nx - 1, ny - 1, nz - 1))
+    i0 = ti.min(ti.cast(ti.floor(uc), ti.i32), ti.math.ivec3(nx - 2, ny - 2, nz - 2))
+    t = uc - ti.cast(i0, ti.f32)
+    out = vec4(0.0)
+    for dx, dy, dz in ti.static(ti.ndrange(2, 2, 2)):
+        wx = dx * t[0] + (1 - dx) * (1.0 - t[0])
+        wy = dy * t[1] + (1 - dy) * (1.0 - t[1])
+        wz = dz * t[2] + (1 - dz) * (1.0 - t[2])
+        out += wx * wy * wz * skin[i0[0] + dx, i0[1] + dy, i0[2] + dz]
+    return out
+
+
+@ti.func
+def joint_rotation(fb: ti.template(), o_rot, s, j):
+    r = ti.math.mat3(0.0)
+    base = o_rot + 9 * (s * JMAX + j)
+    for a in ti.static(range(3)):
+        for b in ti.static(range(3)):
+            r[a, b] = fb[base + 3 * a + b]
+    return r
+
+
+@ti.func
+def joint_translation(fb: ti.template(), o_trans, s, j):
+    base = o_trans + 3 * (s * JMAX + j)
+    return vec3(fb[base], fb[base + 1], fb[base + 2])
+
+
+@ti.func
 def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
     """XPBD distance constraint; od: offset of its record (see the module docstring) in fb.
 
@@ -92,9 +140,47 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
         xb[b] = xb[b] - ((r * wbk) * inv_len - wbk) * d
 
 
+@ti.func
+def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj,
+              origin, inv_h, skin_origin, skin_inv_h, enough):
+    """[distance, unit world normal] of world point p to the posed head of substep s; q1: p in
+    the head joint's rest frame, rs its rotation. The posed head is the union of its skinned
+    pieces: the rest SDF at the inverse of the LBS blend with the weights found at q1 and, for
+    every other joint j, at T_j^-1 p where that point lies in j's region (weight > 1/2); the
+    smallest wins (a point the jaw swung onto is inside the jaw wherever the skull's preimage
+    puts it). enough: when the first value is at least this, the other pieces are not tried
+    (pass +inf to always try them)."""
+    q = q1
+    lin = rs
+    if nj > 1:
+        wj = skin_lookup(skin, q1, skin_origin, skin_inv_h)
+        if wj[0] < RIGID_WEIGHT:  # jaw, neck: inverse of the LBS blend
+            lin = ti.math.mat3(0.0)
+            tb = vec3(0.0)
+            for j in ti.static(range(JMAX)):
+                if j < nj:
+                    lin += wj[j] * joint_rotation(fb, o_rot, s, j)
+                    tb += wj[j] * joint_translation(fb, o_trans, s, j)
+            q = ti.math.inverse(lin) @ (p - tb)
+    hit = sdf_lookup(sdf, q, origin, inv_h)
+    n = ti.math.inverse(lin).transpose() @ vec3(hit[1], hit[2], hit[3])
+    for j in ti.static(range(1, JMAX)):
+        if j < nj and hit[0] < enough:
+            rj = joint_rotation(fb, o_rot, s, j)
+            qj = rj.transpose() @ (p - joint_translation(fb, o_trans, s, j))
+            if skin_lookup(skin, qj, skin_origin, skin_inv_h)[j] > 0.5:
+                hj = sdf_lookup(sdf, qj, origin, inv_h)
+                if hj[0] < hit[0]:
+                    hit = hj
+                    n = rj @ vec3(hj[1], hj[2], hj[3])
+    n = n / ti.max(n.norm(), 1e-12)
+    return vec4(hit[0], n[0], n[1], n[2])
+
+
 @ti.kernel
 def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                   fb: ti.types.ndarray(dtype=ti.f32, ndim=1), sdf: ti.types.ndarray(dtype=vec4, ndim=3)):
+                   fb: ti.types.ndarray(dtype=ti.f32, ndim=1), sdf: ti.types.ndarray(dtype=vec4, ndim=3),
+                   skin: ti.types.ndarray(dtype=vec4, ndim=3)):
     for _ in range(1):  # one serial task: Gauss-Seidel, deterministic
         n_sub = ib[H_SUBSTEPS]
         n_iter = ib[H_ITERATIONS]
@@ -105,6 +191,7 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         nf = ib[H_NF]
         nr = ib[H_NR]
         nk = ib[H_NK]
+        nj = ib[H_NJ]
         o_edge = ib[H_EDGES]
         o_face = ib[H_FACES]
         o_tether = ib[H_TETHER]
@@ -119,14 +206,15 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         o_trans = ib[H_TRANS]
         o_cache = ib[H_CACHE]
         o_cdist = o_cache + 3 * nc
+        o_pden = ib[H_PROXY_DEN]
+        o_dev = ib[H_DEVIATION]
         # vec3 buffer sections
         o_v = nc
         o_prev = 2 * nc
         o_grad = 3 * nc
-        o_poff = 4 * nc
+        o_x0 = 4 * nc
         o_ra = 5 * nc
         o_rb = 5 * nc + nr
-        o_x0 = 5 * nc + 2 * nr
         # multiplier sections
         l_vol = o_lam
         l_tether = l_vol + 1
@@ -143,6 +231,8 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         rest_volume = fb[FP_VOLUME]
         origin = vec3(fb[FP_OX], fb[FP_OY], fb[FP_OZ])
         inv_h = fb[FP_SDF_INV]
+        skin_origin = vec3(fb[FP_SKIN_OX], fb[FP_SKIN_OY], fb[FP_SKIN_OZ])
+        skin_inv_h = fb[FP_SKIN_INV]
 
         for s in range(n_sub):
             # 1. kinematic roots (linear between the frame's start and end) and prediction
@@ -154,22 +244,12 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     xb[i] = xb[i] + h * xb[o_v + i]
             for r in range(nr):
                 xb[ib[o_root + r]] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
-            # 2. proxy points, kept as offsets from their vertex (a correction moves both)
-            if mode == 2:
-                for i in range(nc):
-                    p = vec3(0.0)
-                    for k in range(nk):
-                        p += fb[o_pw + i * nk + k] * xb[ib[o_pidx + i * nk + k]]
-                    xb[o_poff + i] = p - xb[i]
             for li in range(1 + 2 * nc):
                 fb[o_lam + li] = 0.0
             for e in range(ne + nb):
                 fb[o_edata + 8 * e + 4] = 0.0
-            rs = ti.math.mat3(0.0)
-            for a in ti.static(range(3)):
-                for b in ti.static(range(3)):
-                    rs[a, b] = fb[o_rot + 9 * s + 3 * a + b]
-            ts = vec3(fb[o_trans + 3 * s], fb[o_trans + 3 * s + 1], fb[o_trans + 3 * s + 2])
+            rs = joint_rotation(fb, o_rot, s, 0)
+            ts = joint_translation(fb, o_trans, s, 0)
             # The volume constraint is linearised once per substep at the predicted positions
             # x0: V(x) ~ V0 + sum_i g_i . (x_i - x0_i), g_i = dV/dx_i (a sixth of the summed
             # face cross products). Moves within a substep are millimetres, so the error is
@@ -209,8 +289,8 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                         vol += xb[o_grad + i].dot(xb[i] - xb[o_x0 + i])
                     dl_vol = (rest_volume - vol - a_v * fb[l_vol]) / (vol_denom + a_v + 1e-20)
                     fb[l_vol] = fb[l_vol] + dl_vol
-                # Volume, tether and collision updates of vertex i read only x_i and its
-                # (kinematic) root, so one pass per vertex gives exactly what three passes would.
+                # Volume and tether updates of vertex i read only x_i and its (kinematic) root,
+                # so one pass per vertex gives exactly what two passes would.
                 for i in range(nc):
                     wi = fb[o_w + i]
                     if wi > 0.0:
@@ -226,26 +306,44 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             fb[li] = new
                             if length > 1e-9:
                                 xb[i] = xb[i] - (wi * dl / length) * d
-                        if mode > 0:
-                            p = xb[i]
-                            if mode == 2:
-                                p += xb[o_poff + i]
-                            q = rs.transpose() @ (p - ts)
+                if mode > 0:
+                    for i in range(nc):
+                        den = fb[o_w + i]
+                        p = xb[i]
+                        if mode == 2:  # the proxy, live from the current cage
+                            den = fb[o_pden + i]
+                            p = vec3(0.0)
+                            for k in range(nk):
+                                p += fb[o_pw + i * nk + k] * xb[ib[o_pidx + i * nk + k]]
+                        if den > 0.0:
+                            q1 = rs.transpose() @ (p - ts)
                             li = l_coll + i
                             cq = vec3(fb[o_cache + 3 * i], fb[o_cache + 3 * i + 1], fb[o_cache + 3 * i + 2])
-                            # skipping is exact: with no contact force yet (lambda = 0) and the
-                            # point provably outside the margin, the update below is zero
-                            if fb[li] > 0.0 or LIPSCHITZ * (q - cq).norm() >= fb[o_cdist + i] - margin:
-                                hit = sdf_lookup(sdf, q, origin, inv_h)
-                                fb[o_cache + 3 * i] = q[0]
-                                fb[o_cache + 3 * i + 1] = q[1]
-                                fb[o_cache + 3 * i + 2] = q[2]
-                                fb[o_cdist + i] = hit[0]
-                                dl = (margin - hit[0] - a_c * fb[li]) / (wi + a_c)
+                            # Skipping is exact: with no contact force yet (lambda = 0) and the
+                            # point provably outside the margin, the update below is zero. The
+                            # cache holds the head-joint point q1 of the last lookup and a lower
+                            # bound of the distance there (the found one less LIPSCHITZ times
+                            # that substep's deviation bound); the true rest point is within
+                            # this substep's deviation bound of q1.
+                            if fb[li] > 0.0 or LIPSCHITZ * ((q1 - cq).norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin:
+                                hit = posed_sdf(sdf, skin, fb, p, q1, rs, o_rot, o_trans, s, nj, origin, inv_h,
+                                                skin_origin, skin_inv_h, ti.math.inf)
+                                fb[o_cache + 3 * i] = q1[0]
+                                fb[o_cache + 3 * i + 1] = q1[1]
+                                fb[o_cache + 3 * i + 2] = q1[2]
+                                fb[o_cdist + i] = hit[0] - LIPSCHITZ * fb[o_dev + s]
+                                dl = (margin - hit[0] - a_c * fb[li]) / (den + a_c)
                                 new = ti.max(fb[li] + dl, 0.0)  # contact only pushes
                                 dl = new - fb[li]
                                 fb[li] = new
-                                xb[i] = xb[i] + (wi * dl) * (rs @ vec3(hit[1], hit[2], hit[3]))
+                                if dl != 0.0:
+                                    n = vec3(hit[1], hit[2], hit[3])
+                                    if mode == 2:
+                                        for k in range(nk):
+                                            j = ib[o_pidx + i * nk + k]
+                                            xb[j] = xb[j] + (fb[o_w + j] * fb[o_pw + i * nk + k] * dl) * n
+                                    else:
+                                        xb[i] = xb[i] + (den * dl) * n
             # 4. velocities from positions, damping, speed clamp
             for i in range(nc):
                 vi = (xb[i] - xb[o_prev + i]) / h
@@ -255,3 +353,31 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     if speed > vmax:
                         vi *= vmax / speed
                 xb[o_v + i] = vi
+
+
+@ti.kernel
+def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.ndarray(dtype=ti.f32, ndim=1),
+                    sdf: ti.types.ndarray(dtype=vec4, ndim=3), skin: ti.types.ndarray(dtype=vec4, ndim=3),
+                    nj: ti.i32, clearance: ti.f32, rounds: ti.i32):
+    """Move every point (N,) closer than `clearance` to the posed head out along the head's
+    normal to `clearance` (`rounds` Newton steps on the SDF). fb: [sdf origin (3), 1 / spacing,
+    skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX), deviation bound
+    (`solver.skin_deviation`)] of one pose."""
+    origin = vec3(fb[0], fb[1], fb[2])
+    inv_h = fb[3]
+    skin_origin = vec3(fb[4], fb[5], fb[6])
+    skin_inv_h = fb[7]
+    r0 = joint_rotation(fb, 8, 0, 0)
+    t0 = joint_translation(fb, 8 + 9 * JMAX, 0, 0)
+    for i in range(points.shape[0]):
+        p = points[i]
+        for _r in range(rounds):
+            q1 = r0.transpose() @ (p - t0)
+            # another piece can only be nearer than the first value by twice the bound on how
+            # far the pieces move against the skull (fb[8 + 12 JMAX])
+            hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
+                            skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
+            if hit[0] >= clearance:
+                break
+            p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
+        points[i] = p

@@ -1,8 +1,9 @@
 """The paper's collision ablation as numbers: how much hair sinks into the head, how far the
 hair resting on the scalp is pushed off it, per simulation mode and motion clip.
 
-penetration: the share of hair Gaussian centres inside the posed head (head SDF < 0, the rest
-    head's grid SDF placed by the head joint), per frame; reported as mean and max over frames.
+penetration: the share of hair Gaussian centres inside the posed head (the rest head's grid SDF
+    through the driver's `HeadSkin`: head joint, jaw and neck), per frame, before the driver's
+    final push-out of the centres (`pushout`); reported as mean and max over frames.
 gap: the mean distance to the head of the "contact layer" (the Gaussians within `contact_band`
     of the rest head: the hair lying on the scalp), counting penetrating ones as 0, averaged
     over frames. Vertex collision pushes cage vertices (which sit inside the head wherever the
@@ -32,15 +33,23 @@ class AblationRow:
     rest_gap_mm: float       # the contact layer's gap at rest, for comparison
 
 
-def penetration_share(means: np.ndarray, sdf: HeadSDF, transform: np.ndarray) -> float:
-    """Share of points (N, 3) inside the head posed by `transform` (4, 4)."""
-    d, _ = sdf.query_posed(means, transform)
+def _posed_distance(means, sdf, transform, skin):
+    if skin is None:
+        return sdf.query_posed(means, transform)[0]
+    return skin.query_posed(sdf, means, transform)[0]
+
+
+def penetration_share(means: np.ndarray, sdf: HeadSDF, transform: np.ndarray, skin=None) -> float:
+    """Share of points (N, 3) inside the head posed by `transform` (4, 4), or with a `HeadSkin`
+    by its joints' transforms (J, 4, 4)."""
+    d = _posed_distance(means, sdf, transform, skin)
     return float(np.mean(d < 0)) if len(d) else 0.0
 
 
-def layer_gap(means: np.ndarray, sdf: HeadSDF, transform: np.ndarray) -> float:
-    """Mean max(distance, 0) of points (N, 3) to the posed head, metres."""
-    d, _ = sdf.query_posed(means, transform)
+def layer_gap(means: np.ndarray, sdf: HeadSDF, transform: np.ndarray, skin=None) -> float:
+    """Mean max(distance, 0) of points (N, 3) to the posed head, metres (transform as in
+    `penetration_share`)."""
+    d = _posed_distance(means, sdf, transform, skin)
     return float(np.mean(np.maximum(d, 0.0))) if len(d) else 0.0
 
 
@@ -67,13 +76,16 @@ def run_ablation(head_model, hair, cage, clips: dict, *, modes=MODES, config: Si
     total, done = len(modes) * len(clips), 0
     for mode in modes:
         cfg = config.replace(static=True) if mode == "static" else config.replace(collision=mode, static=False)
+        # the cage's own work: without the final push-out of the centres (which would hide it)
         driver = HairDriver(head_model, hair, cage, cfg, rest_vertices=rest_v, model=base.model,
-                            deformer=base.deformer, head_joint=base.head_joint)
+                            deformer=base.deformer, head_joint=base.head_joint, skin=base.skin,
+                            push_out=False)
         for name, clip in clips.items():
             pen, gap = [], []
             for frame in driver.simulate_clip(clip, warmup=warmup):
-                pen.append(penetration_share(frame.means, sdf, frame.head_transform))
-                gap.append(layer_gap(frame.means[layer], sdf, frame.head_transform))
+                joints = driver.frame.joint_transforms
+                pen.append(penetration_share(frame.means, sdf, joints, driver.skin))
+                gap.append(layer_gap(frame.means[layer], sdf, joints, driver.skin))
             rows.append(AblationRow(mode, name, len(pen), float(np.mean(pen)), float(np.max(pen)),
                                     1000 * float(np.mean(gap)), 1000 * rest_gap))
             done += 1

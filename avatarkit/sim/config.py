@@ -35,11 +35,11 @@ class SimConfig:
     """
 
     gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    substeps: int = 4
-    iterations: int = 15
+    substeps: int = 40
+    iterations: int = 1
     compliance_stretch: float = 0.0
     compliance_bending: float = 2e-4
-    compliance_volume: float = 1e-7
+    compliance_volume: float = 0.0
     compliance_tether: float = 0.0
     compliance_collision: float = 0.0
     damping: float = 2.0

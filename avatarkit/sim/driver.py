@@ -20,6 +20,7 @@ from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.sim.config import SimConfig
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
+from avatarkit.sim.sdf import HeadSkin
 from avatarkit.sim.solver import XPBDSolver
 
 #: frames posed per call of the head model in `simulate_clip` (bounds memory on long clips)
@@ -57,11 +58,19 @@ class HairDriver:
     skinning transform places the collision SDF (default: `head_joint_of`). model: a prebuilt
     `CageModel` (else built with `CageModel.build(..., **build_options)`); deformer: a prebuilt
     `CageDeformer` of this hair and cage (drivers of the same avatar can share both).
+    skin: the `HeadSkin` that lets collision follow the posed jaw and neck (default: built from
+    the head model's skinning weights; `HeadSkin.rigid` for the rest head moved by the head joint
+    alone). push_out: move hair Gaussian centres that end up inside the posed head out of it
+    (`pushout.push_out`) in `hair_arrays` / `hair`.
+
+    Head poses are given as the head joint's transform (4, 4) or, to follow the jaw and neck,
+    as all joints' transforms (J, 4, 4) as `HeadModel.forward` returns them.
     """
 
     def __init__(self, head_model, hair: GaussianSet, cage, config: SimConfig | None = None, *,
                  rest_vertices: np.ndarray | None = None, head_joint: int | None = None,
-                 model: CageModel | None = None, deformer=None, **build_options):
+                 model: CageModel | None = None, deformer=None, skin: HeadSkin | None = None,
+                 push_out: bool = True, **build_options):
         self.head_model = head_model
         self.hair_rest = hair
         self.cage = cage
@@ -72,7 +81,18 @@ class HairDriver:
             raise InputError(f"the cage has {len(cage.vertices)} vertices, the model "
                              f"{self.model.num_vertices}")
         self.head_joint = head_joint_of(head_model) if head_joint is None else int(head_joint)
-        self.solver = XPBDSolver(self.model, config or SimConfig())
+        if skin is None:
+            weights = getattr(head_model, "weights", None)
+            if weights is None or np.asarray(weights).shape[0] != len(self.rest_vertices):
+                skin = HeadSkin.rigid(self.head_joint)
+            else:
+                skin = HeadSkin.build(self.rest_vertices, weights, self.head_joint, sdf=self.model.sdf)
+        if int(skin.joints[0]) != self.head_joint:
+            raise InputError(f"the skin's first joint is {int(skin.joints[0])}, the head joint "
+                             f"{self.head_joint}")
+        self.skin = skin
+        self.push_out = bool(push_out)
+        self.solver = XPBDSolver(self.model, config or SimConfig(), skin=skin)
         self.state: CageState | None = None
         self._frame: HeadFrame | None = None
         self._deformer = deformer
@@ -91,6 +111,22 @@ class HairDriver:
         return self._deformer
 
     # --- stepping ------------------------------------------------------------------------------
+    def head_frame(self, head_vertices: np.ndarray, transforms: np.ndarray) -> HeadFrame:
+        """The solver's input for posed head vertices (V, 3) and the head joint's transform
+        (4, 4) or every joint's (J, 4, 4)."""
+        t = np.asarray(transforms, dtype=np.float64)
+        if t.ndim == 3:
+            if t.shape[0] <= max(self.head_joint, int(self.skin.joints.max())):
+                raise InputError(f"{t.shape[0]} joint transforms given, the head joint is "
+                                 f"{self.head_joint}")
+            return self.model.head_frame(head_vertices, t[self.head_joint], t[self.skin.joints])
+        return self.model.head_frame(head_vertices, t)
+
+    @property
+    def frame(self) -> HeadFrame | None:
+        """The head frame of the last reset or step (None before the first)."""
+        return self._frame
+
     def reset(self, head_vertices: np.ndarray | None = None, head_transform: np.ndarray | None = None,
               *, warmup: float | None = None, dt: float = 1 / 30) -> np.ndarray:
         """Start at a pose: head vertices (V, 3) (default rest) and head joint transform (4, 4)
@@ -98,8 +134,8 @@ class HairDriver:
         settled for `warmup` seconds (default `config.warmup_seconds`) in steps of dt.
         Returns the cage positions (C, 3)."""
         v = self.rest_vertices if head_vertices is None else head_vertices
-        t = np.eye(4) if head_transform is None else np.asarray(head_transform, dtype=np.float64)
-        frame = self.model.head_frame(v, t)
+        frame = self.head_frame(v, np.eye(4) if head_transform is None else head_transform)
+        t = frame.transform
         x = (self.model.rest_positions.astype(np.float64) @ t[:3, :3].T + t[:3, 3]).astype(np.float32)
         x[self.model.roots] = frame.root_positions
         self.state = CageState(x, np.zeros_like(x))
@@ -118,7 +154,7 @@ class HairDriver:
         returns the cage positions (C, 3). The first call (or one after no reset) resets."""
         if self.state is None:
             return self.reset(head_vertices, head_transform, dt=dt)
-        frame = self.model.head_frame(head_vertices, head_transform)
+        frame = self.head_frame(head_vertices, head_transform)
         self.solver.step(self.state, self.state, self._frame, frame, dt)
         self._frame = frame
         return self.state.positions.copy()
@@ -129,14 +165,32 @@ class HairDriver:
             raise InputError("the driver has not been reset or stepped yet")
         return self.state.positions
 
-    def hair_arrays(self, cage_positions: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def hair_arrays(self, cage_positions: np.ndarray | None = None, frame: HeadFrame | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(means (N, 3), quats (N, 4), scales (N, 3)) of the hair for the current cage (or the
-        given positions (C, 3))."""
-        return self.deformer.deform_arrays(self.cage_positions if cage_positions is None else cage_positions)
+        given positions (C, 3)), centres pushed out of the head of `frame` (default: the
+        current one) when `push_out` is on."""
+        means, quats, scales = self.deformer.deform_arrays(
+            self.cage_positions if cage_positions is None else cage_positions)
+        return self.pushed_out(means, frame), quats, scales
+
+    def pushed_out(self, means: np.ndarray, frame: HeadFrame | None = None) -> np.ndarray:
+        """Hair centres (N, 3) moved out of the head of `frame` (default: the current one);
+        unchanged when `push_out` is off or no frame is known yet."""
+        frame = frame or self._frame
+        if not self.push_out or frame is None:
+            return means
+        from avatarkit.sim.pushout import push_out
+
+        t = frame.transform[None] if frame.joint_transforms is None else frame.joint_transforms
+        return push_out(means, self.model.sdf, self.skin, t)
 
     def hair(self, cage_positions: np.ndarray | None = None) -> GaussianSet:
         """The deformed hair GaussianSet for the current cage (or the given positions)."""
-        return self.deformer.deform(self.cage_positions if cage_positions is None else cage_positions)
+        hair = self.deformer.deform(self.cage_positions if cage_positions is None else cage_positions)
+        if self.push_out and self._frame is not None:
+            hair.means = self.pushed_out(np.asarray(hair.means))
+        return hair
 
     # --- clips ---------------------------------------------------------------------------------
     def simulate_clip(self, clip, *, with_hair: bool = True, warmup: float | None = None,
@@ -153,11 +207,12 @@ class HairDriver:
             idx = np.arange(start, min(n, start + POSE_CHUNK))
             vertices, transforms = self.head_model.forward(params.select(idx))
             for k, i in enumerate(idx):
-                t = transforms[k, self.head_joint].astype(np.float64)
+                t = transforms[k].astype(np.float64)
                 if i == 0:
                     cage = self.reset(vertices[k], t, warmup=warmup, dt=dt)
                 else:
                     cage = self.step(vertices[k], t, dt)
+                t = t[self.head_joint]
                 means = quats = scales = None
                 if with_hair:
                     means, quats, scales = self.hair_arrays(cage)

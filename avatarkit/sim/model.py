@@ -25,6 +25,7 @@ follow the head's skinning (LBS) exactly, neck and jaw included, and move rigidl
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,14 +63,24 @@ class CageState:
 @dataclass(eq=False)
 class HeadFrame:
     """The kinematic input of one frame. root_positions: (R, 3) targets of the root vertices;
-    transform: (4, 4) the head joint's skinning transform (rest -> posed), which places the SDF."""
+    transform: (4, 4) the head joint's skinning transform (rest -> posed), which places the SDF;
+    joint_transforms: (J, 4, 4) the transforms of a `HeadSkin`'s joints (the first is
+    `transform`), which let the SDF follow the jaw and neck; None: the head joint alone."""
 
     root_positions: np.ndarray
     transform: np.ndarray
+    joint_transforms: np.ndarray | None = None
 
     def __post_init__(self):
         self.root_positions = np.ascontiguousarray(self.root_positions, dtype=np.float32)
         self.transform = np.asarray(self.transform, dtype=np.float64)
+        if self.joint_transforms is not None:
+            jt = np.asarray(self.joint_transforms, dtype=np.float64)
+            if jt.ndim != 3 or jt.shape[1:] != (4, 4) or len(jt) == 0 or not np.isfinite(jt).all():
+                raise InputError(f"joint_transforms must be finite (J, 4, 4), got {jt.shape}")
+            if not np.allclose(jt[0], self.transform, atol=1e-6):
+                raise InputError("joint_transforms[0] must be the head transform")
+            self.joint_transforms = jt
         if self.root_positions.ndim != 2 or self.root_positions.shape[1] != 3:
             raise InputError(f"root_positions must have shape (R, 3), got {self.root_positions.shape}")
         if self.transform.shape != (4, 4) or not np.isfinite(self.transform).all():
@@ -213,9 +224,11 @@ class CageModel:
         _, rotations, _ = triangle_frames(corners.reshape(-1, 3), flat)        # (R, 3, 3)
         return (points + np.einsum("rij,rj->ri", rotations, self.root_offsets)).astype(np.float32)
 
-    def head_frame(self, head_vertices: np.ndarray, transform: np.ndarray) -> HeadFrame:
-        """The solver's input for one frame: posed head vertices (V, 3), head joint (4, 4)."""
-        return HeadFrame(self.root_targets(head_vertices), transform)
+    def head_frame(self, head_vertices: np.ndarray, transform: np.ndarray,
+                   joint_transforms: np.ndarray | None = None) -> HeadFrame:
+        """The solver's input for one frame: posed head vertices (V, 3), head joint (4, 4),
+        optionally the transforms (J, 4, 4) of a `HeadSkin`'s joints."""
+        return HeadFrame(self.root_targets(head_vertices), transform, joint_transforms)
 
     # --- construction --------------------------------------------------------------------------
     @classmethod
@@ -271,13 +284,6 @@ class CageModel:
             volume = abs(volume)
         else:  # an open cage has no volume to keep
             vol_faces, volume = np.zeros((0, 3), np.int32), 0.0
-        # A fixed pseudo-random constraint order: consecutive constraints then rarely share a
-        # vertex, so the CPU overlaps their arithmetic in the serial Gauss-Seidel sweep
-        # (about 2x faster than the sorted order trimesh gives).
-        rng = np.random.default_rng(0x5EED)
-        edges, edge_lengths = _shuffled(rng, edges, edge_lengths)
-        bends, bend_lengths = _shuffled(rng, bends, bend_lengths)
-        vol_faces = vol_faces[rng.permutation(len(vol_faces))]
 
         # Tethers: geodesic (along edges) distance to the nearest root: never shorter than
         # any inextensible deformation of the cage, so it only acts against real stretching.
@@ -287,6 +293,17 @@ class CageModel:
         dist, _, sources = dijkstra(graph, directed=False, indices=roots, min_only=True,
                                     return_predecessors=True)
         reach = np.isfinite(dist) & free
+        # Constraint order: outward from the roots in bands one (median) edge long, pseudo-random
+        # within a band. Gauss-Seidel then carries a root's move down the whole cage in one sweep
+        # (a hanging cage held from its top converges like a chain solved top-down), and
+        # consecutive constraints of a band rarely share a vertex, so the CPU overlaps their
+        # arithmetic in the serial sweep (the sorted order trimesh gives is ~2x slower).
+        rng = np.random.default_rng(0x5EED)
+        depth = np.where(np.isfinite(dist), dist, np.nanmax(np.where(np.isfinite(dist), dist, np.nan)))
+        band = float(np.median(lengths))
+        edges, edge_lengths = _outward(rng, edges, edge_lengths, depth, band)
+        bends, bend_lengths = _outward(rng, bends, bend_lengths, depth, band)
+        vol_faces = vol_faces[rng.permutation(len(vol_faces))]
         tether_roots = np.where(reach, sources, -1).astype(np.int32)
         tether_lengths = np.where(reach, dist * (1.0 + tether_slack), 0.0)
 
@@ -384,8 +401,14 @@ def select_roots(cage_vertices: np.ndarray, head_vertices: np.ndarray, head_face
     return roots
 
 
-def _shuffled(rng, pairs, lengths):
+def _outward(rng, pairs, lengths, depth, band):
+    """Pairs (n, 2) and their lengths in bands of `band` of the pair's mean root distance,
+    shuffled within each band."""
     order = rng.permutation(len(pairs))
+    if os.environ.get("AK_ORDER") == "random":
+        return pairs[order], lengths[order]
+    key = np.floor(depth[pairs[order]].mean(axis=1) / band)
+    order = order[np.argsort(key, kind="stable")]
     return pairs[order], lengths[order]
 
 

@@ -8,13 +8,16 @@ import numpy as np
 
 from avatarkit.sim.config import SimConfig
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
-from avatarkit.sim.solver import MODE_CODES, check_step_inputs, substep_transforms
+from avatarkit.sim.sdf import HeadSkin
+from avatarkit.sim.solver import (MODE_CODES, check_step_inputs, joint_substep_transforms,
+                                  proxy_denominators, skin_joints)
 
 
 def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_in: HeadFrame,
-                   frame_out: HeadFrame, dt: float) -> CageState:
+                   frame_out: HeadFrame, dt: float, skin: HeadSkin | None = None) -> CageState:
     """One frame (all substeps) of XPBD; returns the new state (float64 arrays)."""
     check_step_inputs(model, state, frame_in, frame_out, dt)
+    skin = skin or HeadSkin.rigid()
     m = model
     x = state.positions.astype(np.float64).copy()
     v = state.velocities.astype(np.float64).copy()
@@ -26,7 +29,15 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
     damp = np.exp(-config.damping * h)
     g = np.asarray(config.gravity)
     mode = MODE_CODES[config.collision]
-    rotations, translations = substep_transforms(frame_in.transform, frame_out.transform, n_sub)
+    nj = skin_joints(skin, frame_in, frame_out)
+    rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
+    transforms = np.zeros((n_sub, nj, 4, 4))
+    transforms[:, :, :3, :3] = rotations[:, :nj]
+    transforms[:, :, :3, 3] = translations[:, :nj]
+    transforms[:, :, 3, 3] = 1.0
+    # the skin's weights as the kernel reads them: float32 grid, only its first nj joints
+    skin_s = HeadSkin(skin.weights, skin.joints[:nj], skin.origin.astype(np.float32), skin.spacing)
+    proxy_den = proxy_denominators(m)
     root_a = frame_in.root_positions.astype(np.float64)
     root_b = frame_out.root_positions.astype(np.float64)
 
@@ -48,16 +59,11 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
         v[free] += h * g
         x[free] += h * v[free]
         x[m.roots] = (1.0 - frac) * root_a + frac * root_b
-        offsets = np.zeros_like(x)
-        if mode == 2:
-            proxies = np.einsum("ik,ikc->ic", m.proxy_weight.astype(np.float64), x[m.proxy_index])
-            offsets = proxies - x
         lam_e = np.zeros(len(m.edges))
         lam_b = np.zeros(len(m.bend_pairs))
         lam_v = 0.0
         lam_t = np.zeros(len(x))
         lam_c = np.zeros(len(x))
-        r_s, t_s = rotations[s], translations[s]
         if len(m.faces):
             x0 = x.copy()
             p = x - x[m.faces[0, 0]]
@@ -92,14 +98,21 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
             if mode == 0:
                 continue
             for i in range(len(x)):
-                if w[i] == 0:
+                if mode == 2:  # the proxy, from the current cage; gradient w_k n for vertex k
+                    idx, wk = m.proxy_index[i], m.proxy_weight[i].astype(np.float64)
+                    den = proxy_den[i]
+                    p = wk @ x[idx]
+                else:
+                    idx, wk, den, p = np.array([i]), np.ones(1), w[i], x[i]
+                if den <= 0:
                     continue
-                q = r_s.T @ (x[i] + offsets[i] - t_s)
-                dist, grad_rest = m.sdf.query(q[None])
-                dl = (config.collision_margin - dist[0] - alpha["collision"] * lam_c[i]) / (w[i] + alpha["collision"])
+                dist, normal = skin_s.query_posed(m.sdf, p[None], transforms[s])
+                dl = (config.collision_margin - dist[0] - alpha["collision"] * lam_c[i]) / (den + alpha["collision"])
                 new = max(lam_c[i] + dl, 0.0)
                 dl, lam_c[i] = new - lam_c[i], new
-                x[i] += w[i] * dl * (r_s @ grad_rest[0])
+                n = normal[0]
+                for j, wj in zip(idx, wk):
+                    x[j] += w[j] * wj * dl * n
         v = (x - x_prev) / h
         v[free] *= damp
         speed = np.linalg.norm(v, axis=1)

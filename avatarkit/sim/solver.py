@@ -22,7 +22,9 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from avatarkit.sim.config import SimConfig
+from avatarkit.sim._skin_math import JMAX
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
+from avatarkit.sim.sdf import HeadSkin
 
 MODE_CODES = {"none": 0, "vertex": 1, "proxy": 2}
 
@@ -55,7 +57,8 @@ def substep_transforms(t_in: np.ndarray, t_out: np.ndarray, substeps: int) -> tu
     return rotations, translations
 
 
-def frame_params(model: CageModel, config: SimConfig, dt: float, substeps: int) -> np.ndarray:
+def frame_params(model: CageModel, config: SimConfig, dt: float, substeps: int,
+                 skin: HeadSkin) -> np.ndarray:
     """The float parameters of one frame (slots `_kernels.FP_*`)."""
     h = dt / substeps
     h2 = h * h
@@ -65,14 +68,80 @@ def frame_params(model: CageModel, config: SimConfig, dt: float, substeps: int) 
         config.compliance_volume / h2, config.compliance_tether / h2,
         config.compliance_collision / h2, np.exp(-config.damping * h), config.collision_margin,
         *config.gravity, config.max_speed, model.rest_volume, *sdf.origin, 1.0 / sdf.spacing,
+        *skin.origin, 1.0 / skin.spacing,
     ], dtype=np.float32)
+
+
+def proxy_denominators(model: CageModel) -> np.ndarray:
+    """(C,) sum_k w_k^2 / m_k over each proxy's cage vertices: |grad C|^2 weighted by inverse
+    mass, the denominator of the proxy collision's XPBD step. 0 (no constraint) for a root's
+    proxy: that hair lies on the scalp, placed by the roots; pushing it out through the few free
+    vertices it also depends on would throw them (a root's proxy is in contact all the time)."""
+    inv_mass = model.inv_mass.astype(np.float64)
+    den = np.sum(model.proxy_weight.astype(np.float64) ** 2 * inv_mass[model.proxy_index], axis=1)
+    return np.where(inv_mass > 0, den, 0.0)
+
+
+def joint_substep_transforms(frame_in: HeadFrame, frame_out: HeadFrame, substeps: int,
+                             joints: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (S, JMAX, 3, 3) and translations (S, JMAX, 3) of the first `joints` joints at
+    the end of each substep (the rest zero); joint 0 is the head joint. Frames without joint
+    transforms have the head joint only (joints must then be 1)."""
+    rot = np.zeros((substeps, JMAX, 3, 3))
+    trans = np.zeros((substeps, JMAX, 3))
+    for j in range(joints):
+        if j == 0:
+            a, b = frame_in.transform, frame_out.transform
+        else:
+            a, b = frame_in.joint_transforms[j], frame_out.joint_transforms[j]
+        rot[:, j], trans[:, j] = substep_transforms(a, b, substeps)
+    return rot, trans
+
+
+def skin_joints(skin: HeadSkin, frame_in: HeadFrame, frame_out: HeadFrame) -> int:
+    """How many of the skin's joints a step can follow: all when both frames carry their
+    transforms, else the head joint only."""
+    n = len(skin.joints)
+    for f in (frame_in, frame_out):
+        if f.joint_transforms is None:
+            return 1
+        if len(f.joint_transforms) < n:
+            raise InputError(f"head frame has {len(f.joint_transforms)} joint transforms, the "
+                             f"skin {n} joints")
+    return n
+
+
+#: how far past the SDF grid `skin_deviation` bounds the deviation (hair hangs below the neck)
+DEVIATION_REACH = 0.25
+
+
+def skin_deviation(skin: HeadSkin, sdf, rotations: np.ndarray, translations: np.ndarray,
+                   joints: int) -> np.ndarray:
+    """(S,) per substep, a bound on |q - q1| where q1 = T_0^-1 x (head joint) and q is the rest
+    point inverse LBS finds (x = sum_j w_j T_j q): |q1 - q| <= max_j |T_0^-1 T_j q - q|, an
+    affine function's norm, so its maximum over a box (the SDF grid, grown by
+    DEVIATION_REACH) is at a corner. 0 with the head joint alone. Lets the solver skip the
+    skinning and SDF lookups of points provably far from the head."""
+    out = np.zeros(len(rotations))
+    if joints <= 1:
+        return out
+    lo = sdf.origin - DEVIATION_REACH
+    hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
+    corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
+    r0, t0 = rotations[:, 0], translations[:, 0]
+    for j in range(1, joints):
+        rel_r = np.einsum("sba,sbc->sac", r0, rotations[:, j])                # R0^T Rj
+        rel_t = np.einsum("sba,sb->sa", r0, translations[:, j] - t0)           # R0^T (tj - t0)
+        moved = np.einsum("sac,kc->ska", rel_r, corners) + rel_t[:, None] - corners
+        out = np.maximum(out, np.linalg.norm(moved, axis=2).max(axis=1))
+    return out
 
 
 class PackedModel:
     """The model's tables packed into the kernel's buffers (layout in `_kernels`' docstring),
     with room for up to `substeps` substeps per frame."""
 
-    def __init__(self, model: CageModel, substeps: int):
+    def __init__(self, model: CageModel, substeps: int, skin: HeadSkin):
         from avatarkit.sim import _kernels as K
 
         m = model
@@ -85,25 +154,28 @@ class PackedModel:
         # inv_mass padded so the 8-float constraint records start on a 32-byte boundary
         pad = -(K.FP_COUNT + c) % 8
         floats = [np.r_[m.inv_mass, np.zeros(pad)], np.zeros(8 * e), np.zeros(8 * b), m.tether_lengths,
-                  m.proxy_weight.ravel(), np.zeros(1 + 2 * c), np.zeros(9 * substeps),
-                  np.zeros(3 * substeps), np.zeros(4 * c)]
+                  m.proxy_weight.ravel(), np.zeros(1 + 2 * c), np.zeros(9 * JMAX * substeps),
+                  np.zeros(3 * JMAX * substeps), np.zeros(4 * c), proxy_denominators(m),
+                  np.zeros(substeps)]
         foff = np.cumsum([K.FP_COUNT] + [len(a) for a in floats])
         header = np.zeros(K.H_COUNT, np.int64)
         header[[K.H_NC, K.H_NE, K.H_NB, K.H_NF, K.H_NR, K.H_NK]] = [c, e, b, f, r, k]
         header[[K.H_EDGES, K.H_BENDS, K.H_FACES, K.H_TETHER, K.H_PROXY_IDX, K.H_ROOTS]] = ioff[:6]
         header[[K.H_INV_MASS, K.H_EDGE_DATA, K.H_BEND_DATA, K.H_TETHER_LEN, K.H_PROXY_W,
-                K.H_LAMBDA, K.H_ROT, K.H_TRANS, K.H_CACHE]] = foff[:9]
+                K.H_LAMBDA, K.H_ROT, K.H_TRANS, K.H_CACHE, K.H_PROXY_DEN, K.H_DEVIATION]] = foff[:11]
         header[K.H_SUBSTEPS] = substeps
+        header[K.H_NJ] = len(skin.joints)
         self.ibuf = np.concatenate([header] + ints).astype(np.int32)
         self.fbuf = np.concatenate([np.zeros(K.FP_COUNT)] + floats).astype(np.float32)
-        self.xbuf = np.zeros((6 * c + 2 * r, 3), np.float32)
+        self.xbuf = np.zeros((5 * c + 2 * r, 3), np.float32)
         self.edge_data = self.fbuf[foff[1]:foff[2]].reshape(e, 8)
         self.bend_data = self.fbuf[foff[2]:foff[3]].reshape(b, 8)
         self.rot_slice = slice(int(foff[6]), int(foff[7]))
         self.trans_slice = slice(int(foff[7]), int(foff[8]))
+        self.dev_slice = slice(int(foff[10]), int(foff[11]))
         # A zero cached distance makes every vertex's first collision test a real lookup.
         self.c, self.r, self.substeps = c, r, substeps
-        self.model = m
+        self.model, self.skin = m, skin
 
     def set_time_step(self, config: SimConfig, dt: float, substeps: int) -> None:
         """Fill the parameters and the per-constraint data that depend on the substep length."""
@@ -111,7 +183,7 @@ class PackedModel:
 
         m = self.model
         h2 = (dt / substeps) ** 2
-        self.fbuf[:K.FP_COUNT] = frame_params(m, config, dt, substeps)
+        self.fbuf[:K.FP_COUNT] = frame_params(m, config, dt, substeps, self.skin)
         self.ibuf[K.H_SUBSTEPS] = substeps
         w = m.inv_mass.astype(np.float64)
         for data, pairs, rest, compliance in (
@@ -140,11 +212,14 @@ def check_step_inputs(model: CageModel, state_in: CageState, frame_in: HeadFrame
 
 
 class XPBDSolver:
-    """Steps a `CageModel` with `SimConfig` settings; holds only scratch buffers between steps."""
+    """Steps a `CageModel` with `SimConfig` settings; holds only scratch buffers between steps.
+    skin: a `HeadSkin` so that collision follows the posed head's jaw and neck (frames then
+    carry its joints' transforms); None: the rest head moved rigidly by the head joint."""
 
-    def __init__(self, model: CageModel, config: SimConfig | None = None):
+    def __init__(self, model: CageModel, config: SimConfig | None = None, skin: HeadSkin | None = None):
         self.model = model
         self.config = config or SimConfig()
+        self.skin = skin or HeadSkin.rigid()
         self._packed: PackedModel | None = None
         self._dt: float | None = None
 
@@ -165,7 +240,7 @@ class XPBDSolver:
 
         n_sub = cfg.substeps_for(dt)
         if self._packed is None or self._packed.substeps < n_sub:
-            self._packed = PackedModel(m, n_sub)
+            self._packed = PackedModel(m, n_sub, self.skin)
             self._packed.ibuf[_kernels.H_ITERATIONS] = cfg.iterations
             self._packed.ibuf[_kernels.H_MODE] = MODE_CODES[cfg.collision]
             self._dt = None
@@ -178,9 +253,12 @@ class XPBDSolver:
         p.xbuf[c:2 * c] = state_in.velocities
         p.xbuf[5 * c:5 * c + r] = frame_in.root_positions
         p.xbuf[5 * c + r:5 * c + 2 * r] = frame_out.root_positions
-        rotations, translations = substep_transforms(frame_in.transform, frame_out.transform, n_sub)
-        p.fbuf[p.rot_slice][:9 * n_sub] = rotations.ravel()
-        p.fbuf[p.trans_slice][:3 * n_sub] = translations.ravel()
-        _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad)
+        nj = skin_joints(self.skin, frame_in, frame_out)
+        p.ibuf[_kernels.H_NJ] = nj
+        rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
+        p.fbuf[p.rot_slice][:9 * JMAX * n_sub] = rotations.ravel()
+        p.fbuf[p.trans_slice][:3 * JMAX * n_sub] = translations.ravel()
+        p.fbuf[p.dev_slice][:n_sub] = skin_deviation(self.skin, m.sdf, rotations, translations, nj)
+        _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
         state_out.positions = p.xbuf[:c].copy()
         state_out.velocities = p.xbuf[c:2 * c].copy()

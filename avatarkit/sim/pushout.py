@@ -1,0 +1,64 @@
+"""The last guard of the hair against the head: hair Gaussian centres that the cage deformation
+leaves inside (or closer than a clearance to) the posed head are moved out along its normal.
+
+The cage's proxy collision keeps each cage vertex's proxy Gaussian out, but between proxies
+the mean value interpolation of a coarse cage can still carry a centre a few millimetres into
+the skull during a fast move (measured on the whip: up to 4.3 mm in ~100 of 6k Gaussians in a
+frame). Pushing those centres out costs one SDF lookup per Gaussian (a parallel Taichi loop,
+`_kernels.push_out_points`); `push_out_reference` is its numpy twin. The posed head is the
+same as the solver's: the rest SDF seen through `HeadSkin` (inverse LBS, jaw and neck).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from avatarkit.sim._skin_math import JMAX
+from avatarkit.sim.sdf import HeadSDF, HeadSkin
+
+#: where a pushed centre ends up: this far outside the head (metres); half a millimetre keeps a
+#: float32 centre outside after rounding and costs nothing visible
+CLEARANCE = 0.0005
+#: Newton steps on the SDF (the second fixes the few centres in a concave spot)
+ROUNDS = 2
+
+
+def _pose_buffer(sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray) -> np.ndarray:
+    t = np.asarray(transforms, dtype=np.float64)
+    rot = np.zeros((JMAX, 3, 3))
+    trans = np.zeros((JMAX, 3))
+    rot[:len(t)] = t[:, :3, :3]
+    trans[:len(t)] = t[:, :3, 3]
+    from avatarkit.sim.solver import skin_deviation
+
+    dev = skin_deviation(skin, sdf, rot[None], trans[None], len(t))[0]
+    return np.concatenate([sdf.origin, [1.0 / sdf.spacing], skin.origin, [1.0 / skin.spacing],
+                           rot.ravel(), trans.ravel(), [dev]]).astype(np.float32)
+
+
+def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,
+             clearance: float = CLEARANCE, rounds: int = ROUNDS) -> np.ndarray:
+    """Points (N, 3) (a float32 copy is returned) moved out of the head posed by the transforms
+    (J, 4, 4) of the skin's joints (J = 1: the head joint only)."""
+    from avatarkit.sim import _kernels
+
+    out = np.array(points, dtype=np.float32, copy=True, order="C").reshape(-1, 3)
+    t = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
+    nj = min(len(t), len(skin.joints))
+    if len(out):
+        _kernels.push_out_points(out, _pose_buffer(sdf, skin, t[:nj]), sdf.values_grad, skin.weights,
+                                 nj, float(clearance), int(rounds))
+    return out
+
+
+def push_out_reference(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,
+                       clearance: float = CLEARANCE, rounds: int = ROUNDS) -> np.ndarray:
+    """The obvious numpy twin of `push_out` (float64)."""
+    t = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
+    nj = min(len(t), len(skin.joints))
+    sk = HeadSkin(skin.weights, skin.joints[:nj], skin.origin.astype(np.float32), skin.spacing)
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3).copy()
+    for _ in range(rounds):
+        d, n = sk.query_posed(sdf, p, t[:nj])
+        inside = d < clearance
+        p[inside] += (clearance - d[inside])[:, None] * n[inside]
+    return p
