@@ -95,7 +95,11 @@ def bench_lbs(model: HeadModel, T: int) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100, help="frames per batched forward call")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames = 4
     bench_generation()
     bench_lbs(HeadModel.template(), args.frames)
     bench_lbs(flame_sized_model(), args.frames)
