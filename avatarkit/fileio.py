@@ -1,12 +1,14 @@
 """Atomic output files and folders: write to a temporary name beside the target, rename when
 complete. And `read_npz`, the one guarded reader of the .npz files we keep (rigs, head models,
-cage weights, trackers' FLAME fits).
+cage weights, trackers' FLAME fits), and `file_sha256`, the digest that provenance records of input
+files.
 
 A failed or interrupted writer never leaves a half-written file or folder under the requested name.
 """
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import shutil
 import tempfile
@@ -123,3 +125,12 @@ def read_npz(path: str | os.PathLike, unreadable: str = "not a readable .npz fil
             return {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
         raise FormatError(f"{unreadable} ({e})", path) from None
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 hex digest of a file's bytes, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

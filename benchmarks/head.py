@@ -54,6 +54,7 @@ def random_params(model: HeadModel, T: int, seed: int = 1) -> HeadParams:
 
 def bench_generation() -> None:
     from avatarkit.head import template as tm
+    from avatarkit.head.model import build_template
     from avatarkit.head.remesh import collapse_short_edges, flip_edges, project_to_sdf, relax
 
     t0 = time.perf_counter()
@@ -66,7 +67,7 @@ def bench_generation() -> None:
     v = relax(v, f, tm.head_sdf, iterations=5)
     f = flip_edges(v, f)
     t3 = time.perf_counter()
-    total = median_time(tm.build_template, repeats=1, warmup=0)
+    total = median_time(build_template, repeats=1, warmup=0)
     print(f"template generation: {total:.2f} s total (marching cubes {t1 - t0:.2f} s, "
           f"decimation {t2 - t1:.2f} s, flips + relaxation {t3 - t2:.2f} s); {len(v)} head vertices")
 
