@@ -1,7 +1,8 @@
 """`avatarkit` entry point: a lazily loaded command group and the one place errors become exit codes.
 
 Exit codes (DESIGN.md): 0 ok; 2 bad input (one line naming the file and the problem, no
-traceback); 1 an unexpected bug; 130 interrupted.
+traceback); 1 an unexpected bug; 130 interrupted. `bake-batch` adds 3: the batch ran and some of
+its jobs failed (the report names them).
 """
 from __future__ import annotations
 
