@@ -65,8 +65,9 @@ def main() -> int:
     import numpy as np
 
     from avatarkit.gaussians import GaussianSet
-    from avatarkit.recon.labels3d import (accumulate_weights, accumulate_weights_reference,
-                                          default_label_cameras, render_label_images, split_hair)
+    from avatarkit.recon.label_lifting import (accumulate_weights, accumulate_weights_reference,
+                                               default_label_cameras, render_label_images)
+    from avatarkit.recon.labels3d import split_hair
     from avatarkit.render import Camera, render
     from test_recon_labels3d import dilate_hair, head_scene  # the tests' synthetic head
 
