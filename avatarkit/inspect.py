@@ -207,6 +207,8 @@ register_inspector(lambda p: (p.is_dir() and (p / "sequence.json").is_file())
                    "avatarkit.export.ply_sequence:inspect_ply_sequence")
 register_inspector(lambda p: p.is_dir() and (p / "avatar.json").is_file(), "avatarkit.avatar:inspect_avatar")
 register_inspector(lambda p: _motion_clip(p), "avatarkit.motion.inspector:inspect_clip")
+for _ext in (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".gif"):  # video.VIDEO_FILE_EXTENSIONS
+    register_inspector(_ext, "avatarkit.video:inspect_video")
 
 
 def _motion_clip(path: Path) -> bool:

@@ -24,6 +24,11 @@ _FILE = click.Path(dir_okay=False)
               "identity shape is used instead of fitting one.")
 @click.option("--face-index", type=click.IntRange(min=0), help="Which face to use when the photo has "
               "several (numbered left to right from 0).")
+@click.option("--face-detector", type=click.Choice(["auto", "mediapipe", "cascade"]), default="auto",
+              show_default=True, help="auto: MediaPipe's face detector, 468-point face mesh and iris "
+              "(installed by `make install`), else OpenCV/scikit-image cascades with a warning.")
+@click.option("--landmark-embedding", type=_FILE, help="FLAME's mediapipe_landmark_embedding.npz: where "
+              "the face-mesh points lie on --head-model (the template's ships with avatarkit).")
 @click.option("--hair-mode", type=click.Choice(["auto", "cage", "rigid"]), default="auto",
               show_default=True, help="auto: short hair rides the scalp rigidly, long hair is "
               "simulated in a cage.")
@@ -36,7 +41,7 @@ _FILE = click.Path(dir_okay=False)
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
-              face_index, hair_mode, n_bald, n_hair, seed, preview, quiet):
+              face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...).
 
     Writes the avatar folder (avatar.json, bald.ply, hair.ply, cage.ply, rig.npz, previews)
@@ -56,7 +61,7 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
 
     options = BuildOptions(hair_mask=hair_mask, head_splats=head_splats, bald_splats=bald_splats,
                            head_model=head_model, flame_params=flame_params, face_index=face_index,
-                           hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview)
+                           face_detector=face_detector, landmark_embedding=landmark_embedding, hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview)
     options.check()
     check_avatar_target(output)  # refuse a bad output before the work
     t0 = time.perf_counter()

@@ -23,9 +23,11 @@ COMMANDS: dict[str, str] = {
     "bake": "avatarkit.cli.bake_cmd:bake_cmd",
     "avatar": "avatarkit.cli.avatar_cmd:avatar",
     "build": "avatarkit.cli.build_cmd:build_cmd",
+    "face": "avatarkit.cli.face_cmd:face_cmd",
     "bake-batch": "avatarkit.cli.batch_cmd:bake_batch_cmd",
     "transfer-hair": "avatarkit.cli.hair_cmd:transfer_hair_cmd",
     "hair-grid": "avatarkit.cli.hair_cmd:hair_grid_cmd",
+    "view": "avatarkit.cli.view_cmd:view_cmd",
 }
 
 

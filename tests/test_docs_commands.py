@@ -1,7 +1,8 @@
 """Every `avatarkit ...` line in a fenced block of README.md or docs/*.md must parse with the CLI:
 the command path resolves, options and arguments are known and well-formed (click's own parser and
 types, as `--help`-level validation; nothing runs). Usage brackets (`[--split]`) count as given.
-A renamed option or command fails here instead of leaving the docs wrong."""
+Alternatives `a|b` are each checked. A renamed option or command fails here instead of leaving the
+docs wrong."""
 import re
 import shlex
 from pathlib import Path
@@ -82,12 +83,24 @@ def test_the_docs_have_examples():
     assert {p.name for p, _, _ in EXAMPLES} >= {"README.md", "building.md", "batch.md", "rendering.md"}
 
 
+def variants(args: list[str]) -> list[list[str]]:
+    """Usage alternatives `auto|mediapipe|cascade` (a word with `|` and no spaces): one argument
+    list per alternative of each such word (the others at their first)."""
+    first = [w.split("|")[0] for w in args]
+    out = [first]
+    for i, w in enumerate(args):
+        for alt in w.split("|")[1:]:
+            out.append(first[:i] + [alt] + first[i + 1:])
+    return out
+
+
 @pytest.mark.parametrize("page, no, line", EXAMPLES, ids=[f"{p.name}:{n}" for p, n, _ in EXAMPLES])
 def test_doc_command_parses(no_path_checks, page, no, line):
-    try:
-        check(split_args(line))
-    except click.ClickException as e:
-        pytest.fail(f"{page.name}:{no}: `{line}`: {e.format_message()}")
+    for args in variants(split_args(line)):
+        try:
+            check(args)
+        except click.ClickException as e:
+            pytest.fail(f"{page.name}:{no}: `{' '.join(args)}`: {e.format_message()}")
 
 
 @pytest.mark.parametrize("line, words", [
@@ -110,3 +123,4 @@ def test_extraction_joins_continuations_and_opens_brackets():
     assert [n for n, _ in got] == [3, 9]
     assert split_args(got[0][1]) == ["bake", "a", "b", "-o", "c.usdc"]
     assert split_args(got[1][1]) == ["head", "info", "--head-model", "FILE", "--json"]
+    assert variants(["x", "--m", "a|b|c"]) == [["x", "--m", "a"], ["x", "--m", "b"], ["x", "--m", "c"]]

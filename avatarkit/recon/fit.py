@@ -66,6 +66,9 @@ WIDTH_ROWS = (0.75, 0.9, 1.05, 1.2, 1.35)
 SHAPE_PRIOR = 2e-3
 #: at most this many vertices enter the silhouette terms (an even subsample)
 MAX_SILHOUETTE_VERTICES = 2500
+#: weight of the face-mesh landmark term (a weighted mean over the landmarks, IOD^2 units):
+#: about the summed weight of the six named landmarks it joins
+MESH_WEIGHT = 6.0
 #: identity components fitted on a FLAME model (the rest stay 0)
 FLAME_SHAPE_COMPONENTS = 20
 
@@ -145,13 +148,16 @@ class HeadFit:
     def summary(self) -> dict:
         """JSON-able description (for the avatar's provenance)."""
         r = self.residuals
+        mesh = ({"face_mesh_landmarks": int(r["face_mesh_landmarks"]),
+                 "face_mesh_median_px": round(float(r["face_mesh_median_px"]), 3)}
+                if "face_mesh_landmarks" in r else {})
         return {"source": self.source, "focal_px": round(self.camera.fx, 3),
                 "rotation_deg": [round(float(x), 3) for x in np.degrees(self.rotation)],
                 "translation_m": [round(float(x), 5) for x in self.translation],
                 "shape": [round(float(x), 4) for x in self.shape],
                 "landmark_rms_px": round(float(r.get("landmark_rms_px", float("nan"))), 3),
                 "width_rms_px": round(float(r.get("width_rms_px", float("nan"))), 3),
-                "outside_fraction": round(float(r.get("outside_fraction", float("nan"))), 4)}
+                "outside_fraction": round(float(r.get("outside_fraction", float("nan"))), 4), **mesh}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -283,9 +289,26 @@ def _initial_pose(analysis, rest: np.ndarray, lm: dict[str, int], focal: float, 
     return rotation, target - r @ mid3
 
 
+def _mesh_targets(analysis, model: HeadModel, embedding=None):
+    """(LandmarkTargets, LandmarkModel) from the analysis's face mesh, or (None, None) when
+    it has none or the model has no embedding."""
+    mesh = getattr(analysis, "mesh", None)
+    if mesh is None:
+        return None, None
+    from avatarkit.face.correspondence import embedding_for
+    from avatarkit.face.fit import LandmarkModel, LandmarkTargets
+
+    emb = embedding if embedding is not None else embedding_for(model)
+    if emb is None:
+        return None, None
+    emb.check(model.num_faces)
+    return LandmarkTargets.from_mesh(mesh, emb, analysis.image_size), LandmarkModel(model, emb)
+
+
 def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: np.ndarray | None = None,
              fit_shape: bool = True, focal: float | None = None, shape_components: int | None = None,
-             iterations: int = 40, initial_rotation: np.ndarray | None = None) -> HeadFit:
+             iterations: int = 40, initial_rotation: np.ndarray | None = None,
+             embedding=None) -> HeadFit:
     """Fit the head model to a portrait.
 
     analysis: `PortraitAnalysis`; segmentation: `Segmentation` of the same image (skin + hair
@@ -293,7 +316,9 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
     with fit_shape=False, fixed) identity coefficients. focal: pixels (default `portrait_focal`).
     shape_components: how many leading coefficients are fitted (default all of the template's,
     FLAME_SHAPE_COMPONENTS of a FLAME). iterations: L-BFGS iterations per stage.
-    initial_rotation: (3,) axis-angle start (default: roll from the eyes).
+    initial_rotation: (3,) axis-angle start (default: solvePnP on the face mesh when the analysis
+    has one, else roll from the eyes). embedding: the face-mesh `LandmarkEmbedding` of `model`
+    (default: the shipped one for the template; a FLAME model needs one to use the face mesh).
     """
     import torch
 
@@ -322,9 +347,15 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
     lm = landmark_vertices(model, rest0)
     names, targets, weights = _landmark_targets(analysis)
     lm_ids = np.array([lm[n] for n in names])
-    rot0, trans0 = _initial_pose(analysis, rest0, lm, f, (w, h),
-                                 None if initial_rotation is None
-                                 else np.asarray(initial_rotation, np.float64).reshape(3))
+    mesh_targets, lmodel = _mesh_targets(analysis, model, embedding)
+    if mesh_targets is not None and initial_rotation is None:
+        from avatarkit.face.fit import initial_pose
+
+        rot0, trans0 = initial_pose(lmodel.points_numpy(shape0), mesh_targets, f)
+    else:
+        rot0, trans0 = _initial_pose(analysis, rest0, lm, f, (w, h),
+                                     None if initial_rotation is None
+                                     else np.asarray(initial_rotation, np.float64).reshape(3))
     depth0 = -float(trans0[2])
     iod = max(analysis.eye_distance, 1e-6)
 
@@ -336,11 +367,16 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
     eye_mid = torch.tensor(analysis.eye_mid, dtype=torch.float64)
     sil = _silhouette_vertices(model)
     sil = sil[:: max(1, len(sil) // MAX_SILHOUETTE_VERTICES)]
-    used = np.concatenate([lm_ids, sil])
+    used = np.concatenate([lm_ids, sil] + ([lmodel.used] if lmodel is not None else []))
     t_lm = torch.from_numpy(targets)
     t_w = torch.from_numpy(weights)
     lm_idx = torch.arange(len(lm_ids))
-    sil_ids = torch.arange(len(lm_ids), len(used))
+    sil_ids = torch.arange(len(lm_ids), len(lm_ids) + len(sil))
+    if lmodel is not None:
+        from avatarkit.face.fit import landmark_loss
+
+        mesh_corners = torch.from_numpy(len(lm_ids) + len(sil) + lmodel.corner_rows)   # (K, 3)
+        mesh_bary = torch.from_numpy(lmodel.bary)[:, :, None]
     cv = torch.tensor(_CV, dtype=torch.float64)
     # The rest pose is the template plus the shape blendshapes (no pose, so no skinning): linear
     # in the coefficients, evaluated as such on the vertices the losses use.
@@ -355,12 +391,16 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
 
     from avatarkit.head.lbs import axis_angle_to_matrix_torch
 
-    def pixels(verts, idx):
+    def pixels(verts, idx, with_depth=False):
         r = axis_angle_to_matrix_torch(rot)
-        p = verts[idx] @ r.T + trans_base + depth0 * dtrans
+        p = (verts[idx] if idx is not None else verts) @ r.T + trans_base + depth0 * dtrans
         c = p @ cv.T
         z = c[:, 2].clamp_min(1e-3)
-        return torch.stack([f * c[:, 0] / z + w / 2, f * c[:, 1] / z + h / 2], dim=1)
+        px = torch.stack([f * c[:, 0] / z + w / 2, f * c[:, 1] / z + h / 2], dim=1)
+        return (px, z) if with_depth else px
+
+    def mesh_points(v):
+        return (mesh_bary * v[mesh_corners]).sum(1)
 
     def vertices():
         return base + basis @ dshape if k else base
@@ -373,6 +413,11 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
         px = pixels(v, lm_idx)
         d2 = ((px - t_lm) ** 2).sum(1) / iod ** 2
         out = {"landmarks": (t_w * d2).sum()}
+        if lmodel is not None:
+            mpx, mz = pixels(mesh_points(v), None, with_depth=True)
+            terms = landmark_loss(mpx, mz, mesh_targets, f)
+            out["face_mesh"] = MESH_WEIGHT * terms["points"]
+            out["face_mesh_depth"] = MESH_WEIGHT * terms["depth"]
         if use_silhouette:
             sp = pixels(v, sil_ids)
             grid = torch.stack([2 * sp[:, 0] / w - 1, 2 * sp[:, 1] / h - 1], dim=1)[None, None]
@@ -414,6 +459,7 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
         px = pixels(v, lm_idx).numpy()
         sp = pixels(v, sil_ids).numpy()
         uv = to_face(torch.from_numpy(sp)).numpy()
+        mesh_px = pixels(mesh_points(v), None).numpy() if lmodel is not None else None
     rotation = rot.detach().numpy().copy()
     translation = (trans0 + depth0 * dtrans.detach().numpy()).copy()
     shape_final = shape0.copy()
@@ -446,6 +492,12 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
         "outside_fraction": float(outside.mean()),
         "loss": final,
     }
+    if lmodel is not None:
+        from avatarkit.face.fit import pixel_errors
+
+        mesh_err = pixel_errors(mesh_px, mesh_targets)
+        residuals["face_mesh_landmarks"] = len(mesh_err)
+        residuals["face_mesh_median_px"] = float(np.median(mesh_err))
     return HeadFit(model, params, camera, rotation, translation, rest, lm, residuals,
                    "fitted" if fit_shape else "imported")
 

@@ -58,6 +58,10 @@ class BuildOptions:
     head_model: a FLAME .pkl (or avatarkit .npz) to use instead of the built-in template.
     flame_params: a tracker's FLAME fit (.npz): its identity shape is used, not fitted.
     face_index: which face when the photo has several (left to right, from 0).
+    face_detector: "auto" (MediaPipe's face models when installed, else the cascades with a
+    warning), "mediapipe" or "cascade". landmark_embedding: a FLAME
+    `mediapipe_landmark_embedding.npz` putting face-mesh points on --head-model's triangles
+    (the template's ships with avatarkit).
     n_bald / n_hair: built-in lifter's Gaussian counts (hair: at most).
     hair_mode: "auto" (short hair rigid, long hair simulated), "cage" or "rigid".
     clean_hair: run the 3D hair segmentation on the hair (always on for imported splats).
@@ -71,6 +75,8 @@ class BuildOptions:
     head_model: str | os.PathLike | None = None
     flame_params: str | os.PathLike | None = None
     face_index: int | None = None
+    face_detector: str = "auto"
+    landmark_embedding: str | os.PathLike | None = None
     n_bald: int = 40_000
     n_hair: int = 40_000
     cage_vertices: int = 500
@@ -85,6 +91,10 @@ class BuildOptions:
     def check(self) -> None:
         if (self.head_splats is None) != (self.bald_splats is None):
             raise InputError("--head-splats and --bald-splats go together: give both or neither")
+        from avatarkit.recon.portrait import FACE_DETECTORS
+
+        if self.face_detector not in FACE_DETECTORS:
+            raise InputError(f"face detector must be one of {', '.join(FACE_DETECTORS)}, got {self.face_detector!r}")
         if self.hair_mode not in ("auto", "cage", "rigid"):
             raise InputError(f"hair mode must be auto, cage or rigid, got {self.hair_mode!r}")
         for name in ("n_bald", "cage_vertices", "preview_size"):
@@ -95,7 +105,7 @@ class BuildOptions:
             raise InputError(f"n_hair must be a non-negative integer, got {self.n_hair!r}")
         if self.face_index is not None and (int(self.face_index) != self.face_index or self.face_index < 0):
             raise InputError(f"face index must be a non-negative integer, got {self.face_index!r}")
-        for name in ("hair_mask", "head_splats", "bald_splats", "head_model", "flame_params"):
+        for name in ("hair_mask", "head_splats", "bald_splats", "head_model", "flame_params", "landmark_embedding"):
             value = getattr(self, name)
             if value is not None and not Path(value).is_file():
                 what = name.replace("_", " ")
@@ -215,6 +225,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     seconds): called when each stage starts (seconds None) and ends. The `BuildReport` is in
     `avatar.provenance["build"]`; the previews (if rendered) in `avatar.build_previews`."""
     from avatarkit.avatar import Avatar, HeadRef, _now, _tool_version
+    from avatarkit.face.correspondence import read_embedding
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
@@ -238,18 +249,22 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         head_model = load_head_model(options.head_model)
         head_ref = HeadRef.for_file(options.head_model) if options.head_model else HeadRef()
         flame = load_flame_params(options.flame_params) if options.flame_params else None
+        embedding = (read_embedding(options.landmark_embedding, head_model.num_faces)
+                     if options.landmark_embedding else None)
         lifter = (ImportLifter(options.head_splats, options.bald_splats) if options.head_splats
                   else BuiltinLifter(options.n_bald, options.n_hair, options.seed))
     with stage("analyse"):
-        analysis = analyze_portrait(image, options.face_index, path=path)
+        analysis = analyze_portrait(image, options.face_index, path=path, detector=options.face_detector)
         report.warnings.extend(analysis.warnings)
+        report.info["face"] = {"detector": analysis.detector, "faces": len(analysis.faces),
+                               "face_mesh": analysis.mesh is not None}
     with stage("segment"):
         segmentation = segment_portrait(image, analysis, options.hair_mask, path=path)
     with stage("fit"):
         if flame is not None:
-            fit = fit_with_params(analysis, segmentation, head_model, flame)
+            fit = fit_with_params(analysis, segmentation, head_model, flame, embedding=embedding)
         else:
-            fit = fit_head(analysis, segmentation, head_model)
+            fit = fit_head(analysis, segmentation, head_model, embedding=embedding)
         report.info["fit"] = fit.summary()
         report.info["camera"] = fit.camera.to_dict()
         # a coarse SDF is enough to grow hair on; the rig gets a fine one of the final head

@@ -36,6 +36,9 @@ CROP_SCALE = 1.2
 #: face detection runs on a copy whose longer side is at most this (speed; faces stay >> 24 px)
 DETECT_SIDE = 1024
 
+#: `analyze_portrait(detector=...)` choices
+FACE_DETECTORS = ("auto", "mediapipe", "cascade")
+
 LANDMARK_NAMES = ("right_eye", "left_eye", "nose_tip", "mouth_center", "mouth_right", "mouth_left")
 
 #: average frontal-face proportions, measured on the alt2 Haar box: fractions of (w, h) from the
@@ -100,6 +103,7 @@ class PortraitAnalysis:
     crop_center: tuple[float, float]     # centre of the canonical square crop (pixels)
     crop_side: float                     # its side (pixels)
     warnings: list[str] = field(default_factory=list)
+    mesh: object = None                  # avatarkit.face.FaceMesh of the chosen face (MediaPipe detector), or None
 
     # -- the eye frame -------------------------------------------------------------------
     @property
@@ -204,7 +208,7 @@ class PortraitAnalysis:
             image_size=(max(1, round(self.image_size[0] * k)), max(1, round(self.image_size[1] * k))),
             face_box=box(self.face_box), faces=tuple(box(b) for b in self.faces), landmarks=lms,
             crop_center=(cx * k, cy * k), crop_side=self.crop_side * k,
-            warnings=list(self.warnings))
+            warnings=list(self.warnings), mesh=None if self.mesh is None else self.mesh.scaled(k))
 
 
 # ---------------------------------------------------------------------------------------
@@ -429,19 +433,96 @@ def _as_image(image, path):
 
 
 def analyze_portrait(image, face_index: int | None = None, *, path: str | os.PathLike | None = None,
-                     min_face: int = MIN_FACE) -> PortraitAnalysis:
+                     min_face: int = MIN_FACE, detector: str = "cascade") -> PortraitAnalysis:
     """Find exactly one face in a portrait and describe it.
 
     image: (H, W, 3) uint8 RGB, or an image file path (read with `read_image`).
     face_index: which face to use when there are several (faces are indexed left to right).
     path: the file name to put in error messages when `image` is an array.
 
+    detector: "cascade" (OpenCV Haar / scikit-image LBP, the default of this function),
+    "mediapipe" (BlazeFace + the 468-point face mesh and iris, `avatarkit.face`; raises
+    `ModelsMissing` when they are not installed) or "auto" (MediaPipe when installed, else the
+    cascades with a warning; the cascades also when MediaPipe finds no face).
+
     Raises InputError: no face; several faces and no `face_index` (the message lists them);
     `face_index` out of range; face narrower than `min_face` pixels. A strongly non-frontal
     face, or one whose eyes were not found, is reported in `warnings`, not raised.
     """
+    if detector not in FACE_DETECTORS:
+        raise InputError(f"face detector must be one of {', '.join(FACE_DETECTORS)}, got {detector!r}")
     image, path = _as_image(image, path)
-    h, w = image.shape[:2]
+    if detector in ("auto", "mediapipe"):
+        from avatarkit.face.models import ModelsMissing
+
+        try:
+            found = _analyze_mediapipe(image, face_index, path, min_face)
+        except ModelsMissing as e:
+            if detector == "mediapipe":
+                raise
+            found = None
+            missing = f"{e.message}; using the cascade face detector"
+        else:
+            missing = None
+        if found is not None:
+            return found
+        result = _analyze_cascade(image, face_index, path, min_face)
+        result.warnings.insert(0, missing or "MediaPipe found no face; the cascade face detector did")
+        return result
+    return _analyze_cascade(image, face_index, path, min_face)
+
+
+def _choose(boxes: list, face_index, min_face: int, path, warnings: list) -> tuple[int, list]:
+    """The index of the face to use among boxes (x, y, w, h) sorted left to right, after dropping
+    much smaller detections (with a warning); raises InputError as `analyze_portrait` says."""
+    largest = max(b[2] for b in boxes)
+    keep = [i for i, b in enumerate(boxes) if b[2] >= MINOR_FACE_FRACTION * largest]
+    minor = [boxes[i] for i in range(len(boxes)) if i not in keep]
+    if minor:
+        warnings.append(f"ignored {len(minor)} much smaller face-like detection(s): {_describe(minor)}")
+    kept = [boxes[i] for i in keep]
+    if face_index is None:
+        if len(kept) > 1:
+            raise InputError(f"found {len(kept)} faces: {_describe(kept)}; "
+                             f"pass --face-index N (face_index=N) to choose one", path)
+        face_index = 0
+    elif not 0 <= face_index < len(kept):
+        raise InputError(f"face index {face_index} is out of range: found {len(kept)} "
+                         f"face{'s' if len(kept) > 1 else ''}: {_describe(kept)}", path)
+    box = kept[face_index]
+    if box[2] < min_face:
+        raise InputError(f"face is too small: {box[2]}x{box[3]} px, at least {min_face} px wide is needed "
+                         f"(use a larger or closer photo)", path)
+    return keep[face_index], keep
+
+
+def _analyze_mediapipe(image, face_index, path, min_face) -> PortraitAnalysis | None:
+    """`analyze_portrait` with MediaPipe's models; None when they find no face."""
+    from avatarkit.face import detect_faces, face_landmarks
+
+    faces = detect_faces(image)
+    meshes = [face_landmarks(image, f) for f in faces]
+    # the face mesh's presence score rejects the detector's false positives
+    faces, meshes = [f for f, m in zip(faces, meshes) if m.presence >= 0.5], \
+        [m for m in meshes if m.presence >= 0.5]
+    if not faces:
+        return None
+    warnings: list[str] = []
+    boxes = [f.xywh() for f in faces]
+    index, keep = _choose(boxes, face_index, min_face, path, warnings)
+    mesh = meshes[index]
+    p = mesh.points.astype(np.float64)
+    iris = mesh.iris_centers.astype(np.float64)
+    src = "mediapipe"
+    landmarks = {"right_eye": Landmark(*iris[0], True, src), "left_eye": Landmark(*iris[1], True, src),
+                 "nose_tip": Landmark(*p[1, :2], True, src),
+                 "mouth_center": Landmark(*(0.5 * (p[13, :2] + p[14, :2])), True, src),
+                 "mouth_right": Landmark(*p[61, :2], True, src), "mouth_left": Landmark(*p[291, :2], True, src)}
+    return _describe_face(image, boxes[index], "mediapipe", keep.index(index), [boxes[i] for i in keep],
+                          landmarks, warnings, mesh)
+
+
+def _analyze_cascade(image, face_index, path, min_face) -> PortraitAnalysis:
     warnings: list[str] = []
     # Look for faces down to half the accepted size, so a too-small face is reported as such.
     boxes, detector = detect_faces(image, min_size=max(24, min_face // 2))
@@ -450,23 +531,10 @@ def analyze_portrait(image, face_index: int | None = None, *, path: str | os.Pat
                 if _profile_faces(image, max(24, min_face // 2)) else
                 f"use a well-lit, roughly frontal portrait with the face at least {min_face} px wide")
         raise InputError(f"no face found (OpenCV Haar and scikit-image LBP face detectors); {hint}", path)
-    largest = max(b[2] for b in boxes)
-    minor = [b for b in boxes if b[2] < MINOR_FACE_FRACTION * largest]
-    if minor:
-        boxes = [b for b in boxes if b[2] >= MINOR_FACE_FRACTION * largest]
-        warnings.append(f"ignored {len(minor)} much smaller face-like detection(s): {_describe(minor)}")
-    if face_index is None:
-        if len(boxes) > 1:
-            raise InputError(f"found {len(boxes)} faces: {_describe(boxes)}; "
-                             f"pass --face-index N (face_index=N) to choose one", path)
-        face_index = 0
-    elif not 0 <= face_index < len(boxes):
-        raise InputError(f"face index {face_index} is out of range: found {len(boxes)} "
-                         f"face{'s' if len(boxes) > 1 else ''}: {_describe(boxes)}", path)
-    box = boxes[face_index]
-    if box[2] < min_face:
-        raise InputError(f"face is too small: {box[2]}x{box[3]} px, at least {min_face} px wide is needed "
-                         f"(use a larger or closer photo)", path)
+    index, keep = _choose(boxes, face_index, min_face, path, warnings)
+    box = boxes[index]
+    boxes = [boxes[i] for i in keep]
+    face_index = keep.index(index)
 
     grey = _grey(image)
     eyes = _find_eyes(grey, box)
@@ -474,19 +542,29 @@ def analyze_portrait(image, face_index: int | None = None, *, path: str | os.Pat
     landmarks.update(_find_mouth(grey, box, eyes))
     r, l = eyes["right_eye"].xy, eyes["left_eye"].xy
     iod = float(np.linalg.norm(l - r))
-    both = eyes["right_eye"].detected and eyes["left_eye"].detected
-    roll = math.degrees(math.atan2(l[1] - r[1], l[0] - r[0]))
     ex = (l - r) / iod
     ey = np.array([-ex[1], ex[0]])
     mid = (r + l) / 2
     nose_src = "eye_ratio" if (eyes["right_eye"].detected or eyes["left_eye"].detected) else "box_ratio"
     landmarks["nose_tip"] = Landmark(*_place(mid, iod, ex, ey, "nose_tip"), False, nose_src)
     landmarks = {n: landmarks[n] for n in LANDMARK_NAMES}
-
-    if not both:
+    if not (eyes["right_eye"].detected and eyes["left_eye"].detected):
         missing = [n for n in ("right_eye", "left_eye") if not eyes[n].detected]
         warnings.append(f"{' and '.join(m.replace('_', ' ') for m in missing)} not found; estimated from "
                         f"face proportions, so roll and frontality are less reliable")
+    return _describe_face(image, box, detector, face_index, boxes, landmarks, warnings)
+
+
+def _describe_face(image, box, detector, face_index, boxes, landmarks, warnings, mesh=None) -> PortraitAnalysis:
+    """Roll, frontality and the canonical crop of the chosen face, from its landmarks."""
+    h, w = image.shape[:2]
+    grey = _grey(image)
+    r, l = landmarks["right_eye"].xy, landmarks["left_eye"].xy
+    iod = float(np.linalg.norm(l - r))
+    both = landmarks["right_eye"].detected and landmarks["left_eye"].detected
+    roll = math.degrees(math.atan2(l[1] - r[1], l[0] - r[0]))
+    ex = (l - r) / iod
+    mid = (r + l) / 2
     # Frontality: a turned head moves the eyes off the face box's centre line and breaks the
     # face's mirror symmetry; either alone fools easily (lighting, hair), so take the weaker.
     box_centre = np.array([box[0] + box[2] / 2, box[1] + box[3] / 2])
@@ -505,10 +583,11 @@ def analyze_portrait(image, face_index: int | None = None, *, path: str | os.Pat
     side = CROP_SCALE * 2.0 * max(2.0 * iod, 1.8 * float(np.linalg.norm(e2m)))
     centre = mid + 0.1 * e2m
     return PortraitAnalysis(
-        image_size=(w, h), face_box=box, detector=detector, face_index=face_index, faces=tuple(boxes),
+        image_size=(w, h), face_box=tuple(int(v) for v in box), detector=detector, face_index=face_index,
+        faces=tuple(tuple(int(v) for v in b) for b in boxes),
         landmarks=landmarks, roll_deg=roll, frontality=frontality, symmetry=symmetry,
         eye_offset=eye_offset, crop_center=(float(centre[0]), float(centre[1])), crop_side=side,
-        warnings=warnings)
+        warnings=warnings, mesh=mesh)
 
 
 def analysis_from_box(image_size: tuple[int, int], face_box: Box) -> PortraitAnalysis:

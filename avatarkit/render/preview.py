@@ -70,6 +70,7 @@ class PreviewOptions:
     contact_sheet: int | None = None  # views around the subject on one PNG
     columns: int | None = None        # contact sheet columns (default ~sqrt(views))
     fps: float = 24.0
+    crf: int | None = None            # H.264 quality of an .mp4 (default: export.video.DEFAULT_CRF)
 
 
 @dataclass
@@ -172,7 +173,8 @@ def render_preview(source: GaussianSet | str | os.PathLike, output: str | os.Pat
                   for i in range(total)]
         write_contact_sheet(output, list(frames()), columns=options.columns, labels=labels)
     else:
-        from avatarkit.export.video import write_video
-        write_video(output, frames(), options.fps)
+        from avatarkit.export.video import DEFAULT_CRF, write_video
+        write_video(output, frames(), options.fps,
+                    crf=DEFAULT_CRF if options.crf is None else options.crf)
     cam = cameras[0]
     return PreviewResult(Path(output), kind, total, cam.width, cam.height, time.perf_counter() - t0)

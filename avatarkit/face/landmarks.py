@@ -1,0 +1,156 @@
+"""MediaPipe's 468-point face mesh and iris models on LiteRT.
+
+Face mesh (mediapipe/modules/face_landmark): the region is a square around the detection
+box, turned so that the line from the right eye to the left eye keypoint is its x axis
+(DetectionsToRects, target angle 0), 1.5 times the box's longer side (RectTransformation,
+square_long). It is resampled to 192 x 192 in [0, 1]; the model returns 468 points (x, y in
+input pixels, z in the same units, smaller = nearer the camera) and a face-presence logit
+(sigmoid -> `presence`). Points are mapped back through the region (LandmarkProjection); z
+is scaled like x, so all three are image pixels.
+
+Iris (mediapipe/modules/iris_landmark): each eye's region is centred between its corners
+(mesh points 33 and 133 for the subject's right eye, 362 and 263 for the left), turned along
+the corner line, 2.3 times the corner distance, resampled to 64 x 64 in [0, 1]; the model is
+trained on one eye side, so the subject's left eye is mirrored in and out. It returns 71 eye
+contour points and 5 iris points (centre first, then four on the iris boundary).
+
+For video (issue 16), `roi_from_mesh` makes the next frame's region from this frame's mesh as
+MediaPipe's tracking does (rotation from points 33 -> 263, scale 1.5).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from avatarkit.face.detect import Face
+from avatarkit.face.models import get_model
+from avatarkit.face.roi import Roi, crop, roi_from_points
+
+N_LANDMARKS = 468
+#: face_detection_front_detection_to_roi / face_landmark_landmarks_to_roi: RectTransformation scale
+FACE_ROI_SCALE = 1.5
+#: iris_landmark_landmarks_to_roi: RectTransformation scale
+IRIS_ROI_SCALE = 2.3
+#: mesh points of each eye's corners, (subject's right eye, left eye), outer/inner in the order
+#: MediaPipe's iris graph takes them (rotation from the first to the second)
+EYE_CORNERS = ((33, 133), (362, 263))
+#: mesh points of the rotation vector when a region is made from a previous mesh
+MESH_ROTATION_POINTS = (33, 263)
+
+
+@dataclass(eq=False)
+class FaceMesh:
+    """The face mesh of one face, in image pixels (x right, y down, pixel centres at i + 0.5;
+    z in the same pixel units, smaller = nearer the camera, 0 near the face's centre depth).
+
+    points: (468, 3) float32 in MediaPipe's face-mesh order; presence: 0..1 (is a face there);
+    iris: (2, 5, 3) float32, (subject's right eye, left eye) x (centre, 4 boundary points);
+    eye_contours: (2, 71, 3) float32; roi: the region the mesh model saw;
+    eye_rois: the two iris regions.
+    """
+
+    points: np.ndarray
+    presence: float
+    iris: np.ndarray
+    eye_contours: np.ndarray
+    roi: Roi
+    eye_rois: tuple[Roi, Roi]
+
+    def scaled(self, k: float) -> "FaceMesh":
+        """The same mesh for the image resized by factor k (every coordinate times k)."""
+        def roi(r: Roi) -> Roi:
+            return Roi((r.center[0] * k, r.center[1] * k), r.side * k, r.angle)
+
+        k32 = np.float32(k)
+        return FaceMesh(self.points * k32, self.presence, self.iris * k32, self.eye_contours * k32,
+                        roi(self.roi), (roi(self.eye_rois[0]), roi(self.eye_rois[1])))
+
+    @property
+    def iris_centers(self) -> np.ndarray:
+        """(2, 2) pixels: the subject's right, left iris centre."""
+        return self.iris[:, 0, :2]
+
+    @property
+    def iris_radii(self) -> np.ndarray:
+        """(2,) pixels: mean distance of the boundary points from each iris centre."""
+        return np.linalg.norm(self.iris[:, 1:, :2] - self.iris[:, :1, :2], axis=2).mean(axis=1)
+
+
+def roi_from_face(face: Face) -> Roi:
+    """The face-mesh region of a detection (module docstring)."""
+    kp = face.keypoints.astype(np.float64)
+    box = face.box.astype(np.float64).reshape(2, 2)
+    return roi_from_points(kp[0], kp[1], box, FACE_ROI_SCALE)
+
+
+def roi_from_mesh(points: np.ndarray) -> Roi:
+    """The face-mesh region from a previous mesh `points` (468, 2+) (tracking)."""
+    p = np.asarray(points, np.float64)[:, :2]
+    a, b = MESH_ROTATION_POINTS
+    return roi_from_points(p[a], p[b], p, FACE_ROI_SCALE)
+
+
+def _sigmoid(x: float) -> float:
+    return float(1.0 / (1.0 + np.exp(-np.clip(x, -100.0, 100.0))))
+
+
+def _iris(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[Roi, Roi]]:
+    model = get_model("iris")
+    size = model.input_size[0]
+    contours, irises, rois = [], [], []
+    for side, (a, b) in enumerate(EYE_CORNERS):
+        p0, p1 = points[a, :2], points[b, :2]
+        roi = roi_from_points(p0, p1, np.stack([p0, p1]), IRIS_ROI_SCALE)
+        flip = side == 1
+        x = crop(image, roi, size, flip=flip) / 255.0
+        outs = model.run(x[None])
+        contour = next(o for o in outs if o.size == 71 * 3).reshape(71, 3).astype(np.float64) / size
+        iris = next(o for o in outs if o.size == 5 * 3).reshape(5, 3).astype(np.float64) / size
+        for arr, out in ((contour, contours), (iris, irises)):
+            uv = arr[:, :2].copy()
+            if flip:
+                uv[:, 0] = 1.0 - uv[:, 0]
+            xy = roi.to_image(uv)
+            out.append(np.concatenate([xy, arr[:, 2:] * roi.side], axis=1))
+        rois.append(roi)
+    return (np.stack(irises).astype(np.float32), np.stack(contours).astype(np.float32),
+            (rois[0], rois[1]))
+
+
+def _mesh(image: np.ndarray, roi: Roi) -> tuple[np.ndarray, float]:
+    model = get_model("landmarks")
+    size = model.input_size[0]
+    x = crop(image, roi, size) / 255.0
+    outs = model.run(x[None])
+    raw = next(o for o in outs if o.size == N_LANDMARKS * 3).reshape(N_LANDMARKS, 3).astype(np.float64) / size
+    flag = next(o for o in outs if o.size == 1)
+    xy = roi.to_image(raw[:, :2])
+    points = np.concatenate([xy, raw[:, 2:] * roi.side], axis=1).astype(np.float32)
+    return points, _sigmoid(float(flag.reshape(-1)[0]))
+
+
+def face_landmarks(image: np.ndarray, face: Face | Roi, refine: bool = True) -> FaceMesh:
+    """The face mesh and irises of one face in an (H, W, 3) uint8 RGB image of any size.
+    face: a detection (`detect_faces`) or a region (`roi_from_mesh` of a previous frame).
+    refine: run the mesh model a second time in the region made from its first answer
+    (`roi_from_mesh`, as MediaPipe's tracking does from frame to frame). The detector's box and
+    eye keypoints are coarse, worse under strong roll (a face turned 90 degrees in the picture
+    gets a ~70 degree region); on the sample portrait turned by 30, -45 and 90 degrees the
+    second pass brings the median error from up to 6% to at most 2.5% of the eye distance.
+    Raises ModelsMissing when the models or LiteRT are not installed."""
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    image = image[..., :3]
+    roi = face if isinstance(face, Roi) else roi_from_face(face)
+    points, presence = _mesh(image, roi)
+    if refine and presence > 0.5:
+        # kept only if the model is at least as sure of a face there: on a face turned far
+        # sideways the mesh's bounding box can frame it worse than the detector did
+        again = roi_from_mesh(points)
+        points2, presence2 = _mesh(image, again)
+        if presence2 >= min(presence, 0.9):
+            roi, points, presence = again, points2, presence2
+    iris, contours, eye_rois = _iris(image, points)
+    return FaceMesh(points, presence, iris, contours, roi, eye_rois)

@@ -1,0 +1,114 @@
+"""The learned face front end (issue 15): speed, and the landmark fit's accuracy on renders.
+
+1. Speed per 512x512 image (the sample portrait): detection (both BlazeFace models), face mesh
+   (two passes) and iris, median of repeated runs, next to the simple baseline run in the same
+   process: the OpenCV/scikit-image cascade detector the build used before (`recon.portrait`).
+   Target: detection + landmarks + iris <= 30 ms on 2 cores.
+2. Fit accuracy on renders of the template head with known pose and shape (512x512): rotation
+   error (degrees) and the fitted head's landmark reprojection error (pixels, median), for the
+   landmark fit alone (`face.fit.fit_landmarks`) next to the closed-form solvePnP start it
+   begins from. Targets: median rotation error <= 2 degrees; reprojection <= 2 px median.
+
+    .venv/bin/python benchmarks/face.py [--cases 8] [--repeats 15]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _timing import median_time  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def speed(repeats: int) -> None:
+    from avatarkit.face import detect_faces, face_landmarks
+    from avatarkit.recon.image_io import read_image
+    from avatarkit.recon.portrait import detect_faces as cascade_faces
+
+    image = read_image(ROOT / "samples" / "portrait.jpg")
+    faces = detect_faces(image)
+    t_det = median_time(lambda: detect_faces(image), repeats)
+    t_mesh = median_time(lambda: face_landmarks(image, faces[0]), repeats)
+    t_all = median_time(lambda: face_landmarks(image, detect_faces(image)[0]), repeats)
+    t_cascade = median_time(lambda: cascade_faces(image), max(3, repeats // 3))
+    print(f"== speed on samples/portrait.jpg ({image.shape[1]}x{image.shape[0]}), median of {repeats}")
+    print(f"detection (short + full range)      {t_det * 1e3:7.1f} ms")
+    print(f"face mesh (2 passes) + iris (2)     {t_mesh * 1e3:7.1f} ms")
+    print(f"all together                        {t_all * 1e3:7.1f} ms   target <= 30 ms")
+    print(f"baseline: cascade face detection    {t_cascade * 1e3:7.1f} ms   (ratio all/cascade {t_all / t_cascade:.2f})")
+
+
+def accuracy(cases: int) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.face import detect_faces, face_landmarks
+    from avatarkit.face.correspondence import template_embedding
+    from avatarkit.face.fit import (LandmarkModel, LandmarkTargets, fit_landmarks, initial_pose,
+                                    pixel_errors)
+    from avatarkit.head.model import HeadModel
+    from avatarkit.recon.fit import portrait_focal, synthetic_head_view, view_camera
+
+    model = HeadModel.template()
+    emb = template_embedding()
+    lm = LandmarkModel(model, emb)
+    rng = np.random.default_rng(0)
+    size = 512
+    f = portrait_focal(size, size)
+    rows = []
+    print(f"\n== fit on {cases} template renders ({size}x{size}), yaw in [-40, 40], pitch [-12, 12], roll [-10, 10] deg")
+    for i in range(cases):
+        yaw, pitch, roll = rng.uniform(-40, 40), rng.uniform(-12, 12), rng.uniform(-10, 10)
+        shape = rng.normal(size=model.num_shape) * 0.7
+        rot = Rotation.from_euler("YXZ", [yaw, pitch, roll], degrees=True)
+        s = synthetic_head_view(rotation=rot.as_rotvec(), size=size, distance=0.55, shape=shape,
+                                n_gaussians=40000, seed=i)
+        faces = detect_faces(s.image)
+        if not faces:
+            print(f"  case {i}: no face found (yaw {yaw:.0f})")
+            continue
+        mesh = face_landmarks(s.image, max(faces, key=lambda q: q.score))
+        targets = LandmarkTargets.from_mesh(mesh, emb, (size, size))
+        truth_px = s.truth.camera.project(lm.points_numpy(shape))[0]
+        r0, t0 = initial_pose(lm.points_numpy(), targets, f)
+        fit = fit_landmarks(model, emb, targets, f)
+        err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
+        px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
+        rows.append((err(r0), np.median(pixel_errors(px0, targets)), err(fit.rotation), fit.median_error,
+                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1)))))
+        print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error "
+              f"{rows[-1][2]:5.2f} deg (start {rows[-1][0]:5.2f}), reprojection {fit.median_error:5.2f} px "
+              f"(start {rows[-1][1]:5.2f}); true landmarks vs detected {rows[-1][4]:5.2f} px")
+    a = np.array(rows)
+    print(f"median rotation error        {np.median(a[:, 2]):6.2f} deg   (solvePnP start {np.median(a[:, 0]):.2f}; "
+          f"ratio {np.median(a[:, 2]) / np.median(a[:, 0]):.2f})   target <= 2 deg")
+    print(f"median reprojection error    {np.median(a[:, 3]):6.2f} px    (solvePnP start {np.median(a[:, 1]):.2f})   "
+          f"target <= 2 px")
+    print(f"median detected vs true template landmarks {np.median(a[:, 4]):.2f} px "
+          "(the face mesh's own error on the template: the floor of the fit)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
+    args = ap.parse_args()
+    if args.quick:
+        args.cases, args.repeats = 2, 1
+    speed(args.repeats)
+    accuracy(args.cases)
+
+
+if __name__ == "__main__":
+    main()
