@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export TI_SKIP_VERSION_CHECK := ON
 export ENABLE_TAICHI_HEADER_PRINT := 0
 
-.PHONY: demo test test-all bench install clean chromium
+.PHONY: demo test test-all bench bench-quick install clean chromium
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -56,8 +56,15 @@ chromium:
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ""
 
+# Every benchmark script (helpers: _*.py and the scene generator make_scene.py are not run).
+BENCH_SCRIPTS := $(filter-out benchmarks/_% benchmarks/make_scene.py,$(sort $(wildcard benchmarks/*.py)))
+
 bench: $(STAMP)
-	for f in benchmarks/*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+	for f in $(BENCH_SCRIPTS); do echo "== $$f"; $(PY) $$f $(BENCH_FLAGS) || exit 1; done
+
+# The same scripts at tiny sizes: checks they run (minutes, not the figures).
+bench-quick:
+	$(MAKE) bench BENCH_FLAGS=--quick
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache

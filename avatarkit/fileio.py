@@ -1,6 +1,7 @@
 """Atomic output files and folders: write to a temporary name beside the target, rename when
 complete. `read_npz`/`open_npz`, the guarded readers of every .npz file we read (clips, rigs,
-head models, cage weights, trackers' FLAME fits).
+head models, cage weights, trackers' FLAME fits), and `file_sha256`, the digest that provenance
+records of input files.
 
 The rules every writer follows (docs/safety.md):
 - A failed or interrupted writer never leaves a half-written file or folder under the requested
@@ -394,3 +395,12 @@ def check_inside(target: str | os.PathLike, root: str | os.PathLike) -> Path:
         raise OutputError(f"a symbolic link on the way leads outside the output folder {root}; "
                           f"refusing to write there", target) from None
     return target
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 hex digest of a file's bytes, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

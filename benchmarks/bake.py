@@ -18,7 +18,7 @@ Prints
 Each bake runs in its own subprocess (so ru_maxrss is that bake's own peak).
 Target: >= 20 frames/s end to end on 2 cores.
 
-Usage: python benchmarks/bake.py [N_HAIR N_BALD] [--frames 300] [--no-storage]
+Usage: python benchmarks/bake.py [N_HAIR N_BALD] [--frames 300] [--no-storage] [--quick]
        python benchmarks/bake.py --child AVATAR_DIR FRAMES OUT {usd,half,none} HAIR_BATCH  (internal)
        python benchmarks/bake.py --load AVATAR_DIR                                     (internal)
 """
@@ -156,13 +156,16 @@ def storage_options(avatar) -> None:
 
 def main(argv: list[str]) -> None:
     frames = 300
-    storage = "--no-storage" not in argv
-    argv = [a for a in argv if a != "--no-storage"]
+    quick = "--quick" in argv  # tiny sizes: only checks that the script runs (tests, make bench-quick)
+    storage = "--no-storage" not in argv and not quick
+    argv = [a for a in argv if a not in ("--no-storage", "--quick")]
     if "--frames" in argv:
         i = argv.index("--frames")
         frames = int(argv[i + 1])
         del argv[i:i + 2]
     n_hair, n_bald = (int(argv[0]), int(argv[1])) if len(argv) >= 2 else (50_000, 50_000)
+    if quick:
+        frames, n_hair, n_bald = 12, 3000, 3000
     os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
     import numpy as np
@@ -189,11 +192,12 @@ def main(argv: list[str]) -> None:
         old = tmp / "avatar_format1"
         as_format_1(folder, old)
         old_size = sum(p.stat().st_size for p in old.iterdir())
-        new_load = [run_child("--load", folder) for _ in range(2)]
-        old_load = [run_child("--load", old) for _ in range(2)]
+        tries = 1 if quick else 2
+        new_load = [run_child("--load", folder) for _ in range(tries)]
+        old_load = [run_child("--load", old) for _ in range(tries)]
         best = {k: min(r["seconds"] for r in v) for k, v in (("new", new_load), ("old", old_load))}
         cpu = {k: min(r["cpu"] for r in v) for k, v in (("new", new_load), ("old", old_load))}
-        print(f"load + hair weights ready (fresh process, best of 2): {best['new']:.1f} s wall / "
+        print(f"load + hair weights ready (fresh process, best of {tries}): {best['new']:.1f} s wall / "
               f"{cpu['new']:.1f} s CPU with the weights recomputed (goal < ~5 s on 2 cores; the load "
               f"alone {min(r['load'] for r in new_load):.1f} s wall / {min(r['load_cpu'] for r in new_load):.1f} s "
               f"CPU); baseline with dense weights stored (rig format 1, {old_size / 1e6:.0f} MB folder): "

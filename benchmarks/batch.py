@@ -115,7 +115,11 @@ def main() -> None:
     ap.add_argument("--bald", type=int, default=5000)
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--keep", type=Path, default=None, help="Keep (and reuse) the inputs in this folder.")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        args.hair, args.bald, args.frames = 1500, 1500, 8
 
     work = Path(tempfile.mkdtemp(prefix="avatarkit_batch_bench_"))
     inputs = args.keep or work / "inputs"

@@ -112,7 +112,11 @@ def main(argv=None) -> int:
     ap.add_argument("--n-bald", type=int, default=40_000)
     ap.add_argument("--n-hair", type=int, default=40_000)
     ap.add_argument("--only", help="run only the portrait whose name contains this")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.n_bald, args.n_hair = 3000, 3000
     options = BuildOptions(n_bald=args.n_bald, n_hair=args.n_hair)
     print(f"avatarkit build benchmark: n_bald={args.n_bald}, n_hair={args.n_hair}, "
           f"{os.cpu_count()} CPUs (timings are noisy on a shared machine)")

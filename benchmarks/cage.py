@@ -165,7 +165,11 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[50_000, 200_000])
     parser.add_argument("--peer-points", type=int, default=1000,
                         help="points for the PyTorch peer timing (0: skip)")
+    parser.add_argument("--quick", action="store_true",
+                        help="tiny sizes, one repeat: only checks that the script runs")
     args = parser.parse_args()
+    if args.quick:
+        args.sizes, args.peer_points = [2000], 50
     bandwidth = read_bandwidth()
     print(f"read bandwidth (numpy sum of 512 MB): {bandwidth / 1e9:.1f} GB/s; cores: {os.cpu_count()}")
     for n in args.sizes:

@@ -95,7 +95,11 @@ def main() -> None:
     ap.add_argument("--nvidia-sizes", type=int, nargs="*", default=[200_000])
     ap.add_argument("--keep", type=Path, help="write inputs/outputs here instead of a temp folder")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        args.sizes, args.nvidia_sizes = [5000], [5000]
     if args.child:
         if args.child[0] == "make":
             make_ply(int(args.child[1]), Path(args.child[2]))

@@ -101,7 +101,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        args.cases, args.repeats = 2, 1
     speed(args.repeats)
     accuracy(args.cases)
 

@@ -54,6 +54,7 @@ def random_params(model: HeadModel, T: int, seed: int = 1) -> HeadParams:
 
 def bench_generation() -> None:
     from avatarkit.head import template as tm
+    from avatarkit.head.model import build_template
     from avatarkit.head.remesh import collapse_short_edges, flip_edges, project_to_sdf, relax
 
     t0 = time.perf_counter()
@@ -66,7 +67,7 @@ def bench_generation() -> None:
     v = relax(v, f, tm.head_sdf, iterations=5)
     f = flip_edges(v, f)
     t3 = time.perf_counter()
-    total = median_time(tm.build_template, repeats=1, warmup=0)
+    total = median_time(build_template, repeats=1, warmup=0)
     print(f"template generation: {total:.2f} s total (marching cubes {t1 - t0:.2f} s, "
           f"decimation {t2 - t1:.2f} s, flips + relaxation {t3 - t2:.2f} s); {len(v)} head vertices")
 
@@ -95,7 +96,11 @@ def bench_lbs(model: HeadModel, T: int) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100, help="frames per batched forward call")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.frames = 4
     bench_generation()
     bench_lbs(HeadModel.template(), args.frames)
     bench_lbs(flame_sized_model(), args.frames)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """3D hair segmentation speed and quality.
 
-1. `accumulate_weights` on the standard bench scene (../shared/bench/make_scene.py), 512x512,
+1. `accumulate_weights` on the standard bench scene (benchmarks/make_scene.py), 512x512,
    N = 100k (and --sizes): a 4-label blob image and a worst case (every pixel a random label),
    median of --repeats after a warm-up, beside `render` of the same scene (ratio) and, at
    --reference-n Gaussians, the numpy float64 reference (ratio and largest difference).
@@ -25,7 +25,6 @@ os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
 
 REPO = Path(__file__).resolve().parents[1]
-BENCH = REPO.parent / "shared" / "bench"
 
 
 def timed(fn, repeats):
@@ -54,16 +53,21 @@ def main() -> int:
     ap.add_argument("--reference-n", type=int, default=20_000)
     ap.add_argument("--views", type=int, default=8)
     ap.add_argument("--head-n", type=int, default=60_000)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        args.sizes, args.repeats, args.reference_n, args.views, args.head_n = [5000], 1, 1000, 2, 5000
 
-    sys.path.insert(0, str(BENCH))
+    sys.path.insert(0, str(REPO / "benchmarks"))
     sys.path.insert(0, str(REPO / "tests"))
-    import make_scene  # noqa: E402  (the shared scene generator)
+    import make_scene  # noqa: E402  (the standard scene generator, beside this script)
     import numpy as np
 
     from avatarkit.gaussians import GaussianSet
-    from avatarkit.recon.labels3d import (accumulate_weights, accumulate_weights_reference,
-                                          default_label_cameras, render_label_images, split_hair)
+    from avatarkit.recon.label_lifting import (accumulate_weights, accumulate_weights_reference,
+                                               default_label_cameras, render_label_images)
+    from avatarkit.recon.labels3d import split_hair
     from avatarkit.render import Camera, render
     from test_recon_labels3d import dilate_hair, head_scene  # the tests' synthetic head
 

@@ -85,7 +85,12 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--no-plyfile", action="store_true", help="skip the (slow) plyfile read")
     ap.add_argument("--no-cold", action="store_true", help="skip the fresh-process reads")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    cold_repeats = 3
+    if args.quick:
+        args.n, args.repeat, cold_repeats = 5000, 1, 1
 
     gs = random_gaussians(args.n, 3, seed=0, extras=())
     with tempfile.TemporaryDirectory() as d:
@@ -100,7 +105,7 @@ def main() -> None:
         t_plyfile = None
         if not args.no_plyfile:
             t_plyfile = best_of(args.repeat, lambda: plyfile_load_like_3dgs(path))
-        cold = {} if args.no_cold else {d: min(cold_read(path, d) for _ in range(3))
+        cold = {} if args.no_cold else {d: min(cold_read(path, d) for _ in range(cold_repeats))
                                         for d in ("auto", "numpy", "kernel")}
 
     t_fromfile, t_read = fromfile[0], kernel[0]

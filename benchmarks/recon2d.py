@@ -117,11 +117,15 @@ def bench_synthetic() -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.repeat = 1
     print(f"avatarkit 2D recon stages; cv2 threads {cv2.getNumThreads()}, cpus {os.cpu_count()} (timings are noisy on a shared box)")
     base = read_image(SAMPLE)
     analyze_portrait(base)  # load the cascades once, outside the timings
-    for size in (512, 1024, 2048):
+    for size in (512,) if args.quick else (512, 1024, 2048):
         bench_size(base, size, args.repeat)
     bench_fill(args.repeat)
     bench_synthetic()

@@ -3,7 +3,7 @@
 Prints seconds for each stage and ratios to simple baselines run in the same process:
 brute-force nearest face (every point against every triangle, vectorised numpy) and a
 per-Gaussian Python loop for posing, both timed on a subset and scaled up linearly.
-Usage: python benchmarks/rig_binding.py [N_GAUSSIANS]
+Usage: python benchmarks/rig_binding.py [N_GAUSSIANS] [--quick]
 """
 from __future__ import annotations
 
@@ -57,7 +57,8 @@ def loop_to_world(b: TriangleBinding, v, count: int):
 
 
 def main():
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 50_000
+    args = [a for a in sys.argv[1:] if a != "--quick"]
+    n = 2000 if "--quick" in sys.argv[1:] else int(args[0]) if args else 50_000
     v, f, g0 = scene(n, 0)
     _, _, g3 = scene(n, 3)
     print(f"rig binding benchmark: {n} Gaussians, {len(f)} triangles (noisy shared 2-core box: compare ratios)")

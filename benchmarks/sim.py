@@ -43,7 +43,11 @@ def main(argv=None) -> int:
     ap.add_argument("--ablation-hair", type=int, default=10000, help="hair Gaussians in the ablation")
     ap.add_argument("--cage", type=int, default=500, help="target cage vertices")
     ap.add_argument("--no-ablation", action="store_true")
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.hair, args.ablation_hair, args.cage = 2000, 500, 200
 
     from avatarkit.bake import HAIR_BATCH
     from avatarkit.cage.deform import CageDeformer

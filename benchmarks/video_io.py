@@ -82,7 +82,11 @@ def main():
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        args.frames, args.size, args.repeat = 8, 128, 1
     imgs = frames(args.frames, args.size)
     with tempfile.TemporaryDirectory() as tmp:
         ours, theirs = Path(tmp) / "h264.mp4", Path(tmp) / "mp4v.mp4"

@@ -136,4 +136,9 @@ if __name__ == "__main__":
     ap.add_argument("--bench-frames", type=int, default=5)
     ap.add_argument("--chromium", default="/usr/bin/chromium")
     ap.add_argument("--keep", default=None, help="work folder to keep (reused when it holds the bake)")
-    run(ap.parse_args())
+    ap.add_argument("--quick", action="store_true",
+                    help="tiny sizes, one repeat: only checks that the script runs")
+    args = ap.parse_args()
+    if args.quick:
+        args.n_hair, args.n_bald, args.frames, args.opens, args.bench_frames = 2000, 2000, 6, 1, 2
+    run(args)

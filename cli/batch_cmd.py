@@ -7,6 +7,10 @@ from avatarkit.cli.options import progress, quiet_option, verbose_option
 
 _ENGINES = ("local", "ray")  # batch.engines.ENGINES, literal so --help imports nothing heavy
 
+# Some jobs failed (each named in the report) while the batch itself ran: not 1, which means an
+# unexpected bug, and not 2, which means the batch file is wrong and nothing ran.
+EXIT_JOBS_FAILED = 3
+
 
 @click.command("bake-batch")
 @click.argument("batch_file", metavar="BATCH", type=click.Path())
@@ -33,7 +37,7 @@ def bake_batch_cmd(batch_file, outdir, engine, address, workers, retries, force,
     A job whose outputs are complete and up to date (same inputs, settings and avatarkit
     version, recorded in <output>.job.json) is skipped, so a re-run redoes only what is
     missing. A failing job is reported and does not stop the others. The summary is also
-    written to OUTDIR/batch_report.json. Exit code 1 if any job failed, 2 for a bad batch file.
+    written to OUTDIR/batch_report.json. Exit code 3 if any job failed, 2 for a bad batch file.
 
     \b
     Examples:
@@ -73,4 +77,4 @@ def bake_batch_cmd(batch_file, outdir, engine, address, workers, retries, force,
             raise KeyboardInterrupt from None
     if not quiet:
         click.echo(format_summary(report, verbose=bool(verbose)))
-    return 0 if report.ok else 1
+    return 0 if report.ok else EXIT_JOBS_FAILED

@@ -125,10 +125,10 @@ def convert(flame_pkl, output, quiet):
     Example:
       avatarkit head convert generic_model.pkl -o flame2020.npz
     """
-    from avatarkit.head import load_flame
+    from avatarkit.head import load_flame, save_npz
 
     model = load_flame(flame_pkl)
-    model.save_npz(output)
+    save_npz(model, output)
     if not quiet:
         click.echo(f"wrote {output}: {model.num_vertices} vertices, {model.num_shape} shape and "
                    f"{model.num_expr} expression components")

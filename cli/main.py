@@ -1,7 +1,8 @@
 """`avatarkit` entry point: a lazily loaded command group and the one place errors become exit codes.
 
 Exit codes (DESIGN.md): 0 ok; 2 bad input (one line naming the file and the problem, no
-traceback); 1 an unexpected bug; 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+traceback); 1 an unexpected bug; 3 (`bake-batch`) the batch ran and some of its jobs failed (the
+report names them); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
 
 SIGTERM is handled like Ctrl-C: it raises `Terminated` (a KeyboardInterrupt) in the main thread,
 so every writer's cleanup runs and nothing partial is left. Library warnings are held while a

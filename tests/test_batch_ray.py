@@ -68,7 +68,7 @@ def test_ray_broken_job_fails_alone(local_ray, inputs, tmp_path, capsys):
            "jobs": [{"avatar": [str(broken), str(inputs / "avatars" / "b")], "clip": str(inputs / "clips" / "nod.npz")}]}
     (tmp_path / "b.json").write_text(json.dumps(doc))
     code, stdout, err = batch_cli(capsys, "bake-batch", tmp_path / "b.json", "-o", tmp_path / "out", "--engine", "ray")
-    assert code == 1
+    assert code == 3
     jobs = {j["name"]: j for j in json.loads((tmp_path / "out" / "batch_report.json").read_text())["jobs"]}
     assert jobs["b/nod"]["status"] == "done"
     assert jobs["broken/nod"]["status"] == "failed" and "rig.npz" in jobs["broken/nod"]["error"]

@@ -13,7 +13,7 @@ import scipy.sparse
 
 from avatarkit.cli.main import main
 from avatarkit.errors import FormatError, InputError
-from avatarkit.head import HeadParams, load_flame, load_head_model, load_npz
+from avatarkit.head import HeadParams, load_flame, load_head_model, load_npz, save_npz
 from avatarkit.head.lbs import lbs_reference
 from avatarkit.head.template import icosphere
 from avatarkit.rotations import axis_angle_to_matrix
@@ -165,7 +165,7 @@ def test_regions_are_derived(flame):
 def test_npz_round_trip(flame, tmp_path):
     m = load_flame(flame[0])
     out = tmp_path / "flame.npz"
-    m.save_npz(out)
+    save_npz(m, out)
     back = load_npz(out)
     for key in ("faces", "v_template", "shapedirs", "exprdirs", "posedirs", "weights", "kintree_parents"):
         np.testing.assert_array_equal(getattr(back, key), getattr(m, key))
@@ -181,7 +181,7 @@ def test_template_npz_round_trip(tmp_path):
     from avatarkit.head import load_template
 
     m = load_template()
-    m.save_npz(tmp_path / "t.npz")
+    save_npz(m, tmp_path / "t.npz")
     back = load_npz(tmp_path / "t.npz")
     assert back.expression_names == m.expression_names and back.posedirs is None
     p = HeadParams(expr=np.eye(1, m.num_expr, 2), jaw=[[0.2, 0, 0]])

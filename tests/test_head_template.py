@@ -259,7 +259,7 @@ def test_template_is_cached_deterministic_and_copied(head):
 
 @pytest.mark.slow
 def test_generation_is_deterministic(head):
-    from avatarkit.head.template import build_template
+    from avatarkit.head.model import build_template
 
     again = build_template()
     np.testing.assert_array_equal(again.faces, head.faces)

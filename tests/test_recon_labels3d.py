@@ -7,10 +7,10 @@ from scipy import ndimage
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians import GaussianSet
-from avatarkit.recon.labels3d import (UNSEEN, LabelLift, ReassignConfig, accumulate_weights,
-                                      accumulate_weights_reference, default_label_cameras,
-                                      lift_labels, reassign_boundary, render_label_images,
-                                      split_hair)
+from avatarkit.recon.hair_reassign import ReassignConfig, reassign_boundary
+from avatarkit.recon.label_lifting import (UNSEEN, LabelLift, accumulate_weights, accumulate_weights_reference,
+                                           default_label_cameras, lift_labels, render_label_images)
+from avatarkit.recon.labels3d import split_hair
 from avatarkit.render import Camera, bin_gaussians, project_gaussians, rasterize, render
 from avatarkit.rotations import matrix_to_quat
 

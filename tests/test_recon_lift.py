@@ -10,9 +10,12 @@ import pytest
 from avatarkit.errors import FormatError, InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.fit import synthetic_head_view
-from avatarkit.recon.lift import (BuiltinLifter, ImportLifter, Lifter, align_similarity, hair_flow,
-                                  hair_shell, lift_bald, lift_hair, propagate_colors, sample_image,
-                                  umeyama)
+from avatarkit.recon.bald_discs import lift_bald, propagate_colors
+from avatarkit.recon.hair_strands import hair_flow, hair_shell
+from avatarkit.recon.image_sampling import sample_image
+from avatarkit.recon.import_lifter import ImportLifter, align_similarity, umeyama
+from avatarkit.recon.lift import BuiltinLifter, lift_hair
+from avatarkit.recon.lifter import Lifter
 from avatarkit.recon.segment import HAIR, Segmentation
 
 
@@ -96,7 +99,7 @@ def _hair_view(view_):
 
 
 def test_hair_grows_into_the_mask_and_outside_the_head(view):
-    from avatarkit.recon.assemble import signed_distance
+    from avatarkit.recon.mesh_distance import signed_distance
     from avatarkit.render import render
 
     image, seg, cap = _hair_view(view)
@@ -220,7 +223,7 @@ def test_import_lifter_rejects_corrupt_and_missing_plys(tmp_path, lifted_plys):
 
 
 def test_align_similarity_recovers_a_flipped_frame(view):
-    from avatarkit.recon.lift import head_surface_samples
+    from avatarkit.recon.import_lifter import head_surface_samples
     from avatarkit.rotations import axis_angle_to_matrix
 
     target = head_surface_samples(view.truth, 8000, seed=0)

@@ -8,10 +8,10 @@ import pytest
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
-from avatarkit.recon.assemble import (assemble, closest_points, psnr, push_out, refine_colours,
-                                      rig_bald, signed_distance)
+from avatarkit.recon.assemble import assemble, psnr, push_out, refine_colours, rig_bald
 from avatarkit.recon.fit import synthetic_head_view
 from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, scalp_binding
+from avatarkit.recon.mesh_distance import closest_points, feature_normals, signed_distance
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
 
@@ -87,8 +87,6 @@ def test_assembly_pushes_hair_out_and_keeps_seen_hair_on_its_pixels(view):
     scalp = model.regions["scalp"]
     base = v[rng.choice(scalp, 3000)]
     _, bary, closest, _ = closest_points(base, v, model.faces)
-    from avatarkit.recon.assemble import feature_normals
-
     ids = closest_points(base, v, model.faces)[0]
     n = feature_normals(ids, bary, v, model.faces)
     depth = rng.uniform(-0.004, 0.006, len(base))          # a third start inside the head
@@ -134,7 +132,7 @@ def test_refine_colours_brings_the_render_to_the_photo(view):
     assert figures["psnr_before"] < 15.0
     assert figures["psnr_after"] > 32.0
     # Gaussians the camera cannot see keep their colour
-    from avatarkit.recon.labels3d import accumulate_weights
+    from avatarkit.recon.label_lifting import accumulate_weights
 
     hidden = accumulate_weights(grey, fit.camera, np.zeros(mask.shape, np.int32), 1)[:, 0] < 0.01
     assert hidden.mean() > 0.3
@@ -273,7 +271,7 @@ def test_full_build_on_the_sample_meets_the_targets(tmp_path):
 def test_clean_hair_drops_face_splats_posing_as_hair(view):
     """Imported hair candidates = real hair + some face splats; the 3D segmentation from the
     photo's (here exact) label image keeps the hair and drops the face."""
-    from avatarkit.recon.labels3d import render_label_images
+    from avatarkit.recon.label_lifting import render_label_images
     from avatarkit.recon.pipeline import clean_hair
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.synthetic.head_hair import make_test_avatar

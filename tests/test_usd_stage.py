@@ -144,6 +144,7 @@ def test_chunked_stage_layout_values_and_validation(tmp_path, bake, ext):
     prov = data["provenance"]
     assert prov["tool"] == "test" and prov["clip"] == {"name": "turn", "frames": len(frames)}
     assert list(prov["ids"]) == [1, 2, 3] and list(prov["tags"]) == ["a", "b"]
+    assert "note" not in prov  # None is left out, not stored as the text "null"
     assert validate_stage(path) == []
 
 

@@ -184,10 +184,11 @@ def _box(points: np.ndarray) -> Vt.Vec3fArray:
 def _vt_dict(value):
     """A JSON-able value -> something a VtDictionary (customLayerData) stores faithfully.
 
-    Lists become typed arrays when uniform (str, bool, int, float); mixed or nested lists and
-    None become JSON text, since untyped lists do not survive a USD file."""
+    Lists become typed arrays when uniform (str, bool, int, float); mixed or nested lists become
+    JSON text, since untyped lists do not survive a USD file. A key whose value is None is left
+    out (VtDictionary has no null; the text "null" would read back as a string)."""
     if isinstance(value, dict):
-        return {str(k): _vt_dict(v) for k, v in value.items()}
+        return {str(k): _vt_dict(v) for k, v in value.items() if v is not None}
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):

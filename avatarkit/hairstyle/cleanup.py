@@ -32,7 +32,7 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 class SkinCleanup:
     """band: metres from either head's surface within which a hair Gaussian may be skin;
     k: bald neighbours forming a local skin centre; colour_weight / scale_weight: weights of the
-    two standardised feature groups (as in `recon.labels3d.ReassignConfig`; here size counts as
+    two standardised feature groups (as in `recon.hair_reassign.ReassignConfig`; here size counts as
     much as colour: blond highlights are skin-coloured, but thin, while skin splats are broad
     discs)."""
 

@@ -1,20 +1,14 @@
 """Parametric heads: `HeadModel` (FLAME-compatible), `HeadParams`, LBS, the built-in procedural
-template head and a chumpy-free loader for a user's own FLAME model file."""
-from avatarkit.head.io import load_head_model, load_npz, save_npz
-from avatarkit.head.model import FLAME_PARENTS, JOINT_NAMES, HeadModel, HeadParams
+template head and a chumpy-free loader for a user's own FLAME model file.
 
-
-def load_template() -> HeadModel:
-    """The built-in procedural template head (see `avatarkit.head.template`)."""
-    from avatarkit.head.template import load_template as _load
-    return _load()
-
-
-def load_flame(path, num_shape: int = 300) -> HeadModel:
-    """A user's FLAME 2020/2023 pickle, read without chumpy (see `avatarkit.head.flame`)."""
-    from avatarkit.head.flame import load_flame as _load
-    return _load(path, num_shape=num_shape)
-
+Layers, each importing only those above it: `joints`, `lbs`, `regions`, `sdf`, `remesh` ->
+`template` (the template head's arrays) -> `model` (HeadModel, HeadParams, load_template) ->
+`flame`, `npz` (files) -> `io` (load_head_model by suffix).
+"""
+from avatarkit.head.flame import load_flame
+from avatarkit.head.io import load_head_model
+from avatarkit.head.model import FLAME_PARENTS, JOINT_NAMES, HeadModel, HeadParams, load_template
+from avatarkit.head.npz import load_npz, save_npz
 
 __all__ = ["HeadModel", "HeadParams", "JOINT_NAMES", "FLAME_PARENTS", "load_template", "load_flame",
            "load_head_model", "load_npz", "save_npz"]

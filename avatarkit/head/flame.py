@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError
+from avatarkit.fileio import file_sha256
 from avatarkit.head.model import HeadModel
+from avatarkit.head.regions import derive_regions
 
 #: identity components FLAME puts before its expression components in `shapedirs`
 FLAME_NUM_SHAPE = 300
@@ -145,9 +147,6 @@ def load_flame(path: str | os.PathLike, num_shape: int = FLAME_NUM_SHAPE) -> Hea
     expression components. Errors (unreadable file, missing key, wrong shape) are FormatError
     naming the file and the key.
     """
-    from avatarkit.head.io import file_sha256
-    from avatarkit.head.regions import derive_regions
-
     path = Path(path)
     if not path.is_file():
         raise InputError("FLAME model file not found", path)

@@ -1,4 +1,7 @@
-"""`HeadModel` (a FLAME-compatible parametric head) and `HeadParams` (its per-frame inputs).
+"""`HeadModel` (a FLAME-compatible parametric head) and `HeadParams` (its per-frame inputs), and
+the built-in template head as a `HeadModel` (`load_template`; its geometry comes from
+`avatarkit.head.template`). Files: `avatarkit.head.npz` (our npz), `avatarkit.head.flame`
+(FLAME pickles), `avatarkit.head.io.load_head_model` (any of them by suffix).
 
 Joint layout (DESIGN.md, FLAME): 0 root/global, 1 neck, 2 jaw, 3 left eye, 4 right eye; parents
 [-1, 0, 1, 1, 1]. Parameter names follow FLAME / GaussianAvatars / VHAP: `rotation` (global
@@ -7,7 +10,8 @@ axis-angle), `translation`, `neck`/`jaw` (`neck_pose`, `jaw_pose` in their files
 """
 from __future__ import annotations
 
-import os
+import copy
+import functools
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping
@@ -16,12 +20,9 @@ import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.head import lbs as _lbs
-
-JOINT_NAMES = ("root", "neck", "jaw", "left_eye", "right_eye")
-FLAME_PARENTS = np.array([-1, 0, 1, 1, 1], dtype=np.int64)
-
-#: npz layout version written by `HeadModel.save_npz`
-NPZ_FORMAT = "avatarkit.head/1"
+from avatarkit.head import template as _template
+from avatarkit.head.joints import FLAME_PARENTS, JOINT_NAMES
+from avatarkit.head.regions import derive_regions
 
 # Per-frame fields of HeadParams and their widths; FLAME-file aliases map onto them.
 _FRAME_FIELDS = {"rotation": 3, "translation": 3, "neck": 3, "jaw": 3, "eyes": 6}
@@ -261,17 +262,7 @@ class HeadModel:
     @classmethod
     def template(cls) -> "HeadModel":
         """The built-in procedural head (no files needed). See `avatarkit.head.template`."""
-        from avatarkit.head.template import load_template
         return load_template()
-
-    @classmethod
-    def load_npz(cls, path: str | os.PathLike) -> "HeadModel":
-        from avatarkit.head.io import load_npz
-        return load_npz(path)
-
-    def save_npz(self, path: str | os.PathLike) -> None:
-        from avatarkit.head.io import save_npz
-        save_npz(self, path)
 
     # -- evaluation ----------------------------------------------------------------------------
     def neutral_params(self, num_frames: int = 1) -> HeadParams:
@@ -416,4 +407,24 @@ def _fit_columns_torch(name, t, n):
     return torch.cat([t, t.new_zeros(t.shape[:-1] + (n - k,))], dim=-1)
 
 
-__all__ = ["HeadModel", "HeadParams", "CoefficientCountWarning", "JOINT_NAMES", "FLAME_PARENTS", "NPZ_FORMAT"]
+def build_template() -> HeadModel:
+    """Generate the template head (uncached; ~1-2 s). Use `load_template` instead."""
+    model = HeadModel(**_template.build_template_arrays())
+    model.regions = derive_regions(model)
+    return model
+
+
+@functools.lru_cache(maxsize=1)
+def _cached_template() -> HeadModel:
+    return build_template()
+
+
+def load_template() -> HeadModel:
+    """The built-in template head (generated once per process; each call returns a fresh copy)."""
+    model = copy.deepcopy(_cached_template())
+    model._torch_cache = {}
+    return model
+
+
+__all__ = ["HeadModel", "HeadParams", "CoefficientCountWarning", "JOINT_NAMES", "FLAME_PARENTS",
+           "build_template", "load_template"]

@@ -1,0 +1,190 @@
+"""The built-in lifter's bald head: flat discs on the fitted head's triangles, coloured from the
+bald image where the camera sees them and by a screened harmonic fill elsewhere.
+
+`n_bald` flat discs sampled on the fitted head's triangles (area-weighted, the face and
+eyes `face_density` times denser than the back of the head), lying in their triangle's plane,
+sized so neighbours overlap. Colour: the bald image sampled (bilinear) at each disc's
+projection where the disc is visible from the input camera (its depth within `DEPTH_TOL` of
+the renderer's depth map of the discs, facing the camera, and landing on skin in the bald
+image's labels; neck discs also on body pixels). Unseen discs get a screened harmonic fill
+on their k-nearest-neighbour graph: the colour of the nearest seen skin diffuses over the
+surface and fades to the skin model's mean colour a few centimetres away (the back of the
+head). Eyeballs: seen through the lids, the photo; elsewhere iris (the photo's colour at the
+eye landmarks) or sclera. Mouth interior: a dark red. Extras: `binding` (the sampled triangle,
+int32) and `part` (uint8: 0 skin, 1 eye, 2 mouth interior).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from avatarkit.errors import InputError
+from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.fit import HeadFit
+from avatarkit.recon.image_sampling import lookup, sample_image
+from avatarkit.recon.visibility import depth_map, seen_from
+from avatarkit.rotations import matrix_to_quat
+
+#: bald disc radius = COVERAGE x the radius that would tile its share of the surface
+COVERAGE = 1.5
+FLATNESS = 0.15
+SCLERA_RGB = (0.86, 0.83, 0.8)
+MOUTH_RGB = (0.32, 0.12, 0.12)
+PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
+
+
+def propagate_colors(points: np.ndarray, colors: np.ndarray, known: np.ndarray, fallback,
+                     k: int = 8, reach: float = 0.03) -> np.ndarray:
+    """Fill unknown colours (N, 3) over the k-nearest-neighbour graph of points (N, 3):
+    the screened harmonic solution (L + s I) c = s fallback on the unknown nodes, the known ones
+    fixed. Known colour fades into `fallback` about as exp(-distance / reach) (metres) along a
+    sampled surface."""
+    from scipy import sparse
+    from scipy.sparse.linalg import splu
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, np.float64)
+    out = np.asarray(colors, np.float64).copy()
+    known = np.asarray(known, bool)
+    unknown = np.flatnonzero(~known)
+    fb = np.broadcast_to(np.asarray(fallback, np.float64), (3,))
+    if len(unknown) == 0:
+        return out.astype(np.float32)
+    if not known.any() or len(pts) < 2:
+        out[unknown] = fb
+        return out.astype(np.float32)
+    kk = min(k + 1, len(pts))
+    dist, nb = cKDTree(pts).query(pts, k=kk)
+    dist, nb = dist[:, 1:], nb[:, 1:]
+    n = len(pts)
+    rows = np.repeat(np.arange(n), kk - 1)
+    a = sparse.coo_matrix((np.ones(len(rows)), (rows, nb.ravel())), shape=(n, n)).tocsr()
+    a = ((a + a.T) > 0).astype(np.float64)                  # symmetric adjacency
+    deg = np.asarray(a.sum(axis=1)).ravel()
+    lap = sparse.diags(deg) - a
+    # On a surface sampled this way the graph Laplacian is about (sum_j r_j^2 / 4) times the
+    # continuous one, so this screening makes colour fade as exp(-distance / reach).
+    mu = float(np.mean((dist ** 2).sum(axis=1))) / (4.0 * reach ** 2)
+    luu = lap[unknown][:, unknown] + sparse.diags(np.full(len(unknown), mu))
+    kn = np.flatnonzero(known)
+    rhs = -(lap[unknown][:, kn] @ out[kn]) + mu * fb[None]
+    out[unknown] = splu(luu.tocsc()).solve(rhs)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def _face_parts(model) -> np.ndarray:
+    """(F,) uint8 part of each head face: eye (2 of 3 vertices on an eyeball), mouth interior, skin."""
+    f = model.faces
+    part = np.zeros(len(f), np.uint8)
+    if "mouth_interior" in model.regions:
+        part[model.region_mask("mouth_interior")[f].sum(axis=1) >= 2] = PART_MOUTH
+    if "eyes" in model.regions:
+        part[model.region_mask("eyes")[f].sum(axis=1) >= 2] = PART_EYE
+    return part
+
+
+def _face_weights(model) -> np.ndarray:
+    """(F,) bool: faces in front of the ears (the face region, eyes, mouth) are sampled denser."""
+    f = model.faces
+    dense = np.zeros(len(f), bool)
+    for region in ("face", "eyes", "lips", "mouth_interior"):
+        if region in model.regions:
+            dense |= model.region_mask(region)[f].sum(axis=1) >= 2
+    return dense
+
+
+def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: float = 3.0):
+    """Discs on the rest head: (means (n, 3), quats (n, 4), scales (n, 3), face ids (n,) int32,
+    normals (n, 3)). Area-weighted, `face_density` times denser on the face."""
+    from avatarkit.rig.frames import degenerate_faces, triangle_frames
+
+    model = fit.model
+    v = np.asarray(fit.rest_vertices, np.float64)
+    faces = np.asarray(model.faces)
+    tri = v[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    density = np.where(_face_weights(model), face_density, 1.0)
+    density[degenerate_faces(v, faces)] = 0.0
+    weight = area * density
+    if not weight.sum() > 0:
+        raise InputError("the head mesh has no area to put Gaussians on")
+    ids = rng.choice(len(faces), size=n, p=weight / weight.sum()).astype(np.int32)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+    points = np.einsum("nk,nkc->nc", bary, tri[ids])
+    _, rot, _ = triangle_frames(v, faces[ids])                     # columns e0, n, b
+    # each disc's share of the surface: total weighted area / n, divided by the local density
+    share = weight.sum() / n / density[ids]
+    radius = COVERAGE * np.sqrt(share / np.pi) * rng.uniform(0.85, 1.15, n)
+    scales = np.stack([radius, FLATNESS * radius, radius * rng.uniform(0.85, 1.15, n)], axis=1)
+    return points, matrix_to_quat(rot), scales, ids, rot[:, :, 1]
+
+
+def _eye_colours(image: np.ndarray, analysis) -> np.ndarray:
+    """(2, 3) iris colours in [0, 1] at the right and left eye landmarks: the darker half of a
+    small disc around each (the iris and pupil, not the sclera or lids)."""
+    h, w = image.shape[:2]
+    r = max(1.0, 0.07 * analysis.eye_distance)
+    out = []
+    for name in ("right_eye", "left_eye"):
+        cx, cy = analysis.point(name)
+        y0, y1 = int(max(0, cy - r)), int(min(h, cy + r + 1))
+        x0, x1 = int(max(0, cx - r)), int(min(w, cx + r + 1))
+        patch = image[y0:y1, x0:x1].reshape(-1, 3).astype(np.float64) / 255.0
+        if len(patch) == 0:
+            out.append((0.25, 0.2, 0.18))
+            continue
+        lum = patch.mean(axis=1)
+        out.append(patch[lum <= np.median(lum)].mean(axis=0))
+    return np.array(out)
+
+
+def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: int,
+              rng: np.random.Generator, face_density: float = 3.0) -> tuple[GaussianSet, dict]:
+    """The built-in bald lifting (module docstring) -> (GaussianSet with `binding` and `part`
+    extras, info)."""
+    from avatarkit.recon.segment import BODY, SKIN
+
+    model = fit.model
+    cam = fit.camera
+    means, quats, scales, ids, normals = sample_bald(fit, n, rng, face_density)
+    part = _face_parts(model)[ids]
+    geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
+    depth, _, dcam = depth_map(geo, cam)
+    seen, px, facing = seen_from(means, normals, cam, depth, dcam)
+
+    labels = bald.labels if getattr(bald, "labels", None) is not None else segmentation.labels
+    lab = lookup(labels, px)
+    neck = np.zeros(model.num_faces, bool)
+    if "neck" in model.regions:
+        neck = model.region_mask("neck")[model.faces].sum(axis=1) >= 2
+    ok_label = (lab == SKIN) | ((lab == BODY) & neck[ids])
+    eye = part == PART_EYE
+    known = seen & (ok_label | eye) & (part != PART_MOUTH)
+    photo = sample_image(bald.image, px) / 255.0
+    rgb = np.zeros((n, 3), np.float32)
+    rgb[known] = photo[known]
+
+    skin_rgb = segmentation.skin_model.rgb.astype(np.float64) / 255.0
+    skin = part == PART_SKIN
+    rgb[skin] = propagate_colors(means[skin], rgb[skin], known[skin], skin_rgb)
+    if eye.any():
+        iris_rgb = _eye_colours(image, analysis)
+        fill = np.tile(np.asarray(SCLERA_RGB, np.float64), (int(eye.sum()), 1))
+        joints = model.rest_joints(fit.params)[0].astype(np.float64)
+        for k, (centre, region) in enumerate(((joints[4], "right_iris"), (joints[3], "left_iris"))):
+            if region in model.regions:
+                iris_face = model.region_mask(region)[model.faces].sum(axis=1) >= 2
+                fill[iris_face[ids[eye]]] = iris_rgb[k]
+        rgb[eye] = np.where(known[eye][:, None], rgb[eye], fill)
+    rgb[part == PART_MOUTH] = MOUTH_RGB
+    opacity = rng.uniform(0.95, 1.0, n)
+    out = GaussianSet.from_colors(means, quats, scales, opacity, np.clip(rgb, 0, 1),
+                                  extras={"binding": ids, "part": part})
+    info = {"bald": n, "bald_seen": int(known.sum()),
+            "bald_seen_share": round(float(known.mean()), 4)}
+    return out, info
+
+
+__all__ = ["COVERAGE", "FLATNESS", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald",
+           "propagate_colors", "sample_bald"]

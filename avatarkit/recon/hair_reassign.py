@@ -1,0 +1,321 @@
+"""Boundary-aware reassignment of lifted labels (paper section 3.2, "boundary-aware
+reassignment", Fig. "Hair Cleanup"): the third step of the 3D hair segmentation, after
+`recon.label_lifting`.
+
+3. `reassign_boundary`: the boundary set is the Gaussians that show mostly in a band around
+   the 2D hair edges of the label images or around depth jumps near the hair (measured with
+   the same weights, so an occluded Gaussian is not "at" an edge it hides behind). Those,
+   the ones that show mostly from behind the rendered surface (a scalp seen through gaps in
+   the hair carries the hair's pixel labels), the unseen ones and the ambiguous ones (low
+   confidence) are reclassified. The rest are the reference: hair members and bald members
+   (background excluded), minus those whose appearance is nearer the other class's median.
+   Among a candidate's k nearest reference Gaussians (in space), each class gives a local
+   centre in a colour + scale feature space (DC colour, sorted log-scales, standardised);
+   the candidate joins the nearer centre. Where its neighbourhood holds only one class, the
+   global (median) centres of both classes decide.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from avatarkit.errors import InputError
+from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.label_lifting import (UNSEEN, LabelLift, accumulate_view, check_gaussians, check_label_image,
+                                           check_views)
+from avatarkit.recon.segment import BACKGROUND, HAIR, SKIN
+from avatarkit.render.camera import Camera
+
+
+@dataclass(frozen=True)
+class ReassignConfig:
+    """Settings of `reassign_boundary`. Defaults suit label images of 128..1024 px."""
+
+    k: int = 16                      # neighbours (in space) that form the local class centres
+    hair_label: int = HAIR
+    background_label: int | None = BACKGROUND  # not a bald class member (None: it is)
+    bald_label: int = SKIN           # label given to a Gaussian moved out of the hair with no other vote
+    band: float = 0.02               # half-width of the band around hair edges and depth jumps,
+                                     # a fraction of the label image's shorter side (>= 1 px)
+    depth_jump: float = 0.02         # relative depth step between neighbouring pixels that is a jump
+    near_hair: float = 0.05          # depth jumps count only this close to the hair (same unit)
+    min_alpha: float = 0.5           # pixels below this rendered alpha have no depth to compare
+    boundary_fraction: float = 0.25  # share of a Gaussian's weight inside the band -> boundary
+    occlusion: float = 0.02          # relative depth behind the rendered surface that is hidden,
+    occlusion_sigmas: float = 2.0    # plus this many of the Gaussian's largest standard deviation
+    occluded_fraction: float = 0.5   # share of a Gaussian's weight from views that hide it
+    min_confidence: float = 0.7      # below: ambiguous, reclassified as well
+    colour_weight: float = 1.0       # feature weights (each group standardised first)
+    scale_weight: float = 0.5
+    distance_weight: float = 2.0     # signed distance to the head surface, where it is given
+    layer_quantile: float = 0.95     # the bald layer's thickness: this quantile of |distance| over
+    min_layer: float = 0.001         # the confident bald-label members, at least min_layer (m)
+    local: bool = True               # False: compare with the global class centres only
+
+    def __post_init__(self):
+        if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 1:
+            raise InputError(f"reassignment k must be a positive integer, got {self.k!r}")
+        for name in ("band", "near_hair", "depth_jump", "min_alpha", "boundary_fraction", "occlusion",
+                     "occlusion_sigmas", "occluded_fraction", "min_confidence",
+                     "colour_weight", "scale_weight", "distance_weight", "layer_quantile",
+                     "min_layer"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v < 0:
+                raise InputError(f"reassignment {name} must be a number >= 0, got {v!r}")
+
+
+@dataclass
+class Reassignment:
+    labels: np.ndarray      # (N,) int32 final labels (no UNSEEN left unless no class was known)
+    changed: np.ndarray     # (N,) bool label differs from the lifted one
+    boundary: np.ndarray    # (N,) bool in the boundary set
+    occluded: np.ndarray    # (N,) bool seen mostly from views where it lies behind the surface
+    candidates: np.ndarray  # (N,) bool reclassified: boundary | occluded | unseen | low confidence
+
+
+def _pixels(fraction: float, shape) -> int:
+    return max(1, int(round(fraction * min(shape))))
+
+
+def _hair_edge_band(labels: np.ndarray, depth: np.ndarray, covered: np.ndarray,
+                    cfg: ReassignConfig) -> np.ndarray:
+    """(H, W) bool: pixels within `band` of a hair / not-hair label edge or of a depth jump
+    close to the hair."""
+    from scipy import ndimage
+
+    hair = labels == cfg.hair_label
+    edges = np.zeros_like(hair)
+    # a pixel is on an edge if a 4-neighbour differs (both sides of the edge get marked)
+    dh = hair[:, 1:] != hair[:, :-1]
+    dv = hair[1:, :] != hair[:-1, :]
+    edges[:, 1:] |= dh
+    edges[:, :-1] |= dh
+    edges[1:, :] |= dv
+    edges[:-1, :] |= dv
+    if cfg.depth_jump > 0 and hair.any():
+        z = np.where(covered, depth, 0.0)
+        jumps = np.zeros_like(hair)
+        horizontal = ((slice(None), slice(1, None)), (slice(None), slice(None, -1)))
+        vertical = ((slice(1, None), slice(None)), (slice(None, -1), slice(None)))
+        for a, b in (horizontal, vertical):
+            both = covered[a] & covered[b]
+            step = np.abs(z[a] - z[b]) > cfg.depth_jump * np.minimum(z[a], z[b])
+            jumps[a] |= both & step
+            jumps[b] |= both & step
+        near = ndimage.binary_dilation(hair, iterations=_pixels(cfg.near_hair, hair.shape))
+        edges |= jumps & near
+    if edges.any():
+        edges = ndimage.binary_dilation(edges, iterations=_pixels(cfg.band, hair.shape))
+    return edges
+
+
+def _features(gaussians: GaussianSet, cfg: ReassignConfig, ref: np.ndarray,
+              surface_distance: tuple[np.ndarray, float] | None = None) -> np.ndarray:
+    """(N, 6) float64 appearance features: DC colour and sorted log-scales (so the order of a
+    Gaussian's axes does not matter), each group standardised on the reference Gaussians;
+    (N, 7) with the signed distance to the head surface as a seventh. The distance is what
+    one view cannot corrupt: hair hidden behind hair has the hair's layer height whatever
+    colour the lifter gave it, and the bald layer sits on the surface."""
+    colour = gaussians.colors.astype(np.float64)
+    logs = -np.sort(-np.log(gaussians.scales.astype(np.float64)), axis=1)
+    groups = [(colour, cfg.colour_weight), (logs, cfg.scale_weight)]
+    if surface_distance is not None:
+        # clipped: only "on the surface" vs "above it" matters, not how far out a strand hangs
+        sd, layer = surface_distance
+        groups.append((np.clip(sd, -layer, 3.0 * layer)[:, None], cfg.distance_weight))
+    parts = []
+    for x, wgt in groups:
+        mu = x[ref].mean(axis=0)
+        sd = float(np.sqrt(((x[ref] - mu) ** 2).sum(axis=1).mean()))
+        parts.append((x - mu) * (wgt / max(sd, 1e-6)))
+    return np.concatenate(parts, axis=1)
+
+
+def _classify(gaussians: GaussianSet, feats: np.ndarray, cand: np.ndarray, hair_ref: np.ndarray,
+              bald_ref: np.ndarray, cfg: ReassignConfig) -> np.ndarray:
+    """(M,) bool: is each candidate closer to the hair centre than to the bald one."""
+    from scipy.spatial import cKDTree
+
+    # class centres robust to the mislabelled members the reassignment is there to fix: the
+    # median, then members nearer the other class's median leave the reference
+    g_hair = np.median(feats[hair_ref], axis=0)
+    g_bald = np.median(feats[bald_ref], axis=0)
+    closer_hair = (np.linalg.norm(feats - g_hair, axis=1) < np.linalg.norm(feats - g_bald, axis=1))
+    keep_h, keep_b = hair_ref & closer_hair, bald_ref & ~closer_hair
+    if keep_h.any() and keep_b.any():
+        hair_ref, bald_ref = keep_h, keep_b
+    ref = np.flatnonzero(hair_ref | bald_ref)
+    is_hair = hair_ref[ref]
+    fc = feats[cand]
+    d_hair = np.linalg.norm(fc - g_hair, axis=1)
+    d_bald = np.linalg.norm(fc - g_bald, axis=1)
+    if cfg.local:
+        k = min(cfg.k, len(ref))
+        _, nb = cKDTree(gaussians.means[ref].astype(np.float64)).query(
+            gaussians.means[cand].astype(np.float64), k=k)
+        nb = nb.reshape(len(fc), k)
+        nh = is_hair[nb]                                  # (M, k)
+        cnt_h = nh.sum(axis=1)
+        cnt_b = k - cnt_h
+        fn = feats[ref][nb]                               # (M, k, F)
+        both = (cnt_h > 0) & (cnt_b > 0)
+        c_hair = (fn * nh[..., None]).sum(axis=1) / np.maximum(cnt_h, 1)[:, None]
+        c_bald = (fn * ~nh[..., None]).sum(axis=1) / np.maximum(cnt_b, 1)[:, None]
+        d_hair = np.where(both, np.linalg.norm(fc - c_hair, axis=1), d_hair)
+        d_bald = np.where(both, np.linalg.norm(fc - c_bald, axis=1), d_bald)
+    return d_hair < d_bald
+
+
+def _occluded_share(gaussians: GaussianSet, cameras, depths, covered, view_weights,
+                    cfg: ReassignConfig) -> np.ndarray:
+    """(N,) share of each Gaussian's weight that comes from views in which its centre lies
+    behind the rendered depth D at its pixel by more than occlusion * D + occlusion_sigmas *
+    its largest standard deviation: there it shows only through gaps of what is in front,
+    whose label its pixels carry. (The sigma term: on a curved surface, the splats beside a
+    large splat cover its centre pixel in front of it.)"""
+    hidden = np.zeros(len(gaussians))
+    slack = cfg.occlusion_sigmas * gaussians.scales.max(axis=1).astype(np.float64)
+    for v, (cam, depth, cov) in enumerate(zip(cameras, depths, covered)):
+        uv, z = cam.project(gaussians.means)
+        inside = np.isfinite(uv).all(axis=1)
+        px = np.clip(np.floor(np.nan_to_num(uv[:, 0])), 0, cam.width - 1).astype(np.intp)
+        py = np.clip(np.floor(np.nan_to_num(uv[:, 1])), 0, cam.height - 1).astype(np.intp)
+        inside &= (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        d = depth[py, px]
+        behind = inside & cov[py, px] & (z > d * (1.0 + cfg.occlusion) + slack)
+        hidden += np.where(behind, view_weights[:, v], 0.0)
+    total = view_weights.astype(np.float64).sum(axis=1)
+    return hidden / np.maximum(total, 1e-12)
+
+
+def _boundary_share(gaussians: GaussianSet, cameras, bands) -> tuple[np.ndarray, np.ndarray]:
+    """(band weight (N,), total weight (N,)) summed over the views."""
+    inside = np.zeros(len(gaussians))
+    total = np.zeros(len(gaussians))
+    for cam, band in zip(cameras, bands):
+        w, _, _ = accumulate_view(gaussians, cam, band.astype(np.int32), 2)
+        inside += w[:, 1]
+        total += w.sum(axis=1)
+    return inside, total
+
+
+def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Camera],
+                      label_images: list[np.ndarray], depths: list[np.ndarray] | None = None,
+                      config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
+                      **overrides) -> Reassignment:
+    """The paper's boundary-aware reassignment (module docstring, step 3).
+
+    lift: `lift_labels` of the same Gaussians, cameras and label images.
+    depths: K rendered depth images (H, W); default the lift's own. Pixels count as covered
+    where the lift's rendered alpha >= min_alpha (or, without it, where depth > 0).
+    config / overrides: `ReassignConfig` fields, e.g. `reassign_boundary(..., k=8)`.
+    surface_distance: (N,) signed distance (metres, > 0 outside) of each Gaussian's centre to
+    the fitted head surface, a feature beside colour and scale (weight `distance_weight`).
+    Give it when few views are labelled (the photo's only): the hair behind the visible hair
+    and at the back of the head is then told from the scalp under it by its height over the
+    surface, not by colours the lifter had to guess.
+    A candidate that joins the hair gets `hair_label`; one that leaves it (or an unseen one
+    that joins the bald class) gets its best non-hair lifted label, or `bald_label`.
+    """
+    check_gaussians(gaussians)
+    cfg = config or ReassignConfig()
+    if overrides:
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(ReassignConfig)}
+        if unknown:
+            raise InputError(f"unknown reassignment setting(s): {', '.join(sorted(unknown))}")
+        cfg = dataclasses.replace(cfg, **overrides)
+    cameras, label_images = check_views(cameras, label_images)
+    n = len(gaussians)
+    n_labels = lift.weights.shape[1]
+    if lift.weights.shape[0] != n:
+        raise InputError(f"the label lift is for {lift.weights.shape[0]} Gaussians, got {n}")
+    if lift.view_weights.shape[1] != len(cameras):
+        raise InputError(f"the label lift has {lift.view_weights.shape[1]} views, "
+                         f"got {len(cameras)} cameras")
+    if not 0 <= cfg.hair_label < n_labels or not 0 <= cfg.bald_label < n_labels:
+        raise InputError(f"hair_label {cfg.hair_label} / bald_label {cfg.bald_label} must lie in "
+                         f"0..{n_labels - 1}")
+    if surface_distance is not None:
+        surface_distance = np.asarray(surface_distance, np.float64)
+        if surface_distance.shape != (n,) or not np.isfinite(surface_distance).all():
+            raise InputError(f"surface_distance must be ({n},) finite distances, "
+                             f"got shape {surface_distance.shape}")
+    if depths is None:
+        depths = lift.depths
+    depths = list(depths)
+    if len(depths) != len(cameras):
+        raise InputError(f"got {len(depths)} depth images for {len(cameras)} cameras")
+
+    bands, covers, zs = [], [], []
+    for v, (cam, img, depth) in enumerate(zip(cameras, label_images, depths)):
+        labels = check_label_image(img, cam, n_labels, f"label image {v}")
+        depth = np.asarray(depth, np.float32)
+        if depth.shape != labels.shape:
+            raise InputError(f"depth image {v} has shape {depth.shape}, expected {labels.shape}")
+        alpha = lift.alphas[v] if len(lift.alphas) == len(cameras) else None
+        covered = (alpha >= cfg.min_alpha) if alpha is not None and alpha.shape == depth.shape \
+            else depth > 0
+        bands.append(_hair_edge_band(labels, depth, covered, cfg))
+        covers.append(covered)
+        zs.append(depth)
+    inside, total = _boundary_share(gaussians, cameras, bands)
+    seen = lift.seen
+    boundary = seen & (inside >= cfg.boundary_fraction * np.maximum(total, 1e-12)) & (total > 0)
+    hidden = _occluded_share(gaussians, cameras, zs, covers, lift.view_weights, cfg)
+    occluded = seen & (hidden >= cfg.occluded_fraction)
+    cand = boundary | occluded | ~seen | (lift.confidence < cfg.min_confidence)
+    ref = ~cand
+    if cfg.background_label is not None:
+        ref &= lift.labels != cfg.background_label
+    hair_ref = ref & (lift.labels == cfg.hair_label)
+    bald_ref = ref & (lift.labels != cfg.hair_label)
+    # A class seen only near edges (thin hair seen in one view lies wholly in the band) has no
+    # confident member: its seen, unoccluded members stand in for the reference then.
+    member = lift.seen & ~occluded
+    if cfg.background_label is not None:
+        member &= lift.labels != cfg.background_label
+    if not hair_ref.any():
+        hair_ref = member & (lift.labels == cfg.hair_label)
+    if not bald_ref.any():
+        bald_ref = member & (lift.labels != cfg.hair_label)
+    distance = None
+    if surface_distance is not None:
+        # Seen through the gaps of a hair volume, the scalp carries the hair's pixel labels
+        # without being behind the rendered depth by much: a confident "hair" member that sits
+        # in the bald layer is no reference, it is a candidate like the rest.
+        on_skin = bald_ref & (lift.labels == cfg.bald_label)
+        layer = cfg.min_layer
+        if on_skin.any():
+            layer = max(layer, float(np.quantile(np.abs(surface_distance[on_skin]), cfg.layer_quantile)))
+        in_layer = hair_ref & (surface_distance <= layer)
+        hair_ref &= ~in_layer
+        cand |= in_layer
+        distance = (surface_distance, layer)
+
+    # where no hair is known, nothing can join it (and vice versa): candidates keep their
+    # lifted labels, unseen ones take the one class there is
+    new = lift.labels.copy()
+    if hair_ref.any() and bald_ref.any():
+        idx = np.flatnonzero(cand)
+        to_hair = np.zeros(n, bool)
+        if len(idx):
+            feats = _features(gaussians, cfg, hair_ref | bald_ref, distance)
+            to_hair[idx] = _classify(gaussians, feats, idx, hair_ref, bald_ref, cfg)
+    else:
+        to_hair = np.where(seen, lift.labels == cfg.hair_label, hair_ref.any())
+        to_hair &= cand
+    not_hair = lift.weights.astype(np.float64).copy()
+    not_hair[:, cfg.hair_label] = -1.0
+    best_other = np.argmax(not_hair, axis=1)
+    best_other = np.where(not_hair[np.arange(n), best_other] > 0, best_other, cfg.bald_label)
+    new[cand & to_hair] = cfg.hair_label
+    leave = cand & ~to_hair & ((new == cfg.hair_label) | (new == UNSEEN))
+    new[leave] = best_other[leave]
+    if not (hair_ref.any() or bald_ref.any()):
+        new[~seen] = UNSEEN  # nothing confident anywhere: unseen stays unseen
+    return Reassignment(new.astype(np.int32), new != lift.labels, boundary, occluded, cand)
+
+
+__all__ = ["ReassignConfig", "Reassignment", "reassign_boundary"]

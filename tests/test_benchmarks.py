@@ -1,0 +1,90 @@
+"""`make bench` in a fresh clone: every benchmark script runs at tiny sizes (`--quick`) from a copy
+of the repository's files with nothing beside it (no ../shared), and the scene generator in
+benchmarks/ is the standard scene the peers were timed on."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(p.name for p in (ROOT / "benchmarks").glob("*.py")
+                 if not p.name.startswith("_") and p.name != "make_scene.py")
+SHARED_SCENE = ROOT.parent / "shared" / "bench" / "make_scene.py"
+
+
+def _import_make_scene():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import make_scene
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    return make_scene
+
+
+def test_scene_is_the_standard_definition(tmp_path):
+    """Seed 0, a 60 degree frustum, depth 2..4, identity OpenCV camera; when the project's bench
+    notes are beside this checkout, byte-identical files to theirs."""
+    make_scene = _import_make_scene()
+    means, scales, quats, opacity, rgb, cam = make_scene.make_scene(2000, 640, 480)
+    assert means[:, 2].min() >= 2.0 and means[:, 2].max() <= 4.0
+    half = np.tan(np.radians(30.0))
+    assert np.all(np.abs(means[:, :2]) <= means[:, 2:] * half + 1e-6)
+    assert (np.abs(means[:, :2]) / means[:, 2:]).max() > 0.95 * half  # reaches the frustum's sides
+    np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1, atol=1e-6)
+    assert opacity.min() >= 0.3 and np.median(scales) == pytest.approx(0.01, rel=0.1)
+    assert cam["convention"] == "opencv" and cam["world_to_camera"] == np.eye(4).tolist()
+    assert cam["fy"] == pytest.approx(0.5 * 640 / half) and (cam["cx"], cam["cy"]) == (320, 240)
+    again = make_scene.make_scene(2000, 640, 480)
+    np.testing.assert_array_equal(again[0], means)
+
+    if not SHARED_SCENE.is_file():
+        pytest.skip("the project's bench notes are not beside this checkout")
+    ours = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "make_scene.py"), "500",
+                           str(tmp_path / "a.ply")], check=True)
+    peer = subprocess.run([sys.executable, str(SHARED_SCENE), "500", str(tmp_path / "b.ply")], check=True)
+    assert ours.returncode == peer.returncode == 0
+    assert (tmp_path / "a.ply").read_bytes() == (tmp_path / "b.ply").read_bytes()
+    assert json.loads((tmp_path / "a.camera.json").read_text()) == json.loads(
+        (tmp_path / "b.camera.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def clone(tmp_path_factory):
+    """The files a clone has (tracked and not ignored), copied with nothing beside them."""
+    try:
+        files = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                               cwd=ROOT, check=True, capture_output=True).stdout.split(b"\0")
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    dest = tmp_path_factory.mktemp("fresh") / "avatarkit"
+    for name in filter(None, files):
+        src = ROOT / os.fsdecode(name)
+        if src.is_file():
+            (dest / os.fsdecode(name)).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / os.fsdecode(name))
+    assert not (dest.parent / "shared").exists()
+    return dest
+
+
+def test_make_bench_runs_every_script():
+    """The Makefile's list is every script here, so the test below covers what `make bench` runs."""
+    if shutil.which("make") is None:
+        pytest.skip("no make")
+    out = subprocess.run(["make", "-s", "--eval", "print-bench: ; @echo $(BENCH_SCRIPTS)", "print-bench"],
+                         cwd=ROOT, check=True, capture_output=True, text=True).stdout.split()
+    assert out == [f"benchmarks/{name}" for name in SCRIPTS]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_benchmark_runs_in_a_fresh_clone(clone, script):
+    env = dict(os.environ, PYTHONPATH=str(clone), AVATARKIT_THREADS="2")
+    r = subprocess.run([sys.executable, f"benchmarks/{script}", "--quick"], cwd=clone, env=env,
+                       capture_output=True, text=True, timeout=1800)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert r.stdout.strip(), "a benchmark prints its figures"
