@@ -112,7 +112,7 @@ def _head_mesh(folder):
 
 
 def _head_model(folder):
-    from avatarkit.head.io import save_npz
+    from avatarkit.head import save_npz
     save_npz(small_avatar().head_model, folder / "out.npz")
 
 
