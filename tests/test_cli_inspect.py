@@ -122,7 +122,7 @@ def test_register_inspector_plugs_in(tmp_path, monkeypatch):
     (tmp_path / "plugin.marker").write_text("{}")
     s = inspect_file(tmp_path)
     assert s.kind == "avatar" and "head hair" in s.to_text()
-    with pytest.raises(InputError, match=r"\.clip, \.ply"):
+    with pytest.raises(InputError, match=r"\.clip, (\.\w+, )*\.ply"):
         inspect_file(tmp_path / "plugin.marker")
 
 
