@@ -78,12 +78,13 @@ def single_bakes(inputs: Path, ref: Path) -> Path:
 
 
 def assert_same_values(a: np.ndarray, b: np.ndarray, what) -> None:
-    """Equal, floats up to the last bits: batch workers run with fewer threads
-    (AVATARKIT_THREADS), and the hair's float32 products round differently with another
-    thread split or another CPU's BLAS kernel (seen on AMD EPYC: 1 ulp in extents)."""
+    """Equal, floats up to rounding: batch workers run with fewer threads (AVATARKIT_THREADS),
+    and the hair's float32 products round differently with another thread split or another
+    CPU's BLAS kernel; 40 XPBD substeps a frame carry that along (seen on AMD EPYC: up to
+    5e-6 in unit quaternions, 1 ulp in extents). 2e-5 is 0.02 mm on positions."""
     assert a.shape == b.shape, what
     if a.dtype.kind == "f":
-        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-7, err_msg=str(what))
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=2e-5, err_msg=str(what))
     else:
         assert np.array_equal(a, b), what
 
