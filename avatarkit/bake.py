@@ -490,7 +490,7 @@ WRITER_KINDS = ("usd", "ply", "preview")
 
 def make_writer(kind: str, target: str | os.PathLike, options: dict | None = None):
     """The bake writer of one output kind: "usd" -> `UsdStageWriter` (options: the fields of
-    `UsdWriteOptions`), "ply" -> `PlySequenceWriter` (split), "preview" -> `PreviewWriter`
+    `UsdWriteOptions`), "ply" -> `PlySequenceWriter` (split, ply_frame), "preview" -> `PreviewWriter`
     (size, orbit). Options left out take the writer's defaults."""
     options = dict(options or {})
     if kind == "usd":

@@ -7,6 +7,13 @@ Positions, orientations, scales (+extent) are time samples; opacities and SH are
 and become time samples only if a frame changes them. Every frame must have the same Gaussian
 count and SH degree: a splat prim's per-particle attributes share one count, and a varying
 count would defeat USD's interpolation between samples (a clear InputError names the frame).
+
+Axes: USD and SPZ files say theirs (USD's upAxis; SPZ is RUB by its specification, which is
+ours), a PLY file does not, so `ply_frame` says which frame PLY files are in: "yup" (ours, the
+default) or "ydown" (the 3DGS/COLMAP frame trainers write and splat viewers assume). It applies
+to PLY input and output alike (`input_ply_frame` sets the input's apart), so reading a trainer's
+y-down PLY and writing SPZ or USD gives an upright result, and `--ply-frame ydown` turns our
+files into what viewers expect.
 """
 from __future__ import annotations
 
@@ -38,7 +45,12 @@ class ConvertOptions:
     sh_degree: keep SH bands up to this degree (0..3); None keeps all. Never adds bands.
     fps: frames per second of a sequence stage.
     time: the time code to read a USD input at (None: its earliest sample).
-    spz_version: SPZ version to write (2, 3 or 4; 4 needs the zstandard package).
+    spz_version: SPZ version to write (2, 3 or 4). The default, 3, is the newest that NVIDIA's
+        converter and Niantic's reader as shipped on npm (`@spz-loader/core`) read; 4 (zstd
+        streams, needs the zstandard package) is for readers that know it.
+    ply_frame: the axes of PLY files written, and read unless input_ply_frame says otherwise:
+        "yup" (ours) or "ydown" (the 3DGS/COLMAP frame; see `gaussians.ply`).
+    input_ply_frame: the axes of PLY input files (None: ply_frame).
     """
 
     up_axis: str = "Y"
@@ -48,6 +60,13 @@ class ConvertOptions:
     fps: float = 24.0
     time: float | None = None
     spz_version: int = 3
+    ply_frame: str = "yup"
+    input_ply_frame: str | None = None
+
+    @property
+    def ply_read_frame(self) -> str:
+        """The frame PLY input is read in."""
+        return self.ply_frame if self.input_ply_frame is None else self.input_ply_frame
 
     def check(self) -> None:
         if str(self.up_axis).upper() not in ("Y", "Z"):
@@ -56,6 +75,10 @@ class ConvertOptions:
             raise InputError(f"SH degree must be 0..3, got {self.sh_degree}")
         if not (isinstance(self.fps, (int, float)) and self.fps > 0 and self.fps < float("inf")):
             raise InputError(f"fps must be a positive number, got {self.fps}")
+        from avatarkit.gaussians.ply import check_ply_frame
+
+        check_ply_frame(self.ply_frame)
+        check_ply_frame(self.ply_read_frame)
 
 
 @dataclass
@@ -106,7 +129,7 @@ def load_any(path: Path, options: ConvertOptions, ply_decoder: str = "auto") -> 
     ext = _ext(path)
     if ext in PLY_EXTENSIONS:
         from avatarkit.gaussians.ply import read_ply
-        return read_ply(path, decoder=ply_decoder)
+        return read_ply(path, decoder=ply_decoder, frame=options.ply_read_frame)
     if ext in SPZ_EXTENSIONS:
         from avatarkit.gaussians.spz import read_spz
         return read_spz(path)
@@ -123,14 +146,19 @@ def _reduce(gs: GaussianSet, options: ConvertOptions) -> GaussianSet:
     return gs
 
 
-def _check_output(output: Path, options: ConvertOptions, frames: int) -> None:
+def _check_output(output: Path, options: ConvertOptions, frames: list[Path]) -> None:
     ext = _ext(output)
+    ply_in = any(_ext(p) in PLY_EXTENSIONS for p in frames)
+    if options.ply_frame != "yup" and ext not in PLY_EXTENSIONS and not ply_in:
+        raise InputError("--ply-frame applies to PLY input or output; neither is PLY here")
+    if options.input_ply_frame is not None and not ply_in:
+        raise InputError("--input-ply-frame applies to PLY input; no input is PLY here")
     if ext not in KNOWN_EXTENSIONS:
         raise OutputError(f"unknown output format {output.suffix or '(no extension)'!r}; known: "
                           f"{', '.join(KNOWN_EXTENSIONS)}", output)
     if ext not in USD_EXTENSIONS:
-        if frames > 1:
-            raise OutputError(f"{frames} input frames make a sequence, which only USD holds; "
+        if len(frames) > 1:
+            raise OutputError(f"{len(frames)} input frames make a sequence, which only USD holds; "
                               f"write {output.with_suffix('.usdc').name} instead", output)
         if str(options.up_axis).upper() != "Y":
             raise InputError(f"--up-axis applies to USD output only; {ext} files have no up axis")
@@ -152,13 +180,13 @@ def convert(inputs: str | os.PathLike | Sequence[str | os.PathLike], output: str
     options.check()
     output = Path(output)
     frames = resolve_inputs(inputs)
-    _check_output(output, options, len(frames))
+    _check_output(output, options, frames)
     ext = _ext(output)
     if len(frames) == 1:
         gs = _reduce(load_any(frames[0], options), options)
         if ext in PLY_EXTENSIONS:
             from avatarkit.gaussians.ply import write_ply
-            write_ply(output, gs)
+            write_ply(output, gs, frame=options.ply_frame)
         elif ext in SPZ_EXTENSIONS:
             from avatarkit.gaussians.spz import write_spz
             write_spz(output, gs, version=options.spz_version)

@@ -11,6 +11,7 @@ import click
 from avatarkit.cli.options import advance, cli_warnings, progress, quiet_option
 
 _COLLISION = ("none", "vertex", "proxy")  # sim.COLLISION_MODES
+_PLY_FRAMES = ("yup", "ydown")  # gaussians.ply.PLY_FRAMES
 # (kept literal so `--help` imports neither pxr nor numpy; a test checks they agree)
 
 
@@ -26,6 +27,9 @@ def _mb(n: int) -> str:
 @click.option("--ply-dir", type=click.Path(), default=None,
               help="Also write a 3DGS PLY per frame (frame_00000.ply ...) + sequence.json here.")
 @click.option("--split", is_flag=True, help="PLY sequence: face_*.ply and hair_*.ply instead of one file per frame.")
+@click.option("--ply-frame", type=click.Choice(_PLY_FRAMES), default="yup", show_default=True,
+              help="PLY sequence axes: yup (ours, +Y up) or ydown (the 3DGS/COLMAP frame splat viewers "
+                   "such as SuperSplat/PlayCanvas assume for PLY: y and z negated).")
 @click.option("--preview", type=click.Path(), default=None,
               help="Also render a preview video (.mp4 or .gif) with the CPU renderer.")
 @click.option("--orbit", is_flag=True, help="Preview: the camera circles the head once over the clip.")
@@ -53,7 +57,7 @@ def _mb(n: int) -> str:
 @click.option("--chunk-frames", type=click.IntRange(min=0), default=50, show_default=True,
               help="USD: frames per value-clip layer (0: one layer).")
 @quiet_option
-def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, preview_size, frame_range,
+def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, ply_frame, preview, orbit, preview_size, frame_range,
              fps, substeps, iterations, gravity, collision, static_hair, preroll, half, usd_points,
              chunk_frames, quiet):
     """Bake the motion CLIP on the AVATAR folder: the head follows the clip (LBS), the bald
@@ -70,6 +74,7 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
       avatarkit bake sample_avatar shake.npz -o shake.usdc
       avatarkit bake sample_avatar shake.npz -o shake.usdz --half --preview shake.mp4
       avatarkit bake sample_avatar shake.npz --ply-dir shake_ply --split --frames 10:40
+      avatarkit bake sample_avatar shake.npz --ply-dir shake_ply --ply-frame ydown   # for SuperSplat
       avatarkit bake sample_avatar whip.npz -o whip.usdc --collision vertex --substeps 8
     """
     from avatarkit.errors import InputError
@@ -82,8 +87,8 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
     out_path = check_output("usd", output) if output else None
     ply_path = check_output("ply", ply_dir) if ply_dir else None
     preview_path = check_output("preview", preview) if preview else None
-    if split and not ply_dir:
-        raise InputError("--split applies to the PLY sequence: give --ply-dir too")
+    if (split or ply_frame != "yup") and not ply_dir:
+        raise InputError("--split and --ply-frame apply to the PLY sequence: give --ply-dir too")
     if (orbit or preview_size != 384) and not preview:
         raise InputError("--orbit and --preview-size apply to the preview: give --preview too")
 
@@ -113,7 +118,7 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, preview, orbit, prev
         avatar = load_avatar(avatar_dir)
         clip = load_clip(clip_path)
         outputs = (("usd", out_path, {"half": half, "usd_points": usd_points, "chunk_frames": chunk_frames}),
-                   ("ply", ply_path, {"split": split}),
+                   ("ply", ply_path, {"split": split, "ply_frame": ply_frame}),
                    ("preview", preview_path, {"size": preview_size, "orbit": orbit}))
         writers = [make_writer(kind, path, opts) for kind, path, opts in outputs if path is not None]
         from avatarkit.bake import prepare_clip

@@ -5,6 +5,8 @@ import click
 
 from avatarkit.cli.options import advance, output_option, progress, quiet_option
 
+_PLY_FRAMES = ("yup", "ydown")  # gaussians.ply.PLY_FRAMES (literal so --help imports no numpy)
+
 
 def _size(n: int) -> str:
     for unit in ("B", "KB", "MB", "GB"):
@@ -29,9 +31,16 @@ def _size(n: int) -> str:
 @click.option("--time", "time_code", type=float, default=None,
               help="Time code to read a USD input at [default: its earliest sample].")
 @click.option("--spz-version", type=click.Choice(["2", "3", "4"]), default="3", show_default=True,
-              help="SPZ version to write (4 needs the zstandard package).")
+              help="SPZ version to write. 3 is the newest that NVIDIA's converter and @spz-loader/core "
+                   "read; 4 (zstd, needs the zstandard package) only for readers that know it.")
+@click.option("--ply-frame", type=click.Choice(_PLY_FRAMES), default="yup", show_default=True,
+              help="Axes of the PLY files written (and read): yup (ours, +Y up) or ydown (the 3DGS/COLMAP "
+                   "frame trainers write and splat viewers assume: y and z negated).")
+@click.option("--input-ply-frame", type=click.Choice(_PLY_FRAMES), default=None,
+              help="Axes of PLY input when they differ from --ply-frame's [default: --ply-frame].")
 @quiet_option
-def convert_cmd(inputs, output, up_axis, prim_path, half, sh_degree, fps, time_code, spz_version, quiet):
+def convert_cmd(inputs, output, up_axis, prim_path, half, sh_degree, fps, time_code, spz_version, ply_frame,
+                input_ply_frame, quiet):
     """Convert Gaussian splats between 3DGS PLY, OpenUSD and SPZ, chosen by file extension.
 
     INPUTS is one splat file, a folder of PLY files (natural order) or several files; more than
@@ -43,11 +52,14 @@ def convert_cmd(inputs, output, up_axis, prim_path, half, sh_degree, fps, time_c
       avatarkit convert scene.usdz --prim-path /World/Splats -o scene.ply
       avatarkit convert scene.ply -o scene.spz --sh-degree 1
       avatarkit convert frames/ -o anim.usdc --fps 30 --up-axis Z
+      avatarkit convert avatar.ply -o viewer.ply --ply-frame ydown --input-ply-frame yup
+      avatarkit convert trained.ply -o trained.spz --ply-frame ydown
     """
     from avatarkit.convert import ConvertOptions, convert, resolve_inputs
 
     options = ConvertOptions(up_axis=up_axis.upper(), prim_path=prim_path, half=half, sh_degree=sh_degree,
-                             fps=fps, time=time_code, spz_version=int(spz_version))
+                             fps=fps, time=time_code, spz_version=int(spz_version), ply_frame=ply_frame,
+                             input_ply_frame=input_ply_frame)
     target = inputs[0] if len(inputs) == 1 else list(inputs)
     frames = len(resolve_inputs(target))
     if frames > 1:

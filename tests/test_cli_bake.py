@@ -35,12 +35,14 @@ def clip_file(tmp_path_factory):
 
 def test_registered_and_literals_agree():
     from avatarkit.cli import avatar_cmd, bake_cmd
+    from avatarkit.gaussians.ply import PLY_FRAMES
     from avatarkit.sim.config import COLLISION_MODES
     from avatarkit.synthetic.hair import HAIR_STYLES
 
     assert COMMANDS["bake"] == "avatarkit.cli.bake_cmd:bake_cmd"
     assert COMMANDS["avatar"] == "avatarkit.cli.avatar_cmd:avatar"
     assert set(bake_cmd._COLLISION) == set(COLLISION_MODES)
+    assert bake_cmd._PLY_FRAMES == PLY_FRAMES
     assert set(avatar_cmd._STYLES) == set(HAIR_STYLES)
 
 
@@ -97,11 +99,12 @@ def test_bake_end_to_end(folder, clip_file, tmp_path, capsys):
 def test_bake_ply_only_with_a_frame_range_and_static_hair(folder, clip_file, tmp_path, capsys):
     plys = tmp_path / "seq"
     code, out, err = run(capsys, "bake", folder, clip_file, "--ply-dir", plys, "--split", "--frames", "1:3",
-                         "--static-hair", "-q")
+                         "--static-hair", "-q", "--ply-frame", "ydown")
     assert code == 0, err
     assert out == "" and err == ""
     names = sorted(p.name for p in plys.iterdir())
     assert names == ["face_00000.ply", "face_00001.ply", "hair_00000.ply", "hair_00001.ply", "sequence.json"]
+    assert json.loads((plys / "sequence.json").read_text())["ply_frame"] == "ydown"
 
 
 def test_avatar_info_and_inspect(folder, capsys):
@@ -135,6 +138,8 @@ def test_bad_outputs_fail_before_any_work(folder, clip_file, tmp_path, capsys):
     _one_line_error(code, err, "nothing to write")
     code, _, err = run(capsys, "bake", folder, clip_file, "-o", tmp_path / "x.usdc", "--split")
     _one_line_error(code, err, "--split")
+    code, _, err = run(capsys, "bake", folder, clip_file, "-o", tmp_path / "x.usdc", "--ply-frame", "ydown")
+    _one_line_error(code, err, "--ply-frame")
     code, _, err = run(capsys, "bake", folder, clip_file, "-o", tmp_path / "x.usdc", "--frames", "a:b")
     _one_line_error(code, err, "a:b")
     code, _, err = run(capsys, "bake", folder, clip_file, "-o", tmp_path / "x.usdc", "--gravity", "0,1")

@@ -9,8 +9,8 @@ from plyfile import PlyData
 
 from avatarkit.baked import BakeFrame, SplatFrame
 from avatarkit.errors import FormatError, InputError, OutputError
-from avatarkit.export.ply_sequence import PlySequenceWriter, read_sidecar
-from avatarkit.gaussians.ply import read_ply
+from avatarkit.export.ply_sequence import PlySequenceWriter, read_sidecar, split_parts
+from avatarkit.gaussians.ply import read_ply, write_ply
 from avatarkit.gaussians.sh import SH_COUNTS
 from avatarkit.inspect import inspect_file
 from test_usd_stage import FPS, synthetic_bake
@@ -21,8 +21,8 @@ def bake():
     return synthetic_bake(n_frames=6)
 
 
-def write_sequence(folder, static, frames, split=False):
-    with PlySequenceWriter(folder, split=split) as writer:
+def write_sequence(folder, static, frames, split=False, ply_frame="yup"):
+    with PlySequenceWriter(folder, split=split, ply_frame=ply_frame) as writer:
         writer.begin(static)
         for f in frames:
             writer.write(f)
@@ -60,7 +60,8 @@ def test_merged_frames_read_back_with_plyfile(tmp_path, bake):
         v = ply["vertex"].data
         names_in_file = [p.name for p in ply["vertex"].properties]
         assert names_in_file[:6] == ["x", "y", "z", "nx", "ny", "nz"] and names_in_file[-1] == "part"
-        assert ply["vertex"].properties[-1].val_dtype in ("u1", "uint8")
+        # float32 like every other column: readers that map rows as float arrays need that
+        assert {p.val_dtype for p in ply["vertex"].properties} <= {"f4", "float32"}
         assert not ply.text and ply.byte_order == "<"
         parts = (f.face, f.hair)
         _check_vertex(v, np.concatenate([p.means for p in parts]), np.concatenate([p.quats for p in parts]),
@@ -75,6 +76,37 @@ def test_merged_frames_read_back_with_plyfile(tmp_path, bake):
     assert doc["parts"]["hair"] == {"gaussians": len(static.hair), "sh_degree": 1, "part": 1}
     assert doc["provenance"]["clip"]["name"] == "turn"
     assert read_sidecar(folder) == doc
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8, np.int32])
+def test_split_parts_reads_float_and_integer_part_columns(tmp_path, bake, dtype):
+    """Merged frames hold `part` as float now and as uchar before: both split back exactly."""
+    static, frames = bake
+    folder = tmp_path / "seq"
+    write_sequence(folder, static, frames[:2])
+    gs = read_ply(folder / "frame_00001.ply")
+    assert gs.extras["part"].dtype == np.float32
+    old = tmp_path / "old.ply"  # the same frame as an older avatarkit wrote it
+    write_ply(old, gs.replace(extras={"part": gs.extras["part"].astype(dtype)}))
+    parts = split_parts(read_ply(old), old)
+    assert list(parts) == ["face", "hair"]
+    for name, moving in (("face", frames[1].face), ("hair", frames[1].hair)):
+        np.testing.assert_array_equal(parts[name].means, moving.means)
+        np.testing.assert_array_equal(parts[name].quats, moving.quats)
+        assert parts[name].extras == {}
+    np.testing.assert_array_equal(parts["face"].sh, static.face.sh)
+
+
+def test_split_parts_rejects_other_values(tmp_path):
+    from helpers import random_gaussians
+
+    gs = random_gaussians(5)
+    with pytest.raises(FormatError, match="x.ply: no 'part' property"):
+        split_parts(gs, "x.ply")
+    with pytest.raises(FormatError, match="'part' holds 0.5"):
+        split_parts(gs.replace(extras={"part": np.array([0, 1, 0.5, 1, 0], np.float32)}), "x.ply")
+    face_only = split_parts(gs.replace(extras={"part": np.zeros(5, np.float32)}))
+    assert list(face_only) == ["face"] and len(face_only["face"]) == 5
 
 
 def test_split_frames(tmp_path, bake):

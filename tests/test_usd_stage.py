@@ -12,7 +12,8 @@ from pxr import Gf, Kind, Usd, UsdGeom, UsdVol
 from avatarkit.baked import BakeFrame, BakeStatic, SplatFrame
 from avatarkit.errors import InputError, OutputError
 from avatarkit.export.usd_stage import (CAGE_PATH, FACE_PATH, HAIR_PATH, HEAD_PATH, ROOT_PATH, UsdStageWriter,
-                                        UsdWriteOptions, inspect_usd, validate_stage, vertex_normals)
+                                        UsdWriteOptions, face_normals, inspect_usd, validate_stage,
+                                        vertex_normals)
 from avatarkit.gaussians.usd import read_splat_prim, save_usd
 from avatarkit.inspect import inspect_file
 from helpers import random_gaussians
@@ -279,20 +280,63 @@ def test_usd_points_variant(tmp_path, bake, half):
     assert validate_stage(stage) == []
 
 
-def test_head_normals(tmp_path, bake):
+@pytest.mark.parametrize("chunk_frames", [0, 4])
+def test_head_and_cage_normals(tmp_path, bake, chunk_frames):
+    """By default the head has smooth normals and the cage flat ones, time-sampled, with
+    subdivision off: every mesh has normals or a subdivision scheme, never both."""
     static, frames = bake
     path = tmp_path / "n.usdc"
-    write_bake(path, static, frames, UsdWriteOptions(head_normals=True, chunk_frames=4))
+    write_bake(path, static, frames, UsdWriteOptions(chunk_frames=chunk_frames))
     stage = Usd.Stage.Open(str(path))
     head = UsdGeom.Mesh(stage.GetPrimAtPath(HEAD_PATH))
-    assert head.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
-    assert head.GetNormalsAttr().GetNumTimeSamples() == len(frames)
-    n = np.asarray(head.GetNormalsAttr().Get(5))
-    v = frames[5].head_vertices
-    # an icosphere about the origin: normals point outwards, close to the radial direction
-    radial = v / np.linalg.norm(v, axis=1, keepdims=True)
-    assert (np.einsum("ij,ij->i", n, radial) > 0.98).all()
+    cage = UsdGeom.Mesh(stage.GetPrimAtPath(CAGE_PATH))
+    assert head.GetSubdivisionSchemeAttr().Get() == cage.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
+    pv = UsdGeom.PrimvarsAPI(head).GetPrimvar("normals")
+    assert pv.GetInterpolation() == UsdGeom.Tokens.faceVarying and pv.IsIndexed()
+    assert not head.GetNormalsAttr().HasAuthoredValue()  # one set of normals only
+    np.testing.assert_array_equal(np.asarray(pv.GetIndices()), static.head_faces.reshape(-1))
+    assert pv.GetAttr().GetTimeSamples() == [float(f.index) for f in frames]
+    assert cage.GetNormalsInterpolation() == UsdGeom.Tokens.uniform
+    assert cage.GetNormalsAttr().GetTimeSamples() == [float(f.index) for f in frames]
+    for f in (frames[0], frames[5], frames[-1]):
+        v = f.head_vertices
+        n = np.asarray(pv.Get(f.index))  # one value per vertex
+        np.testing.assert_allclose(n, vertex_normals(v, static.head_faces), atol=1e-7)
+        corners = np.asarray(pv.ComputeFlattened(f.index))  # what a renderer sees per face corner
+        np.testing.assert_array_equal(corners, n[static.head_faces.reshape(-1)])
+        # an icosphere about the origin: normals point outwards, close to the radial direction
+        radial = v / np.linalg.norm(v, axis=1, keepdims=True)
+        assert (np.einsum("ij,ij->i", n, radial) > 0.98).all()
+        # the cage box: each face normal is an axis, pointing away from the box centre
+        c = f.cage_vertices
+        fn = np.asarray(cage.GetNormalsAttr().Get(f.index))
+        assert fn.shape == (len(static.cage_faces), 3)
+        np.testing.assert_allclose(np.abs(fn).max(axis=1), 1, atol=1e-6)
+        out = c[static.cage_faces].mean(axis=1) - c.mean(axis=0)
+        assert (np.einsum("ij,ij->i", fn, out) > 0).all()
     assert validate_stage(stage) == []
+
+
+def test_head_without_normals_is_a_subdivision_surface(tmp_path, bake):
+    static, frames = bake
+    path = tmp_path / "s.usdc"
+    write_bake(path, static, frames, UsdWriteOptions(head_normals=False, chunk_frames=0))
+    stage = Usd.Stage.Open(str(path))
+    head = UsdGeom.Mesh(stage.GetPrimAtPath(HEAD_PATH))
+    assert head.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.loop
+    assert not UsdGeom.PrimvarsAPI(head).HasPrimvar("normals") and not head.GetNormalsAttr().HasAuthoredValue()
+    assert validate_stage(stage) == []
+
+
+def test_face_normals_match_a_plain_loop():
+    mesh = trimesh.creation.capsule(height=0.2, radius=0.1, count=[8, 8])
+    v, f = mesh.vertices, mesh.faces
+    want = np.array([np.cross(v[b] - v[a], v[c] - v[a]) for a, b, c in f])
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(face_normals(v, f), want, atol=1e-6)
+    np.testing.assert_allclose(face_normals(v, f), mesh.face_normals, atol=1e-6)  # trimesh agrees
+    # a degenerate face has no normal
+    assert (face_normals(np.vstack([v, [[9, 9, 9]]]), np.vstack([f, [[len(v)] * 3]]))[-1] == 0).all()
 
 
 def test_vertex_normals_match_a_plain_loop():

@@ -32,7 +32,7 @@ OUTPUT_KINDS = ("usd", "ply", "preview")
 DEFAULT_NAME = "{avatar}/{clip}"
 DEFAULT_OUTPUTS = {"usd": "{name}.usdc", "ply": None, "preview": None}
 DEFAULT_OPTIONS = {
-    "usd": {"half": False, "usd_points": False, "chunk_frames": 50, "head_normals": False},
+    "usd": {"half": False, "usd_points": False, "chunk_frames": 50, "head_normals": True},
     "ply": {"split": False},
     "preview": {"size": 384, "orbit": False},
 }

@@ -7,15 +7,21 @@
 
 Files (INRIA property order, binary little endian, via `gaussians.ply.write_ply`):
 - merged (default): `frame_00000.ply ...`, face then hair Gaussians in one file with an extra
-  uchar property `part` (0 face, 1 hair); SH padded to the higher degree of the two;
+  property `part` (0 face, 1 hair), a float (0.0, 1.0) so every column of the row is a
+  float32 and readers that map rows as float arrays (gsply and others) read it; SH padded to
+  the higher degree of the two. `split_parts` gives a merged frame's face and hair back, from
+  a float or an integer `part` (earlier avatarkit versions wrote uchar);
 - `split=True`: `face_00000.ply` and `hair_00000.ply` per frame, no extras.
+`ply_frame` ("yup", ours, or "ydown", the 3DGS/COLMAP frame splat viewers assume for PLY;
+see `gaussians.ply`) picks the axes every file is written in; the sidecar says which.
 A bake without hair (a hairless avatar) writes the face only: merged files hold just the face
 Gaussians (all `part` 0), split writes no hair files, and the sidecar lists the face part only.
 The number is the frame's `index` (its USD time code). Other extras (e.g. `binding`) are not
 written: they describe the rig, not the splats a viewer shows.
 
 `sequence.json` (written last, atomically): format/version, fps, frame count, frame indices,
-parts (count, SH degree, part id), file names, provenance.
+parts (count, SH degree, part id), file names, `ply_frame` ("yup"/"ydown"; absent in
+older sidecars: "yup"), provenance.
 
 Frames are written into a hidden `.partial.*` folder inside the target folder and moved into
 place by `close()`, so a failed or interrupted bake leaves the folder as it was (an older
@@ -37,7 +43,7 @@ from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
 from avatarkit.fileio import atomic_path
 from avatarkit.gaussians import GaussianSet
-from avatarkit.gaussians.ply import write_ply
+from avatarkit.gaussians.ply import check_ply_frame, write_ply
 
 SIDECAR = "sequence.json"
 FORMAT_NAME = "avatarkit.ply-sequence"
@@ -63,9 +69,10 @@ def frame_name(prefix: str, index: int) -> str:
 class PlySequenceWriter(StreamingWriter):
     """Streams a bake into per-frame PLY files; `begin`, `write` per frame, `close` (or `abort`)."""
 
-    def __init__(self, folder: str | os.PathLike, split: bool = False):
+    def __init__(self, folder: str | os.PathLike, split: bool = False, ply_frame: str = "yup"):
         self.folder = Path(folder)
         self.split = bool(split)
+        self.ply_frame = check_ply_frame(ply_frame)
         self._tmp: Path | None = None
         self._created_folder = False
         self._state = "new"
@@ -97,8 +104,8 @@ class PlySequenceWriter(StreamingWriter):
         self._static = static
         self._parts = {p: i for p, i in PART_IDS.items() if p == "face" or len(getattr(static, p))}
         if not self.split:
-            face = static.face.replace(extras={"part": np.full(len(static.face), 0, np.uint8)})
-            hair = static.hair.replace(extras={"part": np.full(len(static.hair), 1, np.uint8)})
+            face = static.face.replace(extras={"part": np.full(len(static.face), PART_IDS["face"], np.float32)})
+            hair = static.hair.replace(extras={"part": np.full(len(static.hair), PART_IDS["hair"], np.float32)})
             self._merged = GaussianSet.concat([face, hair])
 
     def write(self, frame: BakeFrame) -> None:
@@ -134,7 +141,7 @@ class PlySequenceWriter(StreamingWriter):
 
     def _write(self, name: str, gs: GaussianSet) -> None:
         try:
-            write_ply(self._tmp / name, gs)
+            write_ply(self._tmp / name, gs, frame=self.ply_frame)
         except OSError as e:
             raise OutputError(f"could not write {name} ({e.strerror})", self.folder) from None
         self._bytes += (self._tmp / name).stat().st_size
@@ -164,7 +171,7 @@ class PlySequenceWriter(StreamingWriter):
             doc = {
                 "format": FORMAT_NAME, "version": FORMAT_VERSION, "layout": "3dgs-inria-ply",
                 "fps": float(s.fps), "frame_count": len(self._indices), "frames": self._indices,
-                "split": self.split, "parts": parts,
+                "split": self.split, "parts": parts, "ply_frame": self.ply_frame,
                 "files": files if self.split else files["frame"],
                 "provenance": s.provenance or {},
             }
@@ -234,9 +241,32 @@ def read_sidecar(path: str | os.PathLike) -> dict:
         if not isinstance(names, list) or len(names) != doc["frame_count"] or \
                 not all(isinstance(n, str) for n in names):
             raise FormatError(f"'files' must list {doc['frame_count']} file names per part", path)
+    if doc.get("ply_frame", "yup") not in ("yup", "ydown"):
+        raise FormatError(f"'ply_frame' is {doc['ply_frame']!r}, expected 'yup' or 'ydown'", path)
     if len(doc["frames"]) != doc["frame_count"]:
         raise FormatError(f"'frames' has {len(doc['frames'])} entries but frame_count is {doc['frame_count']}", path)
     return doc
+
+
+def split_parts(gs: GaussianSet, path: str | os.PathLike | None = None) -> dict[str, GaussianSet]:
+    """A merged frame's Gaussians by part: {"face": ..., "hair": ...} (no hair key when none),
+    each without the `part` extra. `part` may be float (what we write) or any integer type
+    (older files); FormatError (naming `path`) when it is missing or holds another value."""
+    part = gs.extras.get("part")
+    if part is None or np.asarray(part).ndim != 1:
+        raise FormatError("no 'part' property: not a merged avatarkit frame", path)
+    part = np.asarray(part)
+    ids = {name: np.flatnonzero(part == i) for name, i in PART_IDS.items()}
+    if sum(len(v) for v in ids.values()) != len(part):
+        bad = part[~np.isin(part, list(PART_IDS.values()))][0].item()
+        raise FormatError(f"'part' holds {bad!r}; merged frames use {PART_IDS}", path)
+    rest = {k: v for k, v in gs.extras.items() if k != "part"}
+    out = {}
+    for name, rows in ids.items():
+        if name == "face" or len(rows):
+            out[name] = GaussianSet(gs.means[rows], gs.quats[rows], gs.scales[rows], gs.opacities[rows],
+                                    gs.sh[rows], {k: v[rows] for k, v in rest.items()})
+    return out
 
 
 # --- inspection ------------------------------------------------------------------------------
@@ -254,6 +284,8 @@ def inspect_ply_sequence(path: Path):
     if doc["frames"]:
         s.add("frame range", [doc["frames"][0], doc["frames"][-1]])
     s.add("layout", "split (face_*.ply, hair_*.ply)" if doc["split"] else "merged (frame_*.ply, extra 'part')")
+    s.add("PLY frame", {"yup": "yup (avatarkit: +Y up)", "ydown": "ydown (3DGS/COLMAP: y down, z forward)"}
+          [doc.get("ply_frame", "yup")])
     s.add("parts", [{"name": name, **{k: v for k, v in p.items() if isinstance(v, (int, float, str))}}
                     for name, p in doc["parts"].items() if isinstance(p, dict)])
     files = doc["files"]
@@ -283,4 +315,5 @@ def inspect_ply_sequence(path: Path):
 
 
 __all__ = ["PlySequenceWriter", "PlySequenceResult", "read_sidecar", "inspect_ply_sequence", "frame_name",
+           "split_parts",
            "SIDECAR", "PART_IDS"]

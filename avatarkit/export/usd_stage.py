@@ -9,11 +9,14 @@
 Stage layout (metres, +Y up, frame i at time code i, `timeCodesPerSecond` = `framesPerSecond` = fps):
 
     /Avatar   Xform, defaultPrim, kind = component
-      Head    Mesh: static triangles, time-sampled points (+ normals with `head_normals`),
-              subdivisionScheme none, constant skin displayColor
+      Head    Mesh: static triangles, time-sampled points and smooth normals
+              (`primvars:normals`, see `UsdWriteOptions.head_normals`), subdivisionScheme none,
+              constant skin displayColor; without `head_normals` no normals and
+              subdivisionScheme loop (the renderer makes the smooth surface)
       Face    ParticleField3DGaussianSplat (bald head splats)  } positions, orientations, scales
       Hair    ParticleField3DGaussianSplat (hair splats)       } time-sampled; opacities, SH static
-      Cage    Mesh, purpose guide, time-sampled points
+      Cage    Mesh, purpose guide, time-sampled points and uniform (per-face) normals: a
+              flat-shaded polyhedron, the shape the hair's mean value coordinates follow
     every boundable prim has an `extent` sample per frame; provenance in the root layer's
     customLayerData["avatarkit"].
 
@@ -25,7 +28,9 @@ With `usd_points`, Face and Hair are `UsdGeom.Points` instead (see `PointsPrimWr
 Memory: a bake longer than `chunk_frames` writes its samples into one crate layer per chunk,
 `<name>_clips/chunk_00000.usdc ...`, stitched onto /Avatar as value clips (`Usd.ClipsAPI`:
 assetPaths, active, times (identity), primPath, manifestAssetPath = `<name>_clips/manifest.usda`);
-the root file holds topology and static attributes only. Each chunk also holds the first frame of
+the root file holds topology and static attributes only, and *declares* every animated
+attribute with its type (no value: a default in the anchoring layer would hide the clips), so
+readers without the splat schema (OpenUSD < 26.3) still list, interpolate and flatten them. Each chunk also holds the first frame of
 the next one, so motion interpolates across chunk boundaries. A chunk layer is saved when full
 (and every `flush_bytes` of samples), then released. A shorter bake writes one self-contained
 file. `.usdz` packages the root layer and its clip layers (`UsdUtils.CreateNewUsdzPackage`).
@@ -49,7 +54,7 @@ from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
 from avatarkit.gaussians.usd import (USD_EXTENSIONS, PointsPrimWriter, SplatPrimWriter, bounding_box,
-                                     check_frame_arrays, find_splat_prims, validate_stage)
+                                     check_frame_arrays, declare_attributes, find_splat_prims, validate_stage)
 
 ROOT_PATH = "/Avatar"
 HEAD_PATH, FACE_PATH, HAIR_PATH, CAGE_PATH = (f"{ROOT_PATH}/{n}" for n in ("Head", "Face", "Hair", "Cage"))
@@ -69,7 +74,14 @@ class UsdWriteOptions:
         scale and SH primvars) for tools that do not read the splat schema yet.
     chunk_frames: frames per value-clip layer; a bake of at most this many frames (or 0/None)
         is written as one layer.
-    head_normals: also write time-sampled vertex normals on the head mesh.
+    head_normals: time-sampled smooth normals on the head mesh (subdivision scheme none):
+        `primvars:normals`, faceVarying and indexed by the faces' vertex indices, so its values
+        are the area-weighted vertex normals (V per frame, as vertex interpolation would
+        store) and the index array is written once. (Plain vertex interpolation holds the same
+        data, but NVIDIA's NormalsValidChecker counts the points at the default time, which an
+        animated mesh does not have, and fails it.) False writes no normals and declares the
+        head a Loop subdivision surface instead, so the renderer smooths it; either satisfies
+        validators that want one or the other on every mesh (NVIDIA's NormalsExistChecker).
     flush_bytes: save the layer receiving samples after this many bytes of them, so memory
         stays bounded inside a chunk too.
     """
@@ -77,7 +89,7 @@ class UsdWriteOptions:
     half: bool = False
     usd_points: bool = False
     chunk_frames: int | None = 50
-    head_normals: bool = False
+    head_normals: bool = True
     flush_bytes: int = 128 << 20
 
     def check(self) -> None:
@@ -110,6 +122,18 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # (F, 3), |fn| = 2 * area
     idx = f.reshape(-1)
     n = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit face normals (F, 3) float32 of a triangle mesh; (0, 0, 0) for a degenerate face.
+
+    vertices: (V, 3); faces: (F, 3) int, counter-clockwise seen from outside.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
 
@@ -162,27 +186,37 @@ class _Prims:
         self.face = splat(stage, FACE_PATH, half=options.half)
         self.hair = splat(stage, HAIR_PATH, half=options.half) if hair else None
         self.cage = UsdGeom.Mesh.Define(stage, CAGE_PATH) if hair else None
+        # normals are declared (type, interpolation) on every layer; readers use the root's
         self.normals = None
         if options.head_normals:
-            self.normals = self.head.CreateNormalsAttr()
-            self.head.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            self.normals = UsdGeom.PrimvarsAPI(self.head).CreatePrimvar(
+                UsdGeom.Tokens.normals, Sdf.ValueTypeNames.Normal3fArray, UsdGeom.Tokens.faceVarying)
+        self.cage_normals = None
+        if self.cage is not None:
+            self.cage_normals = self.cage.CreateNormalsAttr()
+            self.cage.SetNormalsInterpolation(UsdGeom.Tokens.uniform)
 
     def write_static(self, static: BakeStatic) -> None:
         Usd.ModelAPI(self.avatar.GetPrim()).SetKind(Kind.Tokens.component)
-        for mesh, faces, color in ((self.head, static.head_faces, SKIN_COLOR),
-                                   (self.cage, static.cage_faces, CAGE_COLOR)):
+        head_scheme = UsdGeom.Tokens.none if self.normals is not None else UsdGeom.Tokens.loop
+        for mesh, faces, color, scheme in ((self.head, static.head_faces, SKIN_COLOR, head_scheme),
+                                           (self.cage, static.cage_faces, CAGE_COLOR, UsdGeom.Tokens.none)):
             if mesh is None:
                 continue
             mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
             mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1).astype(np.int32)))
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            mesh.CreateSubdivisionSchemeAttr(scheme)
             mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([color]))
+            # every attribute value clips animate is declared on the root layer (module notes)
+            declare_attributes([mesh.GetPointsAttr(), mesh.GetExtentAttr()])
+        if self.normals is not None:
+            self.normals.SetIndices(Vt.IntArray.FromNumpy(static.head_faces.reshape(-1).astype(np.int32)))
         self.face.write_static(static.face)
         if self.hair is not None:
             self.cage.CreatePurposeAttr(UsdGeom.Tokens.guide)
             self.hair.write_static(static.hair)
 
-    def write_frame(self, frame: BakeFrame, faces: np.ndarray) -> None:
+    def write_frame(self, frame: BakeFrame, static: BakeStatic) -> None:
         t = Usd.TimeCode(float(frame.index))
         with Sdf.ChangeBlock():
             for mesh, points in ((self.head, frame.head_vertices), (self.cage, frame.cage_vertices)):
@@ -192,7 +226,9 @@ class _Prims:
                 mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(p), t)
                 mesh.GetExtentAttr().Set(_box(p), t)
             if self.normals is not None:
-                self.normals.Set(Vt.Vec3fArray.FromNumpy(vertex_normals(frame.head_vertices, faces)), t)
+                self.normals.Set(Vt.Vec3fArray.FromNumpy(vertex_normals(frame.head_vertices, static.head_faces)), t)
+            if self.cage_normals is not None:
+                self.cage_normals.Set(Vt.Vec3fArray.FromNumpy(face_normals(frame.cage_vertices, static.cage_faces)), t)
             for writer, part in ((self.face, frame.face), (self.hair, frame.hair)):
                 if writer is None:
                     continue
@@ -202,7 +238,7 @@ class _Prims:
 def _frame_bytes(frame: BakeFrame, options: UsdWriteOptions) -> int:
     """Roughly what one frame's samples weigh (for flushing)."""
     per_splat = 10 * (2 if options.half else 4) + (8 if options.usd_points else 0)
-    return 12 * (len(frame.head_vertices) + len(frame.cage_vertices)) \
+    return 12 * ((1 + options.head_normals) * len(frame.head_vertices) + 3 * len(frame.cage_vertices)) \
         + per_splat * (len(frame.face.means) + len(frame.hair.means))
 
 
@@ -310,16 +346,16 @@ class UsdStageWriter(StreamingWriter):
         try:
             self._check_frame(frame)
             if not self._use_clips:
-                self._root_prims.write_frame(frame, self._static.head_faces)
+                self._root_prims.write_frame(frame, self._static)
                 self._account(frame, self._root)
             else:
                 if self._chunk is not None and self._in_chunk == self.options.chunk_frames:
                     # the next chunk's first frame closes this one, so values interpolate across
-                    self._chunk[1].write_frame(frame, self._static.head_faces)
+                    self._chunk[1].write_frame(frame, self._static)
                     self._finish_chunk()
                 if self._chunk is None:
                     self._start_chunk(frame.index)
-                self._chunk[1].write_frame(frame, self._static.head_faces)
+                self._chunk[1].write_frame(frame, self._static)
                 self._in_chunk += 1
                 self._account(frame, self._chunk[0])
         except AvatarKitError as e:
@@ -588,4 +624,4 @@ def _plain_dict(value):
 
 
 __all__ = ["UsdStageWriter", "UsdWriteOptions", "UsdStageResult", "validate_stage", "vertex_normals",
-           "inspect_usd", "find_splat_prims", "ROOT_PATH", "HEAD_PATH", "FACE_PATH", "HAIR_PATH", "CAGE_PATH"]
+           "face_normals", "inspect_usd", "find_splat_prims", "ROOT_PATH", "HEAD_PATH", "FACE_PATH", "HAIR_PATH", "CAGE_PATH"]

@@ -26,6 +26,17 @@ PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
   read at all, so a file truncated inside them still loads.
 - everything a file can get wrong is a FormatError naming the file: counts are checked against
   the file size before anything is allocated.
+
+Frames (`frame=` on both `read_ply` and `write_ply`; README "Axis conventions"): a PLY file
+carries no axes, and two conventions are in use. "yup" (default) is ours: metres, +Y up, the
+face toward +Z, what every other avatarkit file holds. "ydown" is the 3DGS/COLMAP frame
+(OpenCV camera axes: x right, y down, z forward, Niantic's "RDF") that trainers write and that
+PlayCanvas tools and Niantic's SPZ library assume for PLY: ours turned 180 degrees about X.
+Converting is exact and its own inverse: y and z of positions are negated, quaternion
+(w, x, y, z) -> (w, x, -y, -z) (R q R^T: the same covariance as R q, since R is diagonal),
+and each SH coefficient's sign flips with the parity of its basis function in y and z
+(`FLIP_SH_SIGNS`; band 0 never changes). Writing converts from ours to the file's frame,
+reading converts back.
 """
 from __future__ import annotations
 
@@ -231,6 +242,33 @@ def _open(path):
         raise InputError("is a folder, expected a file", path) from None
     except OSError as e:
         raise InputError(f"cannot open: {e.strerror or e}", path) from None
+
+
+# --- frames ----------------------------------------------------------------------------------
+#: "yup": ours (+Y up, face toward +Z); "ydown": the 3DGS/COLMAP (OpenCV, RDF) frame
+PLY_FRAMES = ("yup", "ydown")
+#: sign of each SH coefficient (3DGS order, DC first) under (x, y, z) -> (x, -y, -z): the basis
+#: function's parity in y and z (band 1: -y, z, -x; band 2: xy, yz, 3z^2-1, xz, x^2-y^2; band 3:
+#: y(3x^2-y^2), xyz, y(5z^2-1), z(5z^2-3), x(5z^2-1), z(x^2-y^2), x(x^2-3y^2)). Checked in the
+#: tests against `sh.rotate_sh` and against Niantic's sign table for RDF <-> RUB.
+FLIP_SH_SIGNS = np.array([1, -1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], np.float32)
+_FLIP_POS = np.array([1, -1, -1], np.float32)
+_FLIP_QUAT = np.array([1, 1, -1, -1], np.float32)
+
+
+def check_ply_frame(frame: str) -> str:
+    """`frame` if it is one of PLY_FRAMES, else InputError."""
+    if frame not in PLY_FRAMES:
+        raise InputError(f"PLY frame must be one of {', '.join(PLY_FRAMES)}, got {frame!r}")
+    return frame
+
+
+def flip_y_down(gs: GaussianSet) -> GaussianSet:
+    """`gs` turned 180 degrees about X, exactly (sign flips only): ours <-> the y-down frame.
+    Its own inverse. Extras are kept as they are."""
+    k = gs.sh.shape[1]
+    return GaussianSet.from_checked(gs.means * _FLIP_POS, gs.quats * _FLIP_QUAT, gs.scales,
+                                    gs.opacities, gs.sh * FLIP_SH_SIGNS[:k, None], gs.extras)
 
 
 # --- the vertex table --------------------------------------------------------------------
@@ -487,8 +525,11 @@ _loaded_layouts: set[tuple] = set()
 DECODERS = ("auto", "kernel", "numpy")
 
 
-def read_ply(path: str | os.PathLike, *, decoder: str = "auto") -> GaussianSet:
+def read_ply(path: str | os.PathLike, *, decoder: str = "auto", frame: str = "yup") -> GaussianSet:
     """Read a 3DGS PLY file (any property order, binary LE/BE or ASCII) into a GaussianSet.
+
+    `frame`: the axes the file is in ("yup": ours, "ydown": the 3DGS/COLMAP frame; see the
+    module notes); the result is always in ours.
 
     `decoder`: "numpy" is the reference (every layout the reader accepts); "kernel" decodes
     binary little-endian float32 files whose property groups each lie in one run (the INRIA
@@ -499,8 +540,10 @@ def read_ply(path: str | os.PathLike, *, decoder: str = "auto") -> GaussianSet:
     """
     if decoder not in DECODERS:
         raise ValueError(f"decoder must be one of {DECODERS}, got {decoder!r}")
+    check_ply_frame(frame)
     _, table = _open_vertex_table(path)
-    return _table_to_gaussians(table, path, decoder)
+    gs = _table_to_gaussians(table, path, decoder)
+    return flip_y_down(gs) if frame == "ydown" else gs
 
 
 def _indexed(names, prefix: str) -> dict[int, str]:
@@ -816,10 +859,15 @@ def _extra_columns(gs: GaussianSet) -> list[tuple[str, list[str], np.dtype, np.n
     return out
 
 
-def write_ply(path: str | os.PathLike, gs: GaussianSet) -> None:
+def write_ply(path: str | os.PathLike, gs: GaussianSet, *, frame: str = "yup") -> None:
     """Write `gs` as a binary little-endian 3DGS PLY in the exact INRIA property order, extras
     after; atomically (a failure leaves no file). Opacities are clipped to
-    [OPACITY_EPS, 1 - OPACITY_EPS] before the logit so 0 and 1 stay finite on disk."""
+    [OPACITY_EPS, 1 - OPACITY_EPS] before the logit so 0 and 1 stay finite on disk.
+
+    `frame`: the axes to write in ("yup": ours, as `gs` is; "ydown": the 3DGS/COLMAP frame
+    splat viewers assume; see the module notes)."""
+    if check_ply_frame(frame) == "ydown":
+        gs = flip_y_down(gs)
     n, k = len(gs), gs.sh.shape[1]
     names = ply_property_names(gs.sh_degree)
     extras = _extra_columns(gs)
@@ -861,6 +909,7 @@ def write_ply(path: str | os.PathLike, gs: GaussianSet) -> None:
 
 
 __all__ = ["read_ply", "write_ply", "read_ply_arrays", "sequence_decoder", "read_ply_header",
+           "PLY_FRAMES", "FLIP_SH_SIGNS", "check_ply_frame", "flip_y_down",
            "parse_header", "check_element_sizes",
            "ply_property_names", "PlyHeader", "PlyElement", "PlyProperty", "PLY_TYPES",
            "OPACITY_EPS", "MAX_HEADER_BYTES"]

@@ -23,7 +23,12 @@ writing v4 needs the `zstandard` package (or Python 3.14's `compression.zstd`).
 Coordinates: SPZ stores RUB (x right, y up, z back, OpenGL). Ours is +Y up with the face
 looking toward +Z, the viewer's "back": the same axes, so no conversion happens either way.
 (Niantic's tools flip y and z when packing a COLMAP/INRIA PLY in RDF; such a splat comes out
-here upright, as our convention wants.)
+here upright, as our convention wants, and our y-down PLY (`write_ply(frame="ydown")`) is what
+they unpack from our SPZ. PlayCanvas splat-transform 3.x departs from this: it takes SPZ bytes
+in its PLY frame, unconverted.)
+
+Default version: 3, the newest that NVIDIA's converter (usd-convert-gsplat 0.1.15: "Not a
+gzipped file" on 4) and `@spz-loader/core` 0.3.1 ("divide by zero" on 4) read; 4 on request.
 
 Quantisation of what we write (the error bounds the round-trip tests use): positions 2^-13 m
 (half of 1/4096), ln-scale 1/32, opacity 0.5/255, DC 0.5/(0.15*255) ~ 0.0131 (range +-3.33),

@@ -246,13 +246,21 @@ class SplatPrimWriter:
         """Author only the fields that are not `animated` (by default opacities, SH with its
         degree and `primvars:displayColor`) as default values, and fix the prim's count and SH
         degree. The per-frame part then comes through `write_samples`, on this stage or on
-        another layer's writer (a value clip): clips only supply time samples, and a default
-        authored for an animated field here would hide them, so none is written."""
+        another layer's writer (a value clip).
+
+        The animated attributes (and `extent`) are *declared* here, with their type and no
+        value: OpenUSD before 26.3 has no splat schema, so this declaration is the only place
+        its reader learns that the attributes exist and what type they hold (without it, an
+        attribute that only clips supply is missing from `GetAttributes()`, a read at a
+        fractional time fails with "Unknown value type ''" and flattening drops it). No
+        default is written: one authored in the layer that anchors the clips is stronger than
+        the clips' samples, and every time would read it."""
         if self._count is not None or self._one_shot or self._split:
             raise InputError(f"{self.path}: write_static must be the prim's first write")
         self._check_shape(gs)
         data = self._to_stage_frame(gs)
         with Sdf.ChangeBlock():
+            declare_attributes([self._attrs[f] for f in self.animated] + [self._extent])
             self._degree.Set(int(self._sh_degree))
             sh_attr = UsdGeom.Primvar(self._attrs["sh"])
             sh_attr.SetElementSize(SH_COUNTS[self._sh_degree])
@@ -279,6 +287,15 @@ class SplatPrimWriter:
             self._set("positions", means, t)
             self._set("orientations", quats[:, [1, 2, 3, 0]], t)
             self._set("scales", scales, t)
+
+
+def declare_attributes(attrs) -> None:
+    """Author each attribute's type (and variability) on the edit target without a value.
+
+    For attributes that value clips animate: see `SplatPrimWriter.write_static`."""
+    for attr in attrs:
+        prim = attr.GetPrim()
+        prim.CreateAttribute(attr.GetName(), attr.GetTypeName(), False, attr.GetVariability())
 
 
 def check_frame_arrays(path: str, count: int | None, means, quats, scales):
@@ -367,6 +384,9 @@ class PointsPrimWriter:
         pv, names = UsdGeom.PrimvarsAPI(self.prim.GetPrim()), Sdf.ValueTypeNames
         k = SH_COUNTS[gs.sh_degree]
         with Sdf.ChangeBlock():
+            # points and extent are Points schema attributes that every OpenUSD knows; declared
+            # anyway so the root layer lists every attribute the clips animate
+            declare_attributes([self.prim.GetPointsAttr(), self.prim.GetExtentAttr()])
             pv.CreatePrimvar("displayColor", names.Color3fArray, UsdGeom.Tokens.vertex).Set(
                 Vt.Vec3fArray.FromNumpy(gs.colors.astype(np.float32)))
             pv.CreatePrimvar("displayOpacity", names.FloatArray, UsdGeom.Tokens.vertex).Set(
@@ -656,5 +676,6 @@ def register() -> None:
 
 __all__ = ["USD_EXTENSIONS", "DEFAULT_PRIM_PATH", "ATTRIBUTE_NAMES", "ANIMATED_FIELDS", "SplatPrimWriter",
            "PointsPrimWriter", "check_frame_arrays", "bounding_box",
-           "UsdWriteOptions", "create_stage", "open_output_stage", "flush_stage", "find_splat_prims", "load_usd",
+           "UsdWriteOptions", "create_stage", "declare_attributes", "open_output_stage", "flush_stage",
+           "find_splat_prims", "load_usd",
            "read_splat_prim", "save_usd", "stage_up_axis", "validate_stage", "register"]
