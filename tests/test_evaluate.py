@@ -180,8 +180,8 @@ def test_exact_motion_and_camera_reproduce_the_video(synthetic, tmp_path):
                                  EvalOptions(side_by_side=False), tmp_path)
     assert len(rows) == T and not any(r.excluded for r in rows)
     psnr = [r.psnr for r in rows]
-    assert min(psnr) > 33.0, psnr          # measured ~MEASURED dB (H.264 at crf 12)
-    assert min(r.ssim for r in rows) > 0.95
+    assert min(psnr) > 33.0, psnr          # measured 36.5-38.3 dB (H.264 at crf 12)
+    assert min(r.ssim for r in rows) > 0.95      # measured 0.967-0.977
 
 
 # ---- bad input -------------------------------------------------------------------------------
