@@ -268,3 +268,19 @@ def test_evaluate_a_real_clip_builds_tracks_and_reports(tmp_path):
     assert s["frames"] == 216 and s["frames_evaluated"] == 216 - 11
     assert s["psnr"] > 12 and s["ssim"] > 0.5 and s["landmark_error_px"] < 20, s
     assert (tmp_path / "r" / "avatar" / "avatar.json").is_file()
+
+
+def test_recorded_build_frame_is_read_from_the_avatar(synthetic, tmp_path):
+    import shutil
+
+    from avatarkit.track.evaluate import recorded_build_frame
+
+    video = str(synthetic / "head.mp4")
+    assert recorded_build_frame(synthetic / "avatar", video) is None
+    copy = tmp_path / "avatar"
+    shutil.copytree(synthetic / "avatar", copy)
+    doc = json.loads((copy / "avatar.json").read_text())
+    doc["provenance"]["source_video"] = {"video": video, "frame": 4}
+    (copy / "avatar.json").write_text(json.dumps(doc))
+    assert recorded_build_frame(copy, video) == 4
+    assert recorded_build_frame(copy, str(tmp_path / "other.mp4")) is None

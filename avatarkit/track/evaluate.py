@@ -182,6 +182,16 @@ def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
     return target, index
 
 
+def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
+    """The frame of `video` the avatar was built from, when its provenance says so
+    (`build VIDEO --frame`), else None."""
+    from avatarkit.avatar import read_manifest
+
+    src = read_manifest(avatar_dir).get("provenance", {}).get("source_video") or {}
+    same = src.get("video") and os.path.abspath(src["video"]) == os.path.abspath(video)
+    return int(src["frame"]) if same and isinstance(src.get("frame"), int) else None
+
+
 def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
              avatar: str | os.PathLike | None = None, options: EvalOptions | None = None,
              progress: Progress | None = None) -> EvalReport:
@@ -204,6 +214,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             built = True
         else:
             avatar_dir, built = Path(avatar), False
+            if build_frame is None:
+                build_frame = recorded_build_frame(avatar_dir, video)
         timings["build"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         from avatarkit.track.video import track_video
