@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export TI_SKIP_VERSION_CHECK := ON
 export ENABLE_TAICHI_HEADER_PRINT := 0
 
-.PHONY: demo test test-all bench install clean
+.PHONY: demo test test-all bench install clean chromium
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -48,6 +48,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# Debian's Chromium for the slow web-player tests (`avatarkit view`); they skip without it.
+chromium:
+	test -x /usr/bin/chromium || (apt-get update && apt-get install -y chromium)
 
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m ""

@@ -66,6 +66,60 @@ def _restore_fp_environment() -> None:
         pass
 
 
+def _keep_interrupts(ti) -> None:
+    """Taichi decides whether a kernel is defined inside a class by reading the caller's source
+    (`kernel_impl._inside_class`) under a bare `except:`, so a Ctrl-C (or our SIGTERM, also a
+    KeyboardInterrupt) that lands while modules decorate their kernels on import was swallowed
+    and the command ran on. Put the same function back with an `except Exception`."""
+    import inspect
+
+    kernel_impl = getattr(getattr(ti, "lang", None), "kernel_impl", None)
+    original = getattr(kernel_impl, "_inside_class", None)
+    patterns = getattr(kernel_impl, "_KERNEL_CLASS_STACKFRAME_STMT_RES", None)
+    if original is None or patterns is None or getattr(original, "_avatarkit", False):
+        return
+
+    def _inside_class(level_of_class_stackframe):
+        try:
+            frame = sys._getframe(level_of_class_stackframe)
+            first = inspect.getframeinfo(frame)[3][0].strip()
+            return any(p.match(first) for p in patterns)
+        except Exception:  # noqa: BLE001 - as Taichi's, but KeyboardInterrupt/SystemExit pass
+            return False
+
+    _inside_class._avatarkit = True
+    kernel_impl._inside_class = _inside_class
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Hold SIGINT/SIGTERM while Taichi imports (its own modules decorate functions on import,
+    under the bare `except` that `_keep_interrupts` then replaces) and deliver them after, to
+    the handler that was there before. Only the main thread can set handlers; others run as is."""
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    for sig in dict.fromkeys(pending):
+        handler = previous[sig]
+        if callable(handler):
+            handler(sig, None)
+        elif handler == signal.SIG_DFL:
+            if sig == signal.SIGINT:
+                raise KeyboardInterrupt
+            signal.raise_signal(sig)
+
+
 def taichi_running() -> bool:
     """Has this process started Taichi? (Callers pick a kernel when its start is already paid.)"""
     return _ready
@@ -74,15 +128,25 @@ def taichi_running() -> bool:
 def ensure_taichi():
     """Initialise Taichi once (arch=cpu, all cores, no version check) and return the module."""
     global _ready
+    if _ready:
+        import taichi as ti
+        return ti
     os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
     # With stdout swapped during import Taichi thinks it runs in a GUI shell, logs that on
     # stderr and flushes a print buffer after every launch; its plain-stdout mode avoids both.
     os.environ.setdefault("TI_ENABLE_PYBUF", "0")
+    # Taichi asks "is torch (paddle) installed?" by importing it under a bare `except:` the first
+    # time a kernel argument's dtype is converted, i.e. while modules decorate kernels: seconds
+    # of import in which a Ctrl-C was swallowed. Our kernels take numpy arrays only.
+    os.environ.setdefault("TI_ENABLE_TORCH", "0")
+    os.environ.setdefault("TI_ENABLE_PADDLE", "0")
     with _lock:
         with _quiet_stdout():
-            import taichi as ti
+            with _signals_held():
+                import taichi as ti
 
+                _keep_interrupts(ti)
             if not _ready:
                 # arch=gpu/opengl segfaults on our machines; the CPU backend is the product.
                 ti.init(arch=ti.cpu, log_level=ti.WARN, cpu_max_num_threads=_threads(),

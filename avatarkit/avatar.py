@@ -50,7 +50,7 @@ from typing import Any, Callable
 import numpy as np
 
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
-from avatarkit.fileio import atomic_folder, check_output_folder
+from avatarkit.fileio import atomic_folder, check_output_folder, json_loads
 from avatarkit.gaussians.gaussian_set import GaussianSet
 
 AVATAR_FORMAT = "avatarkit.avatar"
@@ -600,7 +600,7 @@ def read_manifest(folder: str | os.PathLike) -> dict:
     if not path.is_file():
         raise FormatError(f"not an avatar folder: no {MANIFEST}", folder)
     try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
+        manifest = json_loads(path.read_text(encoding="utf-8"), path)
     except (UnicodeDecodeError, ValueError) as e:
         raise FormatError(f"not valid JSON ({e})", path) from None
     if isinstance(manifest, dict) and manifest.get("format") == AVATAR_FORMAT \

@@ -44,6 +44,7 @@ import numpy as np
 from avatarkit.baked import BakeFrame, BakeStatic, SplatFrame
 from avatarkit.errors import InputError, OutputError
 from avatarkit.fileio import check_output_folder
+from avatarkit.limits import MAX_FPS, MAX_PREROLL_SECONDS, MIN_FPS
 from avatarkit.sim.config import SimConfig
 
 #: frames posed per call of the head model (LBS is cheaper batched; bounds memory)
@@ -87,12 +88,13 @@ class BakeConfig:
                 raise InputError(f"frames must be (start, stop), got {self.frames!r}") from None
             object.__setattr__(self, "frames", (start, stop))
         if self.fps is not None and not (isinstance(self.fps, (int, float)) and math.isfinite(self.fps)
-                                         and self.fps > 0):
-            raise InputError(f"fps must be a positive number, got {self.fps!r}")
+                                         and MIN_FPS <= self.fps <= MAX_FPS):
+            raise InputError(f"fps must be a number between {MIN_FPS:g} and {MAX_FPS:g}, got {self.fps!r}")
         if not isinstance(self.sim, SimConfig):
             raise InputError("sim must be a SimConfig")
-        if self.preroll is not None and not (math.isfinite(self.preroll) and self.preroll >= 0):
-            raise InputError(f"preroll must be >= 0 seconds, got {self.preroll!r}")
+        if self.preroll is not None and not (math.isfinite(self.preroll)
+                                             and 0 <= self.preroll <= MAX_PREROLL_SECONDS):
+            raise InputError(f"preroll must be between 0 and {MAX_PREROLL_SECONDS:g} seconds, got {self.preroll!r}")
         if isinstance(self.hair_batch, bool) or not isinstance(self.hair_batch, (int, np.integer)) \
                 or not 1 <= self.hair_batch <= 1024:
             raise InputError(f"hair_batch must be an integer in 1..1024, got {self.hair_batch!r}")

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avatarkit.errors import InputError
+from avatarkit.limits import MAX_FPS, MIN_FPS
 from avatarkit.gaussians import GaussianSet
 
 
@@ -63,6 +64,8 @@ def check_fps(fps) -> None:
     """InputError unless `fps` (a `BakeStatic`'s frame rate) is a finite positive number."""
     if not (isinstance(fps, (int, float, np.number)) and math.isfinite(fps) and fps > 0):
         raise InputError(f"fps must be a positive number, got {fps!r}")
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise InputError(f"fps must be between {MIN_FPS:g} and {MAX_FPS:g}, got {fps:g}")
 
 
 class StreamingWriter:

@@ -17,6 +17,7 @@ files into what viewers expect.
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 import time as _time
@@ -25,6 +26,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from avatarkit.errors import AvatarKitError, InputError, OutputError
+from avatarkit.limits import MAX_FPS, MIN_FPS
 from avatarkit.gaussians.gaussian_set import GaussianSet
 
 PLY_EXTENSIONS = (".ply",)
@@ -73,8 +75,11 @@ class ConvertOptions:
             raise InputError(f"up axis must be Y or Z, got {self.up_axis!r}")
         if self.sh_degree is not None and self.sh_degree not in range(4):
             raise InputError(f"SH degree must be 0..3, got {self.sh_degree}")
-        if not (isinstance(self.fps, (int, float)) and self.fps > 0 and self.fps < float("inf")):
-            raise InputError(f"fps must be a positive number, got {self.fps}")
+        if not (isinstance(self.fps, (int, float)) and MIN_FPS <= self.fps <= MAX_FPS):
+            raise InputError(f"fps must be a number between {MIN_FPS:g} and {MAX_FPS:g}, got {self.fps}")
+        # nan compares false with every sample time: it read as "no sample" and wrote 0 Gaussians
+        if self.time is not None and not (isinstance(self.time, (int, float)) and math.isfinite(self.time)):
+            raise InputError(f"time code must be a finite number, got {self.time!r}")
         from avatarkit.gaussians.ply import check_ply_frame
 
         check_ply_frame(self.ply_frame)

@@ -6,6 +6,7 @@ prints its message on one line and exits with code 2. Anything else is a bug (ex
 from __future__ import annotations
 
 import os
+import re
 
 
 class AvatarKitError(Exception):
@@ -35,3 +36,19 @@ class FormatError(InputError):
 
 class OutputError(AvatarKitError):
     """An output cannot be written (unwritable folder, unknown extension)."""
+
+
+def last_line(exc: BaseException, default: str = "unreadable") -> str:
+    """The last non-empty line of a foreign exception's text (OpenUSD's Tf errors put the useful
+    part last), safe when the text itself cannot be decoded (a damaged file's bytes quoted in a
+    USD parse error are not always UTF-8)."""
+    try:
+        text = str(exc)
+    except Exception:  # noqa: BLE001 - e.g. UnicodeDecodeError inside Tf.ErrorException.__str__
+        return f"{default} (the error text is not valid UTF-8)"
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if not lines:
+        return default
+    # OpenUSD: "Error in 'pxrInternal_...::UsdStage::Open' at line 1287 in file ...cpp : 'the text'"
+    m = re.match(r"^Error in '.*' at line \d+ in file .* : '(?P<text>.*)'$", lines[-1])
+    return m["text"] if m else lines[-1]

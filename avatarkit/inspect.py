@@ -180,6 +180,14 @@ def inspect_ply(path: Path) -> Summary:
     gs = read_ply(path)
     s = Summary("3DGS PLY", str(path))
     s.add("format", header.describe_format()).add("file size", size)
+    _splat_rows(s, gs)
+    if header.comments:
+        s.add("comments", header.comments)
+    return s
+
+
+def _splat_rows(s: Summary, gs) -> None:
+    """The rows every splat file shows: count, SH degree, bounds, opacity/scale stats, extras."""
     s.add("Gaussians", len(gs)).add("SH degree", gs.sh_degree)
     if len(gs):
         lo, hi = gs.bounds()
@@ -194,12 +202,33 @@ def inspect_ply(path: Path) -> Summary:
             e.update(min=a.min().item(), max=a.max().item())
         extras.append(e)
     s.add("extras", extras if extras else "none")
-    if header.comments:
-        s.add("comments", header.comments)
+
+
+def _spz_version(path: Path) -> int:
+    """The version field of an SPZ header (inside the gzip stream for versions 2 and 3)."""
+    import struct
+    import zlib
+
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if head[:2] == b"\x1f\x8b":
+        head = zlib.decompressobj(16 + zlib.MAX_WBITS).decompress(head, 8)
+    return struct.unpack_from("<I", head, 4)[0]
+
+
+def inspect_spz(path: Path) -> Summary:
+    """SPZ (Niantic's compressed splats): version, then the rows of a 3DGS PLY."""
+    from avatarkit.gaussians.spz import read_spz
+
+    gs = read_spz(path)  # a bad file fails here, so the header read below is a valid one
+    s = Summary("SPZ splats", str(path))
+    s.add("format", f"SPZ version {_spz_version(path)}").add("file size", ByteCount(path.stat().st_size))
+    _splat_rows(s, gs)
     return s
 
 
 register_inspector(".ply", inspect_ply)
+register_inspector(".spz", inspect_spz)
 for _ext in (".usd", ".usda", ".usdc", ".usdz"):
     register_inspector(_ext, "avatarkit.export.usd_stage:inspect_usd")
 register_inspector(lambda p: (p.is_dir() and (p / "sequence.json").is_file())
@@ -216,4 +245,4 @@ def _motion_clip(path: Path) -> bool:
 
     return is_motion_clip(path)
 
-__all__ = ["Summary", "ByteCount", "inspect_file", "register_inspector", "inspect_ply"]
+__all__ = ["Summary", "ByteCount", "inspect_file", "register_inspector", "inspect_ply", "inspect_spz"]

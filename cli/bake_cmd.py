@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from avatarkit.cli.options import advance, cli_warnings, progress, quiet_option
+from avatarkit.cli.options import FiniteFloatRange, advance, cli_warnings, progress, quiet_option
 
 _COLLISION = ("none", "vertex", "proxy")  # sim.COLLISION_MODES
 _PLY_FRAMES = ("yup", "ydown")  # gaussians.ply.PLY_FRAMES
@@ -37,7 +37,7 @@ def _mb(n: int) -> str:
               help="Preview width and height in pixels.")
 @click.option("--frames", "frame_range", default=None, metavar="A:B",
               help="Bake frames A..B-1 of the clip (A: to the end, :B from the start); output frames start at 0.")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--fps", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Resample the clip to this frame rate first [default: the clip's].")
 @click.option("--substeps", type=click.IntRange(min=1), default=None, help="Simulation substeps per frame [default: 4].")
 @click.option("--iterations", type=click.IntRange(min=1), default=None,
@@ -48,7 +48,7 @@ def _mb(n: int) -> str:
 @click.option("--static-hair/--dynamic-hair", default=None,
               help="No hair dynamics (the hair follows the head rigidly), or simulate it. "
                    "[default: static for avatars built with short, rigid hair, else dynamic]")
-@click.option("--preroll", type=click.FloatRange(min=0), default=None,
+@click.option("--preroll", type=FiniteFloatRange(min=0), default=None,
               help="Seconds the hair settles at the first pose before frame 0 [default: 1].")
 @click.option("--half", is_flag=True, help="USD: half-precision splat attributes.")
 @click.option("--usd-points", is_flag=True,
@@ -128,6 +128,11 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, ply_frame, preview, 
         except InputError as e:
             raise e.with_path(clip_path) from None
         total = stop - start
+        if out_path is not None and chunk_frames and total > chunk_frames and out_path.suffix.lower() != ".usdz":
+            from avatarkit.export.usd_stage import check_clips_folder, clips_folder_for
+
+            # before the (seconds of) hair weights: a bake never replaces what it did not create
+            check_clips_folder(clips_folder_for(out_path))
         deformer = avatar.rig.deformer if avatar.rig is not None else None
         if deformer is not None and not deformer.weights_ready:
             # Avatar folders do not store the hair's MVC weights; computing them takes seconds.

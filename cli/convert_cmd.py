@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import advance, output_option, progress, quiet_option
+from avatarkit.cli.options import FINITE, FiniteFloatRange, advance, output_option, progress, quiet_option
 
 _PLY_FRAMES = ("yup", "ydown")  # gaussians.ply.PLY_FRAMES (literal so --help imports no numpy)
 
@@ -26,9 +26,9 @@ def _size(n: int) -> str:
 @click.option("--half", is_flag=True, help="Write USD half-precision attributes (positionsh, scalesh, ...).")
 @click.option("--sh-degree", type=click.IntRange(0, 3), default=None,
               help="Keep SH bands up to this degree (drop higher ones).")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=24.0, show_default=True,
+@click.option("--fps", type=FiniteFloatRange(min=0, min_open=True), default=24.0, show_default=True,
               help="Frames per second of a sequence stage.")
-@click.option("--time", "time_code", type=float, default=None,
+@click.option("--time", "time_code", type=FINITE, default=None,
               help="Time code to read a USD input at [default: its earliest sample].")
 @click.option("--spz-version", type=click.Choice(["2", "3", "4"]), default="3", show_default=True,
               help="SPZ version to write. 3 is the newest that NVIDIA's converter and @spz-loader/core "

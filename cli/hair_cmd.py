@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import advance, progress, quiet_option
+from avatarkit.cli.options import FiniteFloatRange, advance, progress, quiet_option
 
 _MARGIN_HELP = ("Metres outside the target head where hair pushed out of it lands (none stays "
                 "closer than half of it).")
 
 
 def _margin_option(f):
-    return click.option("--margin", type=click.FloatRange(0.0, 0.05), default=0.0015, show_default=True,
+    return click.option("--margin", type=FiniteFloatRange(0.0, 0.05), default=0.0015, show_default=True,
                         help=_MARGIN_HELP)(f)
 
 
@@ -92,6 +92,9 @@ def transfer_hair_cmd(hair_source, target, output, preview_png, margin, keep_ski
     from avatarkit.avatar import check_avatar_target, load_avatar
     from avatarkit.hairstyle import transfer_hair
 
+    from avatarkit.fileio import check_not_an_input
+
+    check_not_an_input(output, {"--hair": hair_source, "--onto": target})
     check_avatar_target(output)  # fail on a bad output before loading and rigging
     if preview_png:
         _check_png_output(preview_png)

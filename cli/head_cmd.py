@@ -5,7 +5,7 @@ import json
 
 import click
 
-from avatarkit.cli.options import cli_warnings, output_option, quiet_option
+from avatarkit.cli.options import FINITE, cli_warnings, output_option, quiet_option
 
 _head_model_option = click.option(
     "--head-model", "head_model", type=click.Path(exists=True, dir_okay=False), default=None,
@@ -86,7 +86,7 @@ def _params(model, clip_path, frame, expr, jaw):
 @click.option("--expr", multiple=True, metavar="NAME=VALUE",
               help="Set an expression coefficient by name (template: smile, blink_left, ...) or index; "
                    "repeatable.")
-@click.option("--jaw", type=float, default=None, help="Open the jaw by this many radians.")
+@click.option("--jaw", type=FINITE, default=None, help="Open the jaw by this many radians.")
 @click.option("--colors/--no-colors", default=True, show_default=True,
               help="Per-vertex region colours (PLY, GLB, OBJ).")
 @output_option("Mesh file: .obj, .ply, .glb, .stl or .off.")

@@ -1,13 +1,22 @@
 """`avatarkit` entry point: a lazily loaded command group and the one place errors become exit codes.
 
 Exit codes (DESIGN.md): 0 ok; 2 bad input (one line naming the file and the problem, no
-traceback); 1 an unexpected bug; 130 interrupted.
+traceback); 1 an unexpected bug; 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+
+SIGTERM is handled like Ctrl-C: it raises `Terminated` (a KeyboardInterrupt) in the main thread,
+so every writer's cleanup runs and nothing partial is left. Library warnings are held while a
+command runs: printed as `warning: ...` lines when it succeeds, dropped when it fails, so a
+failure is exactly one line on stderr.
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
+import warnings
 
 import click
 
@@ -28,6 +37,7 @@ COMMANDS: dict[str, str] = {
     "hair-grid": "avatarkit.cli.hair_cmd:hair_grid_cmd",
     "track": "avatarkit.cli.track_cmd:track_cmd",
     "evaluate": "avatarkit.cli.evaluate_cmd:evaluate_cmd",
+    "view": "avatarkit.cli.view_cmd:view_cmd",
 }
 
 
@@ -57,21 +67,63 @@ def cli():
     """
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived: unwinds like Ctrl-C (every writer cleans up), exit code 143."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def held_warnings(held: list[str]):
+    """Collect the library's warnings (UserWarnings; numpy's RuntimeWarnings and deprecation
+    noise are not for users) into `held` instead of printing them."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        warnings.simplefilter("default", UserWarning)
+        warnings.showwarning = lambda message, *a, **k: held.append(str(message))
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns (and exits with) the exit code."""
     os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
     from avatarkit.errors import AvatarKitError
 
+    args = sys.argv[1:] if argv is None else list(argv)
+    held: list[str] = []
     try:
-        rv = cli.main(args=argv, prog_name="avatarkit", standalone_mode=False)
+        with _sigterm_as_interrupt(), held_warnings(held):
+            rv = cli.main(args=argv, prog_name="avatarkit", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
+        if not ({"-q", "--quiet"} & set(args)):
+            for message in dict.fromkeys(held):
+                click.echo(f"warning: {message}", err=True)
     except AvatarKitError as e:
-        click.echo(f"error: {e}", err=True)
+        # one line whatever a lower layer's text held (a library message quoting a multi-line one)
+        click.echo("error: " + " ".join(part.strip() for part in str(e).splitlines() if part.strip()), err=True)
         code = 2
-    except click.exceptions.Abort:
-        click.echo("interrupted", err=True)
-        code = 130
+    except click.exceptions.Abort as e:  # click turns a KeyboardInterrupt into Abort
+        terminated = isinstance(e.__cause__ or e.__context__, Terminated)
+        click.echo("terminated" if terminated else "interrupted", err=True)
+        code = 143 if terminated else 130
+    except Terminated:
+        click.echo("terminated", err=True)
+        code = 143
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         code = 130

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import output_option, quiet_option
+from avatarkit.cli.options import FiniteFloatRange, output_option, quiet_option
 
 _KINDS = ("nod", "shake", "tilt", "turn", "talk", "idle", "whip")  # avatarkit.motion.KINDS, kept
 # literal so `--help` does not import numpy/scipy; a test checks they agree
 _CLIP_PATH = click.Path(exists=False, dir_okay=True)
-_fps_in = click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=None,
+_fps_in = click.option("--fps", type=FiniteFloatRange(min=0, min_open=True), default=None,
                        help="Frame rate of the input [default: the file's own, else 25 (VHAP)].")
 
 
@@ -32,9 +32,9 @@ def motion():
 @output_option("Output clip: .npz or .json.")
 @click.option("--frames", type=click.IntRange(min=2), default=None,
               help="Number of frames [default: 2 s for nod/shake/tilt, 3 s turn/whip, 4 s talk, 6 s idle].")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=25.0, show_default=True,
+@click.option("--fps", type=FiniteFloatRange(min=0, min_open=True), default=25.0, show_default=True,
               help="Frames per second.")
-@click.option("--amplitude", type=click.FloatRange(0, 180), default=None,
+@click.option("--amplitude", type=FiniteFloatRange(0, 180), default=None,
               help="Peak angle in degrees [default: nod 15, shake 25, tilt 15, turn 40, talk 12 (jaw), "
                    "idle 3, whip 60].")
 @click.option("--expr-dims", type=click.IntRange(min=0), default=100, show_default=True,
@@ -102,7 +102,7 @@ def convert(input_path, output, fps, start, end, quiet):
 @motion.command("resample")
 @click.argument("input_path", metavar="IN", type=_CLIP_PATH)
 @output_option("Output clip: .npz or .json.")
-@click.option("--to-fps", "to_fps", type=click.FloatRange(min=0, min_open=True), required=True,
+@click.option("--to-fps", "to_fps", type=FiniteFloatRange(min=0, min_open=True), required=True,
               help="New frame rate.")
 @_fps_in
 @quiet_option

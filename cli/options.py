@@ -2,10 +2,27 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import warnings
 
 import click
+
+class FiniteFloatRange(click.FloatRange):
+    """click.FloatRange that also refuses nan and infinities (which compare False with every
+    bound, so a plain FloatRange lets them through)."""
+
+    name = "finite float"
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if rv is not None and not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return rv
+
+
+#: a finite float, any value
+FINITE = FiniteFloatRange()
 
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
 verbose_option = click.option("-v", "--verbose", count=True, help="More detail (repeatable).")
@@ -17,8 +34,10 @@ def output_option(help_text: str = "Output file."):
 
 
 def progress(iterable, *, length: int | None = None, label: str = "", quiet: bool = False):
-    """A progress bar on stderr for anything that may take more than a couple of seconds."""
-    if quiet:
+    """A progress bar on stderr for anything that may take more than a couple of seconds; none
+    when stderr is not a terminal (click would print the bare label there, and a log or a
+    script reading stderr wants the result or the one error line only)."""
+    if quiet or not _is_terminal(sys.stderr):
         return _NullBar(iterable)
     return click.progressbar(iterable, length=length, label=label, file=sys.stderr,
                              show_eta=True, show_pos=True)
@@ -26,10 +45,12 @@ def progress(iterable, *, length: int | None = None, label: str = "", quiet: boo
 
 @contextlib.contextmanager
 def cli_warnings(quiet: bool):
-    """Library warnings as one `warning: ...` line each on stderr (none with --quiet)."""
+    """Library warnings as one `warning: ...` line each on stderr (none with --quiet), printed
+    when the block succeeds; a block that fails drops them, so the error is the only line."""
+    held: list[str] = []
+
     def show(message, category, filename, lineno, file=None, line=None):
-        if not quiet:
-            click.echo(f"warning: {message}", err=True)
+        held.append(str(message))
 
     with warnings.catch_warnings():
         # ours (and other UserWarnings) are for the user; deprecation and resource noise is not
@@ -37,6 +58,16 @@ def cli_warnings(quiet: bool):
         warnings.simplefilter("always", UserWarning)
         warnings.showwarning = show
         yield
+    if not quiet:
+        for message in dict.fromkeys(held):
+            click.echo(f"warning: {message}", err=True)
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
 
 
 def advance(bar):

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from avatarkit.cli.options import advance, cli_warnings, output_option, progress, quiet_option
+from avatarkit.cli.options import FINITE, FiniteFloatRange, advance, cli_warnings, output_option, progress, quiet_option
 
 
 @click.command("render")
@@ -15,13 +15,13 @@ from avatarkit.cli.options import advance, cli_warnings, output_option, progress
               help="Image width in pixels [default: 512, or the --camera file's].")
 @click.option("--height", type=click.IntRange(min=1), default=None,
               help="Image height in pixels [default: 512, or the --camera file's].")
-@click.option("--fov", type=click.FloatRange(0, 180, min_open=True, max_open=True), default=30.0,
+@click.option("--fov", type=FiniteFloatRange(0, 180, min_open=True, max_open=True), default=30.0,
               show_default=True, help="Vertical field of view in degrees.")
-@click.option("--azimuth", type=float, default=0.0, show_default=True,
+@click.option("--azimuth", type=FINITE, default=0.0, show_default=True,
               help="Degrees around +Y; 0 looks at the face from the front (+Z). A turntable starts here.")
-@click.option("--elevation", type=float, default=0.0, show_default=True,
+@click.option("--elevation", type=FINITE, default=0.0, show_default=True,
               help="Degrees above the horizon.")
-@click.option("--distance", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--distance", type=FiniteFloatRange(min=0, min_open=True), default=None,
               help="Camera distance in metres [default: frames the splats].")
 @click.option("--target", default=None, metavar="X,Y,Z",
               help="Point the camera orbits and looks at [default: the splats' centre].")
@@ -34,7 +34,7 @@ from avatarkit.cli.options import advance, cli_warnings, output_option, progress
 @click.option("--contact-sheet", type=click.IntRange(min=1), default=None, metavar="N",
               help="N views around the subject on one PNG.")
 @click.option("--columns", type=click.IntRange(min=1), default=None, help="Contact sheet columns.")
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=24.0, show_default=True,
+@click.option("--fps", type=FiniteFloatRange(min=0, min_open=True), default=24.0, show_default=True,
               help="Frames per second of a video.")
 @click.option("--crf", type=click.IntRange(0, 51), default=None,
               help="H.264 quality of an .mp4: 0 best .. 51 worst, +6 about halves the size [default: 20].")

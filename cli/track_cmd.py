@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import cli_warnings, quiet_option
+from avatarkit.cli.options import FiniteFloatRange, _is_terminal, cli_warnings, quiet_option
 
 _FILE = click.Path(dir_okay=False)
 
@@ -24,7 +24,7 @@ _FILE = click.Path(dir_okay=False)
               "(default: the video's end).")
 @click.option("--face-index", type=click.IntRange(min=0), default=0, show_default=True,
               help="Which face, numbered left to right from 0, when the first frame has several.")
-@click.option("--smoothing", type=click.FloatRange(min=0), default=4.0, show_default=True,
+@click.option("--smoothing", type=FiniteFloatRange(min=0), default=4.0, show_default=True,
               help="Temporal smoothing (frames^4; 0 = none). It does not lag: see docs/tracking.md.")
 @click.option("--preview", type=_FILE, help="Also write the video with the fitted head's landmarks "
               "and mesh drawn on it (.mp4 or .gif).")
@@ -79,16 +79,17 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
 
 
 class _LazyBar:
-    """A progress bar made on the first `step(done, total)`, when the total is known."""
+    """A progress bar made on the first `step(done, total)`, when the total is known; like
+    `options.progress`, none with -q or when stderr is not a terminal."""
 
     def __init__(self, label: str, quiet: bool):
         self.label, self.quiet, self.bar, self.done = label, quiet, None, 0
 
     def step(self, done: int, total: int) -> None:
-        if self.quiet:
-            return
         import sys
 
+        if self.quiet or not _is_terminal(sys.stderr):
+            return
         if self.bar is None:
             self.bar = click.progressbar(length=total, label=self.label, file=sys.stderr,
                                          show_eta=True, show_pos=True)

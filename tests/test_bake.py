@@ -188,7 +188,9 @@ def test_batched_hair_equals_the_single_frame_reference(avatar, shake, baked, ba
         assert np.array_equal(b.face.means, s.face.means)
         np.testing.assert_allclose(b.hair.means, s.hair.means, atol=2e-7)
         np.testing.assert_allclose(b.hair.quats, s.hair.quats, atol=2e-5)
-        np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=2e-5)
+        # float32 products of ~500-term rows: how they round depends on the BLAS kernel the CPU
+        # gets (3.6e-5 seen on AMD EPYC, under 2e-5 on Intel), so 1e-4 relative
+        np.testing.assert_allclose(b.hair.scales, s.hair.scales, rtol=1e-4)
     # and the single-frame path is CageDeformer.deform_arrays of the frame's cage
     d = avatar.rig.deformer
     for s in single[::3]:

@@ -77,6 +77,17 @@ def single_bakes(inputs: Path, ref: Path) -> Path:
     return ref
 
 
+def assert_same_values(a: np.ndarray, b: np.ndarray, what) -> None:
+    """Equal, floats up to the last bits: batch workers run with fewer threads
+    (AVATARKIT_THREADS), and the hair's float32 products round differently with another
+    thread split or another CPU's BLAS kernel (seen on AMD EPYC: 1 ulp in extents)."""
+    assert a.shape == b.shape, what
+    if a.dtype.kind == "f":
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-7, err_msg=str(what))
+    else:
+        assert np.array_equal(a, b), what
+
+
 def assert_same_usd(a: Path, b: Path) -> None:
     """Every attribute of every prim: same time samples, same values."""
     from pxr import Usd
@@ -99,7 +110,7 @@ def assert_same_usd(a: Path, b: Path) -> None:
             for t in times or [Usd.TimeCode.Default()]:
                 va, vb = xa.Get(t), xb.Get(t)
                 if hasattr(va, "__len__") and not isinstance(va, str):
-                    assert np.array_equal(np.asarray(va), np.asarray(vb)), (path, name, t)
+                    assert_same_values(np.asarray(va), np.asarray(vb), (path, name, t))
                 else:
                     assert va == vb, (path, name, t)
     assert n_sampled >= 8  # the moving attributes were compared, not just the static ones
@@ -111,10 +122,18 @@ def assert_same_as_single_bake(out: Path, ref: Path, name: str) -> None:
     assert_same_usd(out / f"{name}.usdc", ref / f"{name}.usdc")
     plys = sorted((ref / f"{name}_ply").glob("*.ply"))
     assert len(plys) == FRAMES
+    from avatarkit.gaussians.ply import read_ply
+
     for p in plys:
-        assert (out / f"{name}_ply" / p.name).read_bytes() == p.read_bytes(), p
+        got, want = read_ply(out / f"{name}_ply" / p.name), read_ply(p)
+        for field in ("means", "quats", "scales", "opacities", "sh"):
+            assert_same_values(getattr(got, field), getattr(want, field), (p, field))
     got, want = read_video_frames(out / f"{name}.gif"), read_video_frames(ref / f"{name}.gif")
-    assert len(got) == FRAMES and all(np.array_equal(x, y) for x, y in zip(got, want))
+    assert len(got) == FRAMES
+    for x, y in zip(got, want):
+        # a last-bit difference in a splat can move a pixel across a palette boundary
+        differ = np.any(x != y, axis=-1)
+        assert differ.mean() < 0.002 and np.abs(x.astype(int) - y).max() <= 24
 
 
 def no_partials(folder: Path) -> list[Path]:

@@ -94,8 +94,9 @@ def test_chunked_stage_layout_values_and_validation(tmp_path, bake, ext):
             writer.write(f)
     # what the user gets: the stage and its clips folder, nothing temporary
     assert _listing(tmp_path) == [f"clip{ext}", "clip_clips"]
-    assert _listing(tmp_path / "clip_clips") == ["chunk_00000.usdc", "chunk_00001.usdc", "chunk_00002.usdc",
-                                                 "manifest.usda"]
+    # + the marker that lets a later bake replace the folder (and nothing else of that name)
+    assert _listing(tmp_path / "clip_clips") == [".avatarkit-clips", "chunk_00000.usdc", "chunk_00001.usdc",
+                                                 "chunk_00002.usdc", "manifest.usda"]
     stage = Usd.Stage.Open(str(path))
     assert UsdGeom.GetStageUpAxis(stage) == "Y" and UsdGeom.GetStageMetersPerUnit(stage) == 1
     assert stage.GetTimeCodesPerSecond() == FPS and stage.GetFramesPerSecond() == FPS

@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 from avatarkit.batch import records
 from avatarkit.batch.spec import BakeJob
+from avatarkit.fileio import check_inside
 
 JOB_STATUSES = ("done", "skipped", "failed", "cancelled")
 
@@ -141,7 +142,7 @@ def run_job(job: BakeJob, outdir: str | os.PathLike, *, avatar: Any = None, kind
         for o in job.outputs:
             if o.kind not in todo:
                 continue
-            target = o.target(outdir)
+            target = check_inside(o.target(outdir), outdir)
             # the old record goes first: from here on nothing vouches for this output
             records.remove_record(target)
             if o.kind != "ply":

@@ -15,8 +15,8 @@ import json
 import os
 from pathlib import Path
 
-from avatarkit.errors import InputError
-from avatarkit.fileio import atomic_path
+from avatarkit.errors import FormatError, InputError
+from avatarkit.fileio import atomic_path, json_loads
 
 RECORD_FORMAT = "avatarkit.batch-output"
 RECORD_VERSION = 1
@@ -109,8 +109,8 @@ def read_record(target: str | os.PathLike) -> dict | None:
     """The record of output `target`, or None if there is none or it is unreadable."""
     p = record_path(target)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
+        doc = json_loads(p.read_text(encoding="utf-8"), p)
+    except (OSError, UnicodeDecodeError, ValueError, FormatError):
         return None
     if not isinstance(doc, dict) or doc.get("format") != RECORD_FORMAT or doc.get("version") != RECORD_VERSION:
         return None

@@ -23,6 +23,7 @@ from typing import Any
 
 from avatarkit.bake import BakeConfig
 from avatarkit.errors import FormatError, InputError
+from avatarkit.fileio import json_loads
 from avatarkit.sim.config import SimConfig
 
 BATCH_FORMAT = "avatarkit.batch"
@@ -92,7 +93,7 @@ def load_batch(path: str | os.PathLike) -> Batch:
     if path.suffix.lower() in (".yaml", ".yml"):
         raise FormatError("batch files are JSON (.json); YAML is not supported", path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json_loads(path.read_text(encoding="utf-8"), path)
     except UnicodeDecodeError:
         raise FormatError("not a text file (batch files are JSON)", path) from None
     except json.JSONDecodeError as e:

@@ -11,10 +11,19 @@ or from the driver stopping the batch) interrupts the job being run once (its wr
 nothing half-written stays) and is ignored while the worker is idle, so an idle worker never
 dies of it. A job whose frames are all written is let finish: its outputs are being moved into
 place and recorded, which takes moments and leaves no output without its record.
+
+Workers die with their driver: on Linux the kernel sends each a SIGTERM when the driver dies
+(`prctl(PR_SET_PDEATHSIG)`), and everywhere a watchdog thread sees the driver gone (the worker's
+parent changes) within a second and sends the same. SIGTERM interrupts a running job as Ctrl-C
+does (its writers clean up), then the worker exits; an idle worker exits at once.
 """
 from __future__ import annotations
 
+import ctypes
+import os
 import signal
+import sys
+import threading
 import time
 import traceback
 from collections import OrderedDict
@@ -28,6 +37,11 @@ _CACHE: "OrderedDict[tuple[str, str], object]" = OrderedDict()
 _running = False      # a job is being run
 _committing = False   # its frames are all written: the writers are moving outputs into place
 _interrupted = False  # a SIGINT reached this job
+_terminated = False   # a SIGTERM reached this worker: exit once the job has cleaned up
+#: how often the watchdog looks for the driver, and how long a job may take to clean up after
+WATCH_SECONDS = 1.0
+CLEANUP_SECONDS = 30.0
+_PR_SET_PDEATHSIG = 1
 
 
 @dataclass(frozen=True)
@@ -44,6 +58,40 @@ class Task:
 
 def init_pool_worker() -> None:
     signal.signal(signal.SIGINT, _on_sigint)
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    die_with_parent()
+
+
+def die_with_parent() -> None:
+    """Make this process receive SIGTERM when its parent (the batch driver) dies."""
+    driver = os.getppid()
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # the watchdog still covers it
+    threading.Thread(target=_watch_parent, args=(driver,), name="avatarkit-driver-watch",
+                     daemon=True).start()
+    if os.getppid() != driver:  # the driver died before prctl took effect
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _watch_parent(driver: int) -> None:
+    while os.getppid() == driver:
+        time.sleep(WATCH_SECONDS)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(CLEANUP_SECONDS)  # a job stuck in native code: do not wait for ever
+    os._exit(143)
+
+
+def _on_sigterm(signum, frame):
+    global _terminated
+    _terminated = True
+    if not _running:
+        os._exit(143)
+    if not _committing:
+        raise KeyboardInterrupt  # the job's writers clean up; execute() then exits
 
 
 def _on_sigint(signum, frame):
@@ -118,8 +166,10 @@ def execute(task: Task) -> JobResult:
         result = failure(task, e, time.perf_counter() - t0)
     finally:
         _running = _committing = False
+        if _terminated:
+            os._exit(143)
     result.attempts = task.attempt
     return result
 
 
-__all__ = ["Task", "cached_avatar", "clear_cache", "execute", "failure", "init_pool_worker"]
+__all__ = ["Task", "cached_avatar", "clear_cache", "die_with_parent", "execute", "failure", "init_pool_worker"]

@@ -23,7 +23,8 @@ written: they describe the rig, not the splats a viewer shows.
 parts (count, SH degree, part id), file names, `ply_frame` ("yup"/"ydown"; absent in
 older sidecars: "yup"), provenance.
 
-Frames are written into a hidden `.partial.*` folder inside the target folder and moved into
+Frames are written into a hidden `.frames.partial-<host>-<pid>-*` folder inside the target
+folder (one left by a killed bake is removed by the next, `fileio.make_temp_folder`) and moved into
 place by `close()`, so a failed or interrupted bake leaves the folder as it was (an older
 sequence there stays whole). `close()` removes the files of an older sequence's sidecar that
 the new one does not reuse.
@@ -33,7 +34,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,7 +41,7 @@ import numpy as np
 
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, json_loads, make_temp_folder
 from avatarkit.gaussians import GaussianSet
 from avatarkit.gaussians.ply import check_ply_frame, write_ply
 
@@ -97,7 +97,7 @@ class PlySequenceWriter(StreamingWriter):
             if not self.folder.exists():
                 self.folder.mkdir(parents=True)
                 self._created_folder = True
-            self._tmp = Path(tempfile.mkdtemp(prefix=".partial.", dir=self.folder))
+            self._tmp = make_temp_folder(self.folder / "frames", inside=False)
         except OSError as e:
             raise OutputError(f"cannot write to this folder ({e.strerror})", self.folder) from None
         self._state = "open"
@@ -144,6 +144,8 @@ class PlySequenceWriter(StreamingWriter):
             write_ply(self._tmp / name, gs, frame=self.ply_frame)
         except OSError as e:
             raise OutputError(f"could not write {name} ({e.strerror})", self.folder) from None
+        except OutputError as e:  # named the temporary file: name the folder asked for
+            raise OutputError(f"could not write {name} ({e.message})", self.folder) from None
         self._bytes += (self._tmp / name).stat().st_size
 
     def _files(self) -> dict[str, list[str]]:
@@ -222,7 +224,7 @@ def read_sidecar(path: str | os.PathLike) -> dict:
     if not path.is_file():
         raise InputError("no such file", path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json_loads(path.read_text(), path)
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise FormatError(f"not valid JSON ({e})", path) from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:

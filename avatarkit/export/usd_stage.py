@@ -35,15 +35,21 @@ the next one, so motion interpolates across chunk boundaries. A chunk layer is s
 (and every `flush_bytes` of samples), then released. A shorter bake writes one self-contained
 file. `.usdz` packages the root layer and its clip layers (`UsdUtils.CreateNewUsdzPackage`).
 
-Everything is built in a sibling temporary folder `.<name>.<random>.partial/`; `close()` moves
+Everything is built in a sibling temporary folder `.<name>.partial-<host>-<pid>-<random>/`
+(`fileio.make_temp_folder`: one left by a killed bake is removed by the next); `close()` moves
 the clips folder and then the root file into place, `abort()` deletes the folder.
+
+An existing `<name>_clips` is replaced only if a bake wrote it: a folder holding our marker file
+`.avatarkit-clips` and nothing but chunk layers and the manifest. Anything else of that name (the
+user's folder, a plain file, a link, the clip folder being baked) is refused before the bake
+starts (`check_clips_folder`), and checked again just before the replacement.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,7 +58,9 @@ import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
-from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
+from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
+from avatarkit.fileio import make_temp_folder, write_failed
+from avatarkit.native_output import native_stderr_as_warnings
 from avatarkit.gaussians.usd import (USD_EXTENSIONS, PointsPrimWriter, SplatPrimWriter, bounding_box,
                                      check_frame_arrays, declare_attributes, find_splat_prims, validate_stage)
 
@@ -62,6 +70,37 @@ HEAD_PATH, FACE_PATH, HAIR_PATH, CAGE_PATH = (f"{ROOT_PATH}/{n}" for n in ("Head
 SKIN_COLOR = (0.80, 0.62, 0.52)
 CAGE_COLOR = (0.35, 0.65, 0.95)
 CLIP_FOLDER_SUFFIX = "_clips"
+#: written into every `<name>_clips/` folder we make: what lets a later bake replace it
+CLIPS_MARKER = ".avatarkit-clips"
+_CLIPS_ENTRY = re.compile(r"^(chunk_\d{5,}\.usdc|manifest\.usda|\.avatarkit-clips)$")
+
+
+def clips_folder_for(path: str | os.PathLike) -> Path:
+    """`<name>_clips/` beside the stage `path`: where a long bake's value-clip layers go."""
+    path = Path(path)
+    return path.parent / (path.stem + CLIP_FOLDER_SUFFIX)
+
+
+def check_clips_folder(clips_dir: str | os.PathLike) -> None:
+    """OutputError unless `clips_dir` is absent or a value-clip folder a bake wrote (the marker
+    `.avatarkit-clips` and nothing but chunk layers and the manifest): a bake never replaces
+    what it did not create."""
+    clips_dir = Path(clips_dir)
+    if not os.path.lexists(clips_dir):
+        return
+    advice = "move it away or choose another -o"
+    if clips_dir.is_symlink() or not clips_dir.is_dir():
+        raise OutputError(f"a long bake writes its value clips here, and this {'link' if clips_dir.is_symlink() else 'file'} "
+                          f"was not made by avatarkit; {advice}", clips_dir)
+    if not (clips_dir / CLIPS_MARKER).is_file():
+        raise OutputError(f"a long bake writes its value clips here, and this folder was not made by "
+                          f"avatarkit bake (no {CLIPS_MARKER} marker); {advice}", clips_dir)
+    foreign = sorted(e.name for e in os.scandir(clips_dir)
+                     if not (_CLIPS_ENTRY.match(e.name) and e.is_file(follow_symlinks=False)))
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OutputError(f"this value-clip folder also holds files avatarkit did not write ({shown}); "
+                          f"{advice}", clips_dir)
 
 
 @dataclass
@@ -246,7 +285,7 @@ def _save(layer_or_stage, path: Path) -> None:
     try:
         ok = layer_or_stage.Save()
     except Tf.ErrorException as e:
-        raise OutputError(f"could not write the USD layer ({str(e).strip().splitlines()[-1]})", path) from None
+        raise OutputError(f"could not write the USD layer ({last_line(e)})", path) from None
     if ok is False:
         raise OutputError("could not write the USD layer", path)
 
@@ -288,7 +327,7 @@ class UsdStageWriter(StreamingWriter):
 
     @property
     def clips_dir(self) -> Path:
-        return self.path.parent / self._clips_name
+        return clips_folder_for(self.path)
 
     def begin(self, static: BakeStatic) -> None:
         """Create the temporary folder and the root layer with every static attribute."""
@@ -300,14 +339,14 @@ class UsdStageWriter(StreamingWriter):
             raise OutputError("output folder does not exist", folder)
         if self.path.is_dir():
             raise OutputError("is a folder, not a file name", self.path)
-        try:
-            self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".partial", dir=folder))
-        except OSError as e:
-            raise OutputError(f"output folder is not writable ({e.strerror})", folder) from None
+        use_clips = bool(self.options.chunk_frames) and static.n_frames > self.options.chunk_frames
+        if use_clips and self._ext != ".usdz":
+            check_clips_folder(self.clips_dir)  # before any work: never replace what we did not make
+        self._tmp = make_temp_folder(self.path)
         self._state = "open"
         try:
             self._static = static
-            self._use_clips = bool(self.options.chunk_frames) and static.n_frames > self.options.chunk_frames
+            self._use_clips = use_clips
             root_name = (Tf.MakeValidIdentifier(self.path.stem) + ".usdc") if self._ext == ".usdz" else self.path.name
             self._root = self._new_stage(self._tmp / root_name)
             UsdGeom.SetStageUpAxis(self._root, UsdGeom.Tokens.y)
@@ -325,6 +364,8 @@ class UsdStageWriter(StreamingWriter):
             self._root_prims.write_static(static)
             if self._use_clips:
                 (self._tmp / self._clips_name).mkdir()
+                (self._tmp / self._clips_name / CLIPS_MARKER).write_text(
+                    f"value clips of {self.path.name}, written by avatarkit bake\n")
         except BaseException:
             self.abort()
             raise
@@ -449,7 +490,10 @@ class UsdStageWriter(StreamingWriter):
             _save(root, self.path)
             root_file = Path(layer.realPath)
             self._root = self._root_prims = self._manifest = None
-            result = self._move_into_place(root_file)
+            try:
+                result = self._move_into_place(root_file)
+            except OSError as e:
+                raise write_failed(e, self.path) from None
         except BaseException:
             self.abort()
             raise
@@ -475,7 +519,8 @@ class UsdStageWriter(StreamingWriter):
             new = self._tmp / self._clips_name
             total = sum(f.stat().st_size for f in new.iterdir())
             clips_dir = self.clips_dir
-            if clips_dir.exists() or clips_dir.is_symlink():
+            if os.path.lexists(clips_dir):
+                check_clips_folder(clips_dir)  # again: something may have appeared while we baked
                 # an older bake's clips: parked inside our temp folder, deleted with it
                 os.replace(clips_dir, self._tmp / "replaced")
             os.replace(new, clips_dir)
@@ -551,9 +596,10 @@ def inspect_usd(path: Path):
 
     path = Path(path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
-        raise FormatError(f"not a readable USD file ({str(e).strip().splitlines()[-1].strip()})", path) from None
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
     if stage is None:
         raise FormatError("not a readable USD file", path)
     s = Summary("USD stage", str(path))

@@ -37,8 +37,9 @@ from typing import Iterator
 import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
-from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError
-from avatarkit.fileio import atomic_path
+from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
+from avatarkit.fileio import atomic_path, temp_prefix
+from avatarkit.native_output import native_stderr_as_warnings
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.gaussians.sh import SH_C0, SH_COUNTS
 
@@ -527,10 +528,10 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
     if not path.is_file():
         raise InputError("file not found", path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
-        first = str(e).strip().splitlines()[-1] if str(e).strip() else "unreadable"
-        raise FormatError(f"not a readable USD file ({first.strip()})", path) from None
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
     if stage is None:
         raise FormatError("not a readable USD file", path)
     try:
@@ -619,33 +620,60 @@ def open_output_stage(path: str | os.PathLike, *, up_axis: str = "Y", meters_per
     path = Path(path)
     _check_usd_extension(path)
     ext = path.suffix.lower()
-    with atomic_path(path) as tmp, tempfile.TemporaryDirectory(prefix="avatarkit-usd-") as scratch:
+    # scratch (a .usdz's layer) beside the target, where a re-run sweeps one a killed run left
+    with atomic_path(path) as tmp, tempfile.TemporaryDirectory(prefix=temp_prefix(path.name),
+                                                               dir=tmp.parent) as scratch:
         if ext == ".usda":
             stage = Usd.Stage.CreateInMemory()
         else:
             target = Path(scratch) / (Tf.MakeValidIdentifier(path.stem) + ".usdc") if ext == ".usdz" else tmp
-            stage = Usd.Stage.CreateNew(str(target))
+            try:
+                stage = Usd.Stage.CreateNew(str(target))
+            except Tf.ErrorException as e:  # a full disk as the new layer is first written
+                raise OutputError(f"could not write the USD file ({_write_error(e)})", path) from None
             if stage is None:
                 raise OutputError("could not create the USD layer", path)
         _init_stage(stage, up_axis, meters_per_unit, fps, start, end)
         layer = stage.GetRootLayer()
         if comment:
             layer.comment = comment
-        yield stage
-        if ext == ".usda":
-            ok = layer.Export(str(tmp))
-        else:
-            ok = layer.Save(force=True)
-            if ok and ext == ".usdz":
-                ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(layer.realPath), str(tmp))
+        try:
+            yield stage
+        except OutputError as e:
+            raise e.with_path(path) from None
+        try:
+            if ext == ".usda":
+                ok = layer.Export(str(tmp))
+            else:
+                ok = layer.Save(force=True)
+                if ok and ext == ".usdz":
+                    ok = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(layer.realPath), str(tmp))
+        except Tf.ErrorException as e:  # a full disk: OpenUSD reports the failed write this way
+            raise OutputError(f"could not write the USD file ({_write_error(e)})", path) from None
         if not ok:
             raise OutputError("could not write the USD file", path)
+
+
+def _write_error(e: Exception) -> str:
+    """The first line of a Tf error about a failed write (the OS's reason is in it)."""
+    text = last_line(e, "write failed")
+    try:
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+    except Exception:  # noqa: BLE001 - undecodable text
+        return text
+    for ln in lines:
+        if "writing file" in ln or "Failed to write" in ln:
+            return ln.rsplit(":", 1)[-1].strip(" '")
+    return text
 
 
 def flush_stage(stage: Usd.Stage) -> None:
     """Save a file-backed stage so the time samples written so far are paged out of memory."""
     if not stage.GetRootLayer().anonymous:
-        stage.Save()
+        try:
+            stage.Save()
+        except Tf.ErrorException as e:  # the caller's `open_output_stage` names the file
+            raise OutputError(f"could not write the USD file ({_write_error(e)})") from None
 
 
 def save_usd(path: str | os.PathLike, gs: GaussianSet, options: UsdWriteOptions | None = None) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError
-from avatarkit.fileio import atomic_path, read_npz
+from avatarkit.fileio import atomic_path, json_loads, read_npz
 from avatarkit.head.model import NPZ_FORMAT, HeadModel
 
 _REQUIRED = ("faces", "v_template", "shapedirs", "exprdirs", "J_regressor", "kintree_parents", "weights", "meta")
@@ -57,7 +57,7 @@ def load_npz(path: str | os.PathLike) -> HeadModel:
         if key not in data:
             raise FormatError(f"missing key {key!r} (not a head model written by avatarkit)", path)
     try:
-        meta = json.loads(str(data["meta"]))
+        meta = json_loads(str(data["meta"]), path)
     except (ValueError, TypeError) as e:
         raise FormatError(f"key 'meta' is not valid JSON ({e})", path) from None
     if not isinstance(meta, dict) or meta.get("format") != NPZ_FORMAT:

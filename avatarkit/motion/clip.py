@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avatarkit.errors import InputError
+from avatarkit.limits import MAX_FPS, MIN_FPS
 
 DEFAULT_FPS = 25.0  # VHAP's default when a file does not say
 #: per-frame channels and their widths; expr's width is the clip's E
@@ -56,6 +57,8 @@ def check_fps(fps) -> float:
         raise InputError(f"fps must be a number, got {fps!r}") from None
     if not (np.isfinite(value) and value > 0):
         raise InputError(f"fps must be a positive number, got {fps!r}")
+    if not MIN_FPS <= value <= MAX_FPS:
+        raise InputError(f"fps must be between {MIN_FPS:g} and {MAX_FPS:g}, got {value:g}")
     return value
 
 

@@ -10,20 +10,20 @@ The predicate is cheap: it reads a .npz file's key list (not its arrays), the fi
 """
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
-
-import numpy as np
 
 _CLIP_KEYS = {"rotation", "expr"}
 _JAW_KEYS = {"jaw_pose", "jaw"}
 
 
 def _npz_is_clip(path: Path) -> bool:
+    from avatarkit.errors import FormatError
+    from avatarkit.fileio import open_npz
+
     try:
-        with np.load(path, allow_pickle=False) as data:
+        with open_npz(path) as data:
             keys = set(data.files)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+    except FormatError:
         return False
     return _CLIP_KEYS <= keys and bool(_JAW_KEYS & keys)
 

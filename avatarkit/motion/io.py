@@ -15,13 +15,12 @@ import json
 import os
 import re
 import warnings
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError, OutputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, json_loads, open_npz
 from avatarkit.motion.clip import CHANNELS, DEFAULT_FPS, MotionClip, check_channel, check_fps
 
 JSON_FORMAT = "avatarkit.motion"
@@ -35,17 +34,12 @@ NPZ_ALIASES = {"neck": ("neck",), "jaw": ("jaw",), "eyes": ("eyes",)}
 
 # --- npz -------------------------------------------------------------------------------------
 def _open_npz(path: Path):
-    try:
-        return np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise FormatError(f"not a readable .npz file ({e})", path) from None
+    # sizes are checked before anything is inflated or allocated (fileio.MAX_NPZ_BYTES)
+    return open_npz(path)
 
 
 def _npz_array(data, key: str, path: Path) -> np.ndarray:
-    try:
-        arr = data[key]
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
-        raise FormatError(f"cannot read key {key!r} ({e})", path) from None
+    arr = data[key]  # FormatError naming the file and key when unreadable
     if arr.dtype.kind not in "fiub":
         raise FormatError(f"key {key!r} holds {arr.dtype} data, expected numbers", path)
     return arr
@@ -55,7 +49,8 @@ def _frames_2d(arr: np.ndarray) -> np.ndarray:
     """(W,) -> one frame (1, W); (T, 1, W) or (T, W1, W2) -> (T, W1*W2)."""
     if arr.ndim == 1:
         return arr[None]
-    return arr.reshape(arr.shape[0], -1)
+    # not reshape(T, -1): with T = 0 numpy cannot infer the width
+    return arr.reshape(arr.shape[0], int(np.prod(arr.shape[1:], dtype=np.int64)))
 
 
 def _npz_channels(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, float | None, str | None]:
@@ -95,7 +90,7 @@ def _npz_channels(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, float 
         if "name" in keys:
             try:
                 raw = data["name"]
-            except ValueError:  # an object array: not ours, ignore it
+            except FormatError:  # an object array: not ours, ignore it
                 raw = None
             if raw is not None and raw.dtype.kind == "U" and raw.size == 1:
                 name = str(raw.reshape(-1)[0])
@@ -173,7 +168,7 @@ def _load_json(path: Path, fps: float | None) -> MotionClip:
 
     try:
         with open(path, encoding="utf-8") as fh:
-            doc = json.load(fh)
+            doc = json_loads(fh.read(), path)
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise FormatError(f"not valid JSON ({e})", path) from None
     if isinstance(doc, dict) and doc.get("format") == JSON_FORMAT and isinstance(doc.get("version"), int) \
@@ -189,8 +184,7 @@ def _load_json(path: Path, fps: float | None) -> MotionClip:
         if c == "expr" and len({len(r) for r in rows}) > 1:
             raise FormatError(f"{label!r} rows have different lengths", path)
         try:
-            channels[c] = check_channel(label, np.asarray(rows, np.float64).reshape(len(rows), -1),
-                                        CHANNELS[c])
+            channels[c] = check_channel(label, _frames_2d(np.asarray(rows, np.float64)), CHANNELS[c])
         except InputError as e:
             raise FormatError(e.message, path) from None
     counts = {c: len(a) for c, a in channels.items()}

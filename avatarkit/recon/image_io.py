@@ -16,6 +16,7 @@ of what comes back:
 """
 from __future__ import annotations
 
+import io
 import math
 import os
 import warnings
@@ -231,5 +232,9 @@ def write_image(path: str | os.PathLike, rgb: np.ndarray, quality: int = 95) -> 
     if fmt is None:
         raise OutputError(f"unknown image extension; use one of {', '.join(sorted(formats))}", path)
     params = {"quality": quality} if fmt in ("JPEG", "WEBP") else {}
+    # Encoded in memory, then written by Python: Pillow's C encoders (JPEG) ignore a failed
+    # write() to a file and return as if it had worked, leaving a truncated image.
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(arr)).save(buf, format=fmt, **params)
     with atomic_path(path) as tmp:
-        Image.fromarray(np.ascontiguousarray(arr)).save(tmp, format=fmt, **params)
+        tmp.write_bytes(buf.getbuffer())

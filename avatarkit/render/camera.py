@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, json_loads
 
 #: how far R R^T may stray from I before the matrix is not a rotation (float32 JSON round trips)
 ROTATION_TOLERANCE = 1e-4
@@ -187,7 +187,7 @@ class Camera:
         """Read a camera JSON file; a bad file raises an InputError naming it."""
         try:
             with open(path, "rb") as f:
-                d = json.loads(f.read().decode("utf-8"))
+                d = json_loads(f.read().decode("utf-8"), path)
         except FileNotFoundError:
             raise InputError("camera file not found", path) from None
         except (OSError, UnicodeDecodeError) as e:

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avatarkit.errors import InputError
+from avatarkit.limits import MAX_RENDER_PIXELS, MAX_RENDER_SIDE
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.render.camera import Camera
 
@@ -114,6 +115,15 @@ def _check(gaussians, camera, near: float = NEAR_PLANE) -> None:
         raise InputError(f"render needs a Camera, got {type(camera).__name__}")
     if not (isinstance(near, (int, float)) and np.isfinite(near) and near > 0):
         raise InputError(f"near plane must be a positive distance, got {near!r}")
+    check_render_size(camera.width, camera.height)
+
+
+def check_render_size(width: int, height: int) -> None:
+    """InputError unless a `width` x `height` image is within the stated bounds
+    (`avatarkit.limits.MAX_RENDER_SIDE`, `MAX_RENDER_PIXELS`): checked before allocating."""
+    if max(width, height) > MAX_RENDER_SIDE or width * height > MAX_RENDER_PIXELS:
+        raise InputError(f"a {width}x{height} render is too large: at most {MAX_RENDER_SIDE} pixels a "
+                         f"side and {MAX_RENDER_PIXELS:,} pixels in all")
 
 
 def _kernels():

@@ -15,8 +15,9 @@ import numpy as np
 
 from avatarkit.errors import InputError, OutputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.limits import MAX_RENDER_PIXELS
 from avatarkit.render.camera import Camera
-from avatarkit.render.pipeline import check_background, render
+from avatarkit.render.pipeline import check_background, check_render_size, render
 from avatarkit.render.views import framing, turntable_cameras
 
 DEFAULT_TURNTABLE_FRAMES = 36
@@ -92,6 +93,7 @@ def output_kind(output: str | os.PathLike, options: PreviewOptions) -> str:
     if options.camera is not None and (options.turntable or options.contact_sheet):
         raise InputError("a --camera file gives one view; it cannot be combined with "
                          "--turntable or --contact-sheet")
+    check_preview_size(options, ext)
     if ext == ".png":
         if options.turntable:
             raise InputError("a turntable is a video: write it to .mp4 or .gif "
@@ -102,6 +104,28 @@ def output_kind(output: str | os.PathLike, options: PreviewOptions) -> str:
     if options.camera is not None:
         raise InputError("a --camera file gives one view; write it to .png", output)
     return "video"
+
+
+#: frames x pixels a GIF turntable may hold (it is encoded from frames kept in memory)
+MAX_GIF_PIXELS = 4 * MAX_RENDER_PIXELS
+
+
+def check_preview_size(options: PreviewOptions, ext: str) -> None:
+    """InputError when the images asked for exceed the stated bounds (`avatarkit.limits`),
+    before anything is loaded or allocated."""
+    cam = options.camera
+    w = options.width or (cam.width if cam is not None else 512)
+    h = options.height or (cam.height if cam is not None else 512)
+    check_render_size(w, h)
+    if ext == ".png" and options.contact_sheet:
+        if options.contact_sheet * w * h > MAX_RENDER_PIXELS:
+            raise InputError(f"a contact sheet of {options.contact_sheet} views of {w}x{h} would have "
+                             f"{options.contact_sheet * w * h:,} pixels; the limit is {MAX_RENDER_PIXELS:,}")
+    if ext == ".gif":
+        n = options.turntable or 36
+        if n * w * h > MAX_GIF_PIXELS:
+            raise InputError(f"a GIF of {n} frames of {w}x{h} would hold {n * w * h:,} pixels; the limit "
+                             f"is {MAX_GIF_PIXELS:,} (write .mp4, or fewer or smaller frames)")
 
 
 def _count(name: str, value) -> int:
@@ -155,7 +179,10 @@ def render_preview(source: GaussianSet | str | os.PathLike, output: str | os.Pat
     else:
         from avatarkit.gaussians.io import load_gaussians
         gaussians = load_gaussians(source)
-    cameras = preview_cameras(gaussians, options, kind)
+    try:
+        cameras = preview_cameras(gaussians, options, kind)
+    except InputError as e:  # an empty splat file: name it
+        raise (e if isinstance(source, GaussianSet) else e.with_path(source)) from None
     total = len(cameras)
 
     def frames():

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avatarkit.face.fit import DEPTH_WEIGHT, EXPR_PRIOR, JAW_PRIOR, LandmarkFit, pixel_errors
+from avatarkit.face.fit import DEPTH_WEIGHT, EXPR_PRIOR, JAW_PRIOR, SHAPE_PRIOR, LandmarkFit, pixel_errors
 
 _C = np.diag([1.0, -1.0, -1.0])
 _STEP = 1e-6
@@ -55,24 +55,32 @@ class FrameProblem:
     jw_sum: np.ndarray        # (K,) B w
     jaw_joint: np.ndarray     # (3,) with identity
     jaw_joint_expr: np.ndarray  # (3, E)
+    num_expr: int = 0         # the first num_expr coefficients are expressions, the rest shape
 
     @classmethod
-    def from_landmark_model(cls, lm, shape: np.ndarray, expr_components: int) -> "FrameProblem":
-        s = np.asarray(shape, np.float64).reshape(-1)[:lm.shapedirs.shape[2]]
+    def from_landmark_model(cls, lm, shape: np.ndarray, expr_components: int,
+                            shape_components: int = 0) -> "FrameProblem":
+        """`shape` (S,) is the fixed identity; with shape_components > 0 the leading identity
+        coefficients are fitted too (as offsets from `shape`), after the expressions: shape and
+        expression are both linear bases, so they share one coefficient vector."""
+        S = lm.shapedirs.shape[2]
+        s = np.asarray(shape, np.float64).reshape(-1)[:S]
         k = len(s)
         base = lm.template + (lm.shapedirs[:, :, :k] @ s if k else 0.0)          # (U, 3)
         joint = lm.jaw_joint + (lm.jaw_joint_shape[:, :k] @ s if k else 0.0)
-        E = int(expr_components)
+        E, F = int(expr_components), int(max(0, min(S, shape_components)))
         K, U = len(lm.bary), len(base)
         B = np.zeros((K, U))
         np.add.at(B, (np.repeat(np.arange(K), 3), lm.corner_rows.ravel()), lm.bary.ravel())
         Bw = B * lm.jaw_weight[None]
-        dirs = lm.exprdirs[:, :, :E].reshape(U, 3 * E)
-        return cls(B @ base, (B @ dirs).reshape(K, 3, E), Bw @ base, (Bw @ dirs).reshape(K, 3, E),
-                   Bw.sum(1), joint, lm.jaw_joint_expr[:, :E])
+        C = E + F
+        dirs = np.concatenate([lm.exprdirs[:, :, :E], lm.shapedirs[:, :, :F]], axis=2).reshape(U, 3 * C)
+        joint_dirs = np.concatenate([lm.jaw_joint_expr[:, :E], lm.jaw_joint_shape[:, :F]], axis=1)
+        return cls(B @ base, (B @ dirs).reshape(K, 3, C), Bw @ base, (Bw @ dirs).reshape(K, 3, C),
+                   Bw.sum(1), joint, joint_dirs, E)
 
     @property
-    def num_expr(self) -> int:
+    def num_coefficients(self) -> int:
         return self.lm_expr.shape[2]
 
     def points(self, expr: np.ndarray, jaw: np.ndarray) -> np.ndarray:
@@ -94,11 +102,12 @@ def _unpack(p: np.ndarray, E: int):
 
 
 def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth_weight: float,
-              expr_prior: float, jaw_prior: float) -> tuple[np.ndarray, np.ndarray]:
+              expr_prior: float, jaw_prior: float, shape_prior: float = SHAPE_PRIOR
+              ) -> tuple[np.ndarray, np.ndarray]:
     """p (B, 9 + E) -> residual vectors (B, M) whose squared sum is the objective, and the
     projected landmarks (B, K, 2)."""
     E = problem.num_expr
-    rot, trans, jaw, expr = _unpack(p, E)
+    rot, trans, jaw, expr = _unpack(p, problem.num_coefficients)
     pts = problem.points(expr, jaw)                                                # (B, K, 3)
     cam = np.einsum("bij,bkj->bki", _rodrigues(rot), pts) + trans[:, None]
     cam[..., 1:] *= -1.0                                                           # OpenCV axes
@@ -119,7 +128,9 @@ def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth
         mesh_z = targets.z - targets.z.mean()
         parts.append(np.sqrt(depth_weight / z.shape[1]) * (model_z - mesh_z[None]) / targets.iod)
     if E:
-        parts.append(np.sqrt(expr_prior) * expr)
+        parts.append(np.sqrt(expr_prior) * expr[:, :E])
+    if expr.shape[1] > E:
+        parts.append(np.sqrt(shape_prior) * expr[:, E:])
     parts.append(np.sqrt(jaw_prior) * jaw)
     return np.concatenate(parts, axis=1), px
 
@@ -136,24 +147,26 @@ def project(problem: FrameProblem, rotation, translation, jaw, expr, focal: floa
 
 def rest_points(problem: FrameProblem) -> np.ndarray:
     """(K, 3) landmarks of the neutral face (no expression, jaw closed)."""
-    E = problem.num_expr
-    return problem.points(np.zeros((1, E)), np.zeros((1, 3)))[0]
+    return problem.points(np.zeros((1, problem.num_coefficients)), np.zeros((1, 3)))[0]
 
 
 def fit_frame(problem: FrameProblem, targets, focal: float, start: LandmarkFit | None = None,
               initial: tuple[np.ndarray, np.ndarray] | None = None, iterations: int = 8,
               depth_weight: float = DEPTH_WEIGHT, expr_prior: float = EXPR_PRIOR,
-              jaw_prior: float = JAW_PRIOR, shape: np.ndarray | None = None) -> LandmarkFit:
+              jaw_prior: float = JAW_PRIOR, shape: np.ndarray | None = None,
+              shape_prior: float = SHAPE_PRIOR) -> LandmarkFit:
     """Minimise the objective from `start` (the previous frame) or `initial` (rotation,
-    translation) with zero expression and jaw. Returns a `LandmarkFit` like `fit_landmarks`."""
-    E = problem.num_expr
-    p = np.zeros(9 + E)
+    translation) with zero expression and jaw. `shape` (S,) is the identity the problem was
+    built on; fitted shape coefficients (if the problem has them) are added to it. Returns a
+    `LandmarkFit` like `fit_landmarks`."""
+    E, C = problem.num_expr, problem.num_coefficients
+    p = np.zeros(9 + C)
     if start is not None:
         p[0:3], p[3:6], p[6:9] = start.rotation, start.translation, start.jaw
-        p[9:] = np.concatenate([np.asarray(start.expr, np.float64), np.zeros(E)])[:E]
+        p[9:9 + E] = np.concatenate([np.asarray(start.expr, np.float64), np.zeros(E)])[:E]
     elif initial is not None:
         p[0:3], p[3:6] = initial
-    args = (targets, focal, depth_weight, expr_prior, jaw_prior)
+    args = (targets, focal, depth_weight, expr_prior, jaw_prior, shape_prior)
     r, px = residuals(problem, p[None], *args)
     cost = float(r[0] @ r[0])
     mu = 1e-3
@@ -179,7 +192,10 @@ def fit_frame(problem: FrameProblem, targets, focal: float, start: LandmarkFit |
             mu *= 8
         if not improved or converged:
             break
-    rot, trans, jaw, expr = (a[0] for a in _unpack(p[None], E))
-    s = np.zeros(0) if shape is None else np.asarray(shape, np.float64)
-    return LandmarkFit(rot.copy(), trans.copy(), s, expr.copy(), jaw.copy(), float(focal),
+    rot, trans, jaw, coef = (a[0] for a in _unpack(p[None], C))
+    s = np.zeros(C - E) if shape is None else np.asarray(shape, np.float64).copy()
+    if C > E:
+        s = np.concatenate([s, np.zeros(max(0, C - E - len(s)))])
+        s[:C - E] += coef[E:]
+    return LandmarkFit(rot.copy(), trans.copy(), s, coef[:E].copy(), jaw.copy(), float(focal),
                        pixel_errors(px[0], targets), {"total": cost})

@@ -4,7 +4,9 @@ Identity. With an avatar (`avatar=`), its head model and identity shape are used
 so the clip drives that avatar exactly. Otherwise (the template, or `head_model=` a FLAME file)
 the identity is fitted over the first frames: `IDENTITY_FRAMES` frames spread over the first
 `IDENTITY_SECONDS` seconds that have a face, each fitted for pose + shape (+ expression and jaw,
-so a talking mouth does not bend the face shape), and the shape is their per-coefficient median.
+so a talking mouth does not bend the face shape) by the tracker's Levenberg-Marquardt solver
+(shape coefficients join the expression ones in `solve.FrameProblem`), and the shape is their
+per-coefficient median.
 
 Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
 (`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
@@ -26,9 +28,12 @@ IDENTITY_SECONDS = 3.0
 
 def fit_identity(frames: list, model, size: tuple[int, int], options: TrackOptions, embedding) -> np.ndarray:
     """(S,) identity shape from a few frames (module docstring). InputError if none has a face."""
-    from avatarkit.face.fit import LandmarkTargets, fit_landmarks
+    from avatarkit.face.fit import LandmarkTargets, initial_pose
+    from avatarkit.track.solve import FrameProblem, fit_frame, rest_points
 
     ft = FrameTracker(model, np.zeros(model.num_shape), size, options, embedding)
+    problem = FrameProblem.from_landmark_model(ft.lm, np.zeros(model.num_shape), ft.expr_components,
+                                               shape_components=model.num_shape)
     shapes = []
     for frame in frames:
         ft.reset()
@@ -36,8 +41,10 @@ def fit_identity(frames: list, model, size: tuple[int, int], options: TrackOptio
         if mesh is None:
             continue
         targets = LandmarkTargets.from_mesh(mesh, ft.embedding, size)
-        fit = fit_landmarks(model, ft.embedding, targets, ft.focal, fit_shape=True,
-                            expr_components=ft.expr_components, fit_jaw=True, landmark_model=ft.lm)
+        initial = initial_pose(rest_points(problem), targets, ft.focal)
+        fit = fit_frame(problem, targets, ft.focal, initial=initial, iterations=40,
+                        depth_weight=options.depth_weight, expr_prior=options.expr_prior,
+                        jaw_prior=options.jaw_prior, shape=np.zeros(model.num_shape))
         shapes.append(fit.shape)
     if not shapes:
         raise InputError(f"no face found in the first {len(frames)} frames used to fit the identity")
