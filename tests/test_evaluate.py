@@ -266,7 +266,8 @@ def test_evaluate_a_real_clip_builds_tracks_and_reports(tmp_path):
     r = evaluate(VIDEOS / "talking_man_grey.mp4", tmp_path / "r", options=EvalOptions(side_by_side=False))
     s = r.summary
     assert s["frames"] == 216 and s["frames_evaluated"] == 216 - 11
-    assert s["psnr"] > 12 and s["ssim"] > 0.5 and s["landmark_error_px"] < 20, s
+    # measured 21.55 dB, 0.747, 6.4 px (build frame 59): ~2 dB / 0.05 / 50 % margins
+    assert s["psnr"] > 19.5 and s["ssim"] > 0.70 and s["landmark_error_px"] < 9.5, s
     assert (tmp_path / "r" / "avatar" / "avatar.json").is_file()
 
 
