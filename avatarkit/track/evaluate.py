@@ -206,7 +206,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
     with open_video(video) as v:           # a bad video fails here, before any work
         info = v.info
     timings: dict[str, float] = {}
-    with atomic_folder(target, tag="evaluate") as staged:
+    with atomic_folder(target) as staged:   # tag "partial": swept if a run dies
         t0 = time.perf_counter()
         build_frame = options.build_frame
         if avatar is None:
