@@ -37,12 +37,16 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--n-hair", type=click.IntRange(min=100), default=40_000, show_default=True,
               help="Hair Gaussians, at most (built-in lifter).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Varies the sampling.")
+@click.option("--frame", type=click.IntRange(min=0), help="PORTRAIT is a video: build from this frame "
+              "(0-based; default: the most frontal frame with a neutral mouth, from a tracking).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
-              face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, preview, quiet):
-    """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...).
+              face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
+              preview, quiet):
+    """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
+    one frame of a PORTRAIT video (MP4, MOV, MKV, AVI, WebM; see --frame).
 
     Writes the avatar folder (avatar.json, bald.ply, hair.ply, cage.ply, rig.npz, previews)
     atomically: on any error nothing is left under OUTPUT.
@@ -53,6 +57,7 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
       avatarkit build me.jpg -o me --hair-mask me_hair.png
       avatarkit build me.jpg -o me --head-splats head.ply --bald-splats bald.ply
       avatarkit build me.jpg -o me --head-model ~/flame/generic_model.pkl --flame-params track.npz
+      avatarkit build talk.mp4 -o me --frame 40
     """
     import time
 
@@ -74,12 +79,37 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
         else:
             click.echo(f" {seconds:6.1f} s", err=True)
 
+    from avatarkit.track.build_frame import is_video
+
+    source = None
+    if frame is not None or is_video(portrait):
+        # a video: the chosen frame goes through a temporary PNG into the same portrait build
+        import tempfile
+        from pathlib import Path
+
+        from avatarkit.export.images import write_png
+        from avatarkit.track.build_frame import portrait_frame
+
+        if not quiet and frame is None:
+            click.echo("choosing the build frame (tracking the video) ...", err=True)
+        image, index = portrait_frame(portrait, frame)
+        source = {"video": str(Path(portrait).resolve()), "frame": index}
+        if not quiet:
+            click.echo(f"building from frame {index} of {portrait}", err=True)
+        tmp = tempfile.TemporaryDirectory(prefix="avatarkit-frame-")
+        portrait = Path(tmp.name) / f"frame{index}.png"
+        write_png(portrait, image)
     try:
         avatar = build_avatar(portrait, options, progress)
     except BaseException:
         if not quiet:
             click.echo(" failed", err=True)
+        if source is not None:
+            tmp.cleanup()
         raise
+    if source is not None:
+        tmp.cleanup()
+        avatar.provenance["source_video"] = source
     path = save_avatar(avatar, output)
     if not quiet:
         build = avatar.provenance.get("build", {})

@@ -37,6 +37,7 @@ COMMANDS: dict[str, str] = {
     "transfer-hair": "avatarkit.cli.hair_cmd:transfer_hair_cmd",
     "hair-grid": "avatarkit.cli.hair_cmd:hair_grid_cmd",
     "track": "avatarkit.cli.track_cmd:track_cmd",
+    "evaluate": "avatarkit.cli.evaluate_cmd:evaluate_cmd",
     "view": "avatarkit.cli.view_cmd:view_cmd",
 }
 

@@ -1,0 +1,344 @@
+"""Self-reenactment evaluation (`avatarkit evaluate`): build an avatar from one frame of a video,
+drive it with the motion tracked from the whole video, render every frame from the tracked
+camera and compare with the video.
+
+Steps (`evaluate`):
+1. The avatar: given (`avatar=`), or built from frame `build_frame` of the video (default:
+   `build_frame.choose_build_frame` on a tracking of the video with the template head) by the
+   portrait build (`recon.pipeline.build_avatar`), saved under REPORT_DIR/avatar.
+2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
+   the clip's world is the avatar's world, and the tracked camera sees it as the video did.
+3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
+   tracked camera at the video's resolution on the constant background.
+4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
+   mask, background set to one colour in both), the same on the whole composited frame, and the
+   landmark error: the face mesh detected on our render against the one detected on the video
+   (median pixels over the 468 points, and that divided by the video face's eye distance).
+   Frames within `exclude` frames of the build frame are reported but left out of the summary
+   (the avatar saw them). LPIPS is not computed: it needs network weights we cannot ship.
+5. Outputs in REPORT_DIR: metrics.json (summary + settings), frames.csv (one row per frame),
+   side_by_side.mp4 (video | our render | error heat map), written into a temporary folder and
+   renamed into place at the end (nothing half-written on failure or Ctrl-C).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from avatarkit.errors import OutputError
+from avatarkit.track import metrics
+
+REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
+#: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
+PAPER = {"psnr": 20.79, "ssim": 0.864, "lpips": 0.124}
+LPIPS_NOTE = "LPIPS is not reported: it needs network weights (AlexNet/VGG) we cannot ship."
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass
+class EvalOptions:
+    """build_frame: the video frame the avatar is built from (None: chosen from a tracking, or
+    unknown with a given avatar); exclude: frames either side of it left out of the summary;
+    background: the constant colour (linear RGB in [0, 1]) outside the person mask in both
+    images; alpha_threshold: render alpha above which a pixel is the person; simulate_hair: run
+    the hair simulation in the bake (default: hair rides the head rigidly); side_by_side: write
+    side_by_side.mp4; n_bald, n_hair: Gaussians of the build."""
+
+    build_frame: int | None = None
+    exclude: int = 5
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    alpha_threshold: float = metrics.ALPHA_THRESHOLD
+    simulate_hair: bool = False
+    side_by_side: bool = True
+    n_bald: int = 40_000
+    n_hair: int = 40_000
+
+
+@dataclass
+class FrameMetrics:
+    clip_frame: int
+    video_frame: int
+    excluded: bool
+    found: bool               # the tracker found a face in the video frame
+    confidence: float
+    mask_fraction: float      # share of the frame in the person mask
+    psnr: float
+    ssim: float
+    psnr_full: float
+    ssim_full: float
+    landmark_error_px: float
+    landmark_error_iod: float
+
+
+@dataclass
+class EvalReport:
+    frames: list[FrameMetrics]
+    summary: dict
+    settings: dict
+    timings: dict = field(default_factory=dict)
+
+
+def _median(values) -> float | None:
+    a = np.asarray([v for v in values if v is not None and math.isfinite(v)], np.float64)
+    return float(np.median(a)) if len(a) else None
+
+
+def _mean(values) -> float | None:
+    a = np.asarray([v for v in values if v is not None and math.isfinite(v)], np.float64)
+    return float(np.mean(a)) if len(a) else None
+
+
+def summarise(frames: list[FrameMetrics]) -> dict:
+    """Means (and medians) over the frames not excluded; landmark errors as medians."""
+    kept = [f for f in frames if not f.excluded]
+    out = {"frames": len(frames), "frames_evaluated": len(kept),
+           "frames_with_render_face": int(sum(math.isfinite(f.landmark_error_px) for f in kept))}
+    for k in ("psnr", "ssim", "psnr_full", "ssim_full"):
+        vals = [getattr(f, k) for f in kept]
+        out[k] = _mean(vals)
+        out[k + "_median"] = _median(vals)
+    out["landmark_error_px"] = _median(f.landmark_error_px for f in kept)
+    out["landmark_error_iod"] = _median(f.landmark_error_iod for f in kept)
+    out["mask_fraction"] = _mean(f.mask_fraction for f in kept)
+    out["lpips"] = None
+    return out
+
+
+class MeshFollower:
+    """Face meshes of consecutive images: the detector on the first image or after a miss, then
+    the region of the previous mesh (as the tracker does)."""
+
+    def __init__(self, min_presence: float = 0.5):
+        self.prev = None
+        self.min_presence = min_presence
+
+    def __call__(self, rgb: np.ndarray) -> np.ndarray | None:
+        from avatarkit.face import detect_faces, face_landmarks, roi_from_mesh
+
+        mesh = None
+        if self.prev is not None:
+            mesh = face_landmarks(rgb, roi_from_mesh(self.prev))
+            if mesh.presence < self.min_presence:
+                mesh = None
+        if mesh is None:
+            faces = detect_faces(rgb)
+            if faces:
+                faces.sort(key=lambda f: -float(getattr(f, "score", 0.0)))
+                mesh = face_landmarks(rgb, faces[0])
+                if mesh.presence < self.min_presence:
+                    mesh = None
+        self.prev = None if mesh is None else np.asarray(mesh.points[:, :2], np.float64)
+        return self.prev
+
+
+def check_report_target(folder: str | os.PathLike) -> Path:
+    """The report folder may be new, empty, or an earlier report (then it is replaced)."""
+    from avatarkit.fileio import check_output_folder
+
+    p = Path(folder)
+    check_output_folder(p.parent if str(p.parent) else Path("."))
+    if p.exists():
+        if not p.is_dir():
+            raise OutputError("report folder is a file", p)
+        if any(p.iterdir()) and not (p / "metrics.json").is_file():
+            raise OutputError("report folder is not empty and not an earlier report: refusing to replace it", p)
+    return p
+
+
+def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarray,
+                  options: EvalOptions) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Image metrics of one frame -> (values, composited video (H, W, 3) float, mask (H, W))."""
+    mask = metrics.person_mask(alpha, options.alpha_threshold)
+    ours = metrics.to_float(render_rgb)           # rendered on the background colour already
+    theirs = metrics.composite(video_rgb, mask, options.background)
+    ours_c = metrics.composite(ours, mask, options.background)
+    ssim_full, smap = metrics.ssim_map(ours_c, theirs)
+    vals = {"mask_fraction": float(mask.mean()),
+            "psnr": metrics.masked_psnr(ours_c, theirs, mask),
+            "ssim": float(smap[mask].mean()) if mask.any() else float("nan"),
+            "psnr_full": metrics.masked_psnr(ours_c, theirs, np.ones_like(mask)),
+            "ssim_full": ssim_full}
+    return vals, theirs, mask
+
+
+def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
+           progress: Progress | None) -> tuple[Path, int]:
+    from avatarkit.track.build_frame import build_from_video
+
+    target = report / "avatar"
+    index = build_from_video(video, target, frame, n_bald=options.n_bald, n_hair=options.n_hair,
+                             progress=(lambda d, t: progress("choosing the build frame", d, t))
+                             if progress else None)
+    return target, index
+
+
+def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
+    """The frame of `video` the avatar was built from, when its provenance says so
+    (`build VIDEO --frame`), else None."""
+    from avatarkit.avatar import read_manifest
+
+    src = read_manifest(avatar_dir).get("provenance", {}).get("source_video") or {}
+    same = src.get("video") and os.path.abspath(src["video"]) == os.path.abspath(video)
+    return int(src["frame"]) if same and isinstance(src.get("frame"), int) else None
+
+
+def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
+             avatar: str | os.PathLike | None = None, options: EvalOptions | None = None,
+             progress: Progress | None = None) -> EvalReport:
+    """Run the evaluation (module docstring) and write its files into `report_dir`.
+    progress(stage, done, total) after each unit of work. AvatarKitError on bad input."""
+    from avatarkit.fileio import atomic_folder
+    from avatarkit.video import open_video
+
+    options = options or EvalOptions()
+    video = os.fspath(video)
+    target = check_report_target(report_dir)
+    with open_video(video) as v:           # a bad video fails here, before any work
+        info = v.info
+    timings: dict[str, float] = {}
+    with atomic_folder(target) as staged:   # tag "partial": swept if a run dies
+        t0 = time.perf_counter()
+        build_frame = options.build_frame
+        if avatar is None:
+            avatar_dir, build_frame = _build(video, staged, build_frame, options, progress)
+            built = True
+        else:
+            avatar_dir, built = Path(avatar), False
+            if build_frame is None:
+                build_frame = recorded_build_frame(avatar_dir, video)
+        timings["build"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        from avatarkit.track.video import track_video
+
+        step = (lambda d, t: progress("tracking", d, t)) if progress else None
+        result = track_video(video, avatar=avatar_dir, progress=step)
+        timings["track"] = time.perf_counter() - t0
+        frames, rest = render_and_compare(video, avatar_dir, result, build_frame, options, staged, progress)
+        timings.update(rest)
+        summary = summarise(frames)
+        settings = {
+            "video": os.path.abspath(video), "width": info.width, "height": info.height,
+            "fps": result.clip.fps, "avatar": "built (REPORT_DIR/avatar)" if built else os.path.abspath(avatar_dir),
+            "build_frame": build_frame, "exclude": options.exclude,
+            "mask": f"render alpha > {options.alpha_threshold} (same mask for both images)",
+            "background": list(options.background),
+            "ssim": {k: v for k, v in metrics.SSIM_SETTINGS.items()},
+            "hair": "simulated" if options.simulate_hair else "static (rides the head)",
+            "lpips": LPIPS_NOTE, "paper": PAPER,
+            "tracked_landmark_error_px": _median(result.landmark_error),
+        }
+        report = EvalReport(frames, summary, settings, timings)
+        write_report(staged, report)
+    return report
+
+
+def render_and_compare(video, avatar_dir, result, build_frame: int | None, options: EvalOptions,
+                       staged: Path, progress: Progress | None = None) -> tuple[list[FrameMetrics], dict]:
+    """Bake `result.clip` (a TrackResult) on the avatar, render each frame with `result.camera`,
+    compare with the video's frame `result.frame_index[i]`; side_by_side.mp4 into `staged`.
+    -> (per-frame metrics, seconds per stage)."""
+    from avatarkit.avatar import load_avatar
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.export.images import to_uint8
+    from avatarkit.export.video import VideoWriter
+    from avatarkit.gaussians import GaussianSet
+    from avatarkit.render import render
+    from avatarkit.sim.config import SimConfig
+    from avatarkit.video import open_video
+
+    t = {"bake": 0.0, "render": 0.0, "metrics": 0.0, "landmarks": 0.0, "write": 0.0}
+    avatar = load_avatar(avatar_dir)
+    static, baked = bake(avatar, result.clip, BakeConfig(sim=SimConfig(static=not options.simulate_hair)))
+    T = result.num_frames
+    index = np.asarray(result.frame_index, np.int64)
+    follower = MeshFollower()
+    rows: list[FrameMetrics] = []
+    writer = VideoWriter(staged / "side_by_side.mp4", fps=result.clip.fps) if options.side_by_side else None
+    try:
+        with open_video(video) as v:
+            source = iter(v.frames(int(index[0]), int(index[-1]) + 1))
+            current = next(source)
+            it = iter(baked)
+            for i in range(T):
+                t0 = time.perf_counter()
+                frame = next(it)
+                parts = [frame.gaussians(static, "face").replace(extras={})]
+                if avatar.has_hair:
+                    parts.append(frame.gaussians(static, "hair").replace(extras={}))
+                g = GaussianSet.concat(parts)
+                t1 = time.perf_counter()
+                r = render(g, result.camera, options.background)
+                t2 = time.perf_counter()
+                while current.index < index[i]:
+                    current = next(source)
+                ours = to_uint8(np.clip(r.rgb, 0, 1))
+                vals, theirs, mask = compare_frame(current.rgb, ours, r.alpha, options)
+                t3 = time.perf_counter()
+                mesh = follower(ours)
+                video_mesh = result.landmarks[i] if result.found[i] else None
+                err = metrics.landmark_error(mesh, video_mesh)
+                iod = metrics.interocular(video_mesh) if video_mesh is not None else float("nan")
+                t4 = time.perf_counter()
+                excluded = build_frame is not None and abs(int(index[i]) - int(build_frame)) <= options.exclude
+                rows.append(FrameMetrics(i, int(index[i]), bool(excluded), bool(result.found[i]),
+                                         float(result.confidence[i]), vals["mask_fraction"], vals["psnr"],
+                                         vals["ssim"], vals["psnr_full"], vals["ssim_full"], err,
+                                         err / iod if iod > 0 else float("nan")))
+                if writer is not None:
+                    heat = metrics.error_heat_map(ours, theirs, mask)
+                    writer.append(np.concatenate([current.rgb, ours, heat], axis=1))
+                t5 = time.perf_counter()
+                t["bake"] += t1 - t0
+                t["render"] += t2 - t1
+                t["metrics"] += t3 - t2
+                t["landmarks"] += t4 - t3
+                t["write"] += t5 - t4
+                if progress is not None:
+                    progress("rendering and comparing", i + 1, T)
+        if writer is not None:
+            writer.close()
+    except BaseException as e:
+        if writer is not None:
+            writer.__exit__(type(e), e, e.__traceback__)   # removes the partial file
+        raise
+    return rows, t
+
+
+def _json_value(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def write_report(folder: Path, report: EvalReport) -> None:
+    """metrics.json and frames.csv into `folder` (side_by_side.mp4 is written while rendering)."""
+    doc = {"summary": {k: _json_value(v) for k, v in report.summary.items()},
+           "settings": report.settings, "timings_s": {k: round(v, 3) for k, v in report.timings.items()},
+           "lpips": LPIPS_NOTE}
+    (folder / "metrics.json").write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    buf = io.StringIO()
+    names = list(FrameMetrics.__dataclass_fields__)
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(names)
+    for f in report.frames:
+        row = asdict(f)
+        w.writerow([_csv(row[n]) for n in names])
+    (folder / "frames.csv").write_text(buf.getvalue())
+
+
+def _csv(v) -> str:
+    if isinstance(v, bool):
+        return str(int(v))
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else f"{v:.6g}"
+    return str(v)

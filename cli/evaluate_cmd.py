@@ -1,0 +1,67 @@
+"""`avatarkit evaluate`: self-reenactment quality of an avatar built from one frame of a video."""
+from __future__ import annotations
+
+import click
+
+from avatarkit.cli.options import cli_warnings, quiet_option
+
+
+@click.command("evaluate")
+@click.argument("video", type=click.Path())
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Report folder to write (metrics.json, frames.csv, side_by_side.mp4; the built "
+              "avatar in avatar/). An earlier report there is replaced.")
+@click.option("--avatar", type=click.Path(file_okay=False),
+              help="Evaluate this avatar instead of building one from the video.")
+@click.option("--build-frame", type=click.IntRange(min=0), help="Video frame to build from (default: "
+              "the most frontal frame with a neutral mouth, from a tracking). With --avatar: the "
+              "frame it was built from, excluded with its neighbours.")
+@click.option("--exclude", type=click.IntRange(min=0), default=5, show_default=True,
+              help="Frames either side of the build frame left out of the summary.")
+@click.option("--simulate-hair", is_flag=True, help="Simulate the hair in the bake (default: it "
+              "rides the head rigidly).")
+@click.option("--side-by-side/--no-side-by-side", default=True, show_default=True,
+              help="Write side_by_side.mp4 (video | our render | error heat map).")
+@quiet_option
+def evaluate_cmd(video, output, avatar, build_frame, exclude, simulate_hair, side_by_side, quiet):
+    """Self-reenactment: build an avatar from one frame of VIDEO, drive it with the motion tracked
+    from the whole video, render every frame from the tracked camera and compare with the video
+    (PSNR and SSIM on the person region, face-mesh landmark error). See docs/evaluation.md.
+
+    \b
+    Examples:
+      avatarkit evaluate talk.mp4 -o talk_eval
+      avatarkit evaluate talk.mp4 -o talk_eval --avatar me/ --build-frame 40
+    """
+    from avatarkit.cli.track_cmd import _LazyBar
+    from avatarkit.track.evaluate import EvalOptions, check_report_target, evaluate
+
+    check_report_target(output)
+    options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
+                          side_by_side=side_by_side)
+    current: dict = {}           # the stage whose bar is shown (one bar per stage, in turn)
+
+    def progress(stage, done, total):
+        if current.get("stage") != stage:
+            if "bar" in current:
+                current.pop("bar").__exit__(None, None, None)
+            current.update(stage=stage, bar=_LazyBar(stage, quiet))
+        current["bar"].step(done, total)
+
+    try:
+        with cli_warnings(quiet):
+            report = evaluate(video, output, avatar=avatar, options=options, progress=progress)
+    finally:
+        if "bar" in current:
+            current.pop("bar").__exit__(None, None, None)
+    if not quiet:
+        s = report.summary
+
+        def f(v, fmt):
+            return "n/a" if v is None else format(v, fmt)
+
+        click.echo(f"{s['frames_evaluated']} of {s['frames']} frames evaluated: PSNR {f(s['psnr'], '.2f')} dB, "
+                   f"SSIM {f(s['ssim'], '.3f')} (person region); whole frame PSNR {f(s['psnr_full'], '.2f')}, "
+                   f"SSIM {f(s['ssim_full'], '.3f')}; landmark error {f(s['landmark_error_px'], '.2f')} px "
+                   "(median); LPIPS not reported", err=True)
+        click.echo(f"wrote {output}", err=True)

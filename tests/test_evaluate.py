@@ -1,0 +1,287 @@
+"""`avatarkit evaluate`: metric helpers on hand-computed cases, the build-frame choice, a
+synthetic end-to-end run (a known avatar rendered with a known clip and camera: the only error
+left is tracking) and bad input."""
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from avatarkit.cli.main import main
+from avatarkit.track import metrics
+
+
+# ---- helpers against hand-computed cases -------------------------------------------------
+
+def test_person_mask_thresholds_alpha():
+    alpha = np.array([[0.2, 0.5], [0.51, 1.0]])
+    assert metrics.person_mask(alpha).tolist() == [[False, False], [True, True]]
+    assert metrics.person_mask(alpha[..., None], 0.1).all()
+
+
+def test_composite_sets_the_outside_to_one_colour():
+    img = np.full((2, 2, 3), 255, np.uint8)
+    mask = np.array([[True, False], [False, True]])
+    out = metrics.composite(img, mask, (0.0, 0.5, 1.0))
+    assert out[0, 0].tolist() == [1, 1, 1] and out[0, 1].tolist() == [0, 0.5, 1]
+
+
+def test_masked_psnr_by_hand():
+    a = np.zeros((4, 4, 3))
+    b = np.zeros((4, 4, 3))
+    b[0, 0] = 0.1          # inside the mask: MSE = 0.01 over the mask's pixels
+    b[3, 3] = 1.0          # outside: ignored
+    mask = np.zeros((4, 4), bool)
+    mask[0, 0] = True
+    assert metrics.masked_psnr(a, b, mask) == pytest.approx(20.0)
+    mask[0, 1] = True      # two pixels, one wrong: MSE = 0.005
+    assert metrics.masked_psnr(a, b, mask) == pytest.approx(10 * math.log10(200))
+    assert metrics.masked_psnr(a, a, mask) == math.inf
+    assert math.isnan(metrics.masked_psnr(a, b, np.zeros((4, 4), bool)))
+    # agrees with skimage on a full mask
+    from skimage.metrics import peak_signal_noise_ratio
+
+    rng = np.random.default_rng(0)
+    x, y = rng.random((8, 8, 3)), rng.random((8, 8, 3))
+    assert metrics.masked_psnr(x, y, np.ones((8, 8), bool)) == pytest.approx(
+        peak_signal_noise_ratio(x, y, data_range=1.0))
+
+
+def test_ssim_cases():
+    rng = np.random.default_rng(1)
+    x = rng.random((32, 32, 3))
+    mask = np.zeros((32, 32), bool)
+    mask[8:24, 8:24] = True
+    assert metrics.masked_ssim(x, x, mask) == pytest.approx(1.0)
+    # a constant offset c on images with no variance: SSIM = luminance term (2ab+C1)/(a^2+b^2+C1)
+    a, b = np.full((32, 32, 3), 0.4), np.full((32, 32, 3), 0.6)
+    C1 = (0.01 * 1.0) ** 2
+    want = (2 * 0.4 * 0.6 + C1) / (0.4 ** 2 + 0.6 ** 2 + C1)
+    assert metrics.masked_ssim(a, b, mask) == pytest.approx(want, rel=1e-6)
+    # the whole-image value is skimage's own
+    from skimage.metrics import structural_similarity
+
+    y = np.clip(x + rng.normal(0, 0.1, x.shape), 0, 1)
+    whole, smap = metrics.ssim_map(x, y)
+    assert whole == pytest.approx(structural_similarity(x, y, channel_axis=2, **metrics.SSIM_SETTINGS))
+    assert smap.shape == (32, 32)
+    assert metrics.masked_ssim(x, y, mask) == pytest.approx(smap[mask].mean())
+
+
+def test_landmark_error_and_eye_distance():
+    pts = np.zeros((468, 2))
+    pts[33], pts[133], pts[362], pts[263] = (0, 0), (2, 0), (10, 0), (12, 0)
+    assert metrics.interocular(pts) == pytest.approx(10.0)
+    moved = pts + np.array([3.0, 4.0])
+    assert metrics.landmark_error(moved, pts) == pytest.approx(5.0)
+    assert math.isnan(metrics.landmark_error(None, pts))
+    assert math.isnan(metrics.landmark_error(np.full((468, 2), np.nan), pts))
+
+
+def test_heat_map_is_black_outside_the_mask():
+    a, b = np.zeros((4, 4, 3)), np.ones((4, 4, 3))
+    mask = np.zeros((4, 4), bool)
+    mask[1, 1] = True
+    h = metrics.error_heat_map(a, b, mask)
+    assert h.dtype == np.uint8 and h.shape == (4, 4, 3)
+    assert h[0, 0].tolist() == [0, 0, 0] and h[1, 1].sum() > 600   # inferno's top is near white
+
+
+def test_build_frame_choice_prefers_frontal_neutral_confident():
+    from types import SimpleNamespace
+
+    from avatarkit.track.build_frame import choose_build_frame
+
+    T = 5
+    rot = np.zeros((T, 3))
+    rot[:, 1] = [0.3, 0.01, 0.0, 0.2, 0.0]
+    jaw = np.zeros((T, 3))
+    jaw[1, 0] = 0.3                      # frame 1: frontal but mouth open
+    clip = SimpleNamespace(rotation=rot, jaw=jaw, expr=np.zeros((T, 10)))
+    conf = np.array([0.9, 0.9, 0.5, 0.9, 0.9])   # frame 2 frontal but unsure
+    found = np.array([True, True, True, True, False])   # frame 4 interpolated
+    r = SimpleNamespace(clip=clip, confidence=conf, found=found, frame_index=np.arange(10, 15))
+    assert choose_build_frame(r) == 13
+
+
+# ---- end to end on a synthetic video ---------------------------------------------------------
+
+def synthetic_clip(T: int = 12):
+    """A nod-and-turn with the jaw opening: 12 frames at 24 fps."""
+    from avatarkit.motion.clip import MotionClip
+
+    rot = np.stack([0.1 * np.sin(np.linspace(0, 2, T)), np.linspace(-0.25, 0.25, T), np.zeros(T)], axis=1)
+    jaw = np.zeros((T, 3))
+    jaw[:, 0] = 0.15 * np.clip(np.sin(np.linspace(0, 3, T)), 0, None)
+    return MotionClip(fps=24, rotation=rot, translation=np.zeros((T, 3)), neck=np.zeros((T, 3)),
+                      jaw=jaw, eyes=np.zeros((T, 6)), expr=np.zeros((T, 10)))
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """A small sample avatar, and a video of it driven by a known clip, rendered by our renderer
+    from the camera a tracker reports (the avatar's world is the clip's)."""
+    from avatarkit.export.video import write_video
+    from avatarkit.synthetic.head_video import avatar_video, head_video_camera
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+
+    root = tmp_path_factory.mktemp("eval")
+    avatar = make_sample_avatar(n_hair=3000, n_bald=12000, style="short", cage_vertices=200)
+    avatar.save(root / "avatar", preview=False)
+    clip = synthetic_clip()
+    from avatarkit.avatar import load_avatar
+
+    camera = head_video_camera(160, distance=0.5)
+    frames = [f.rgb for f in avatar_video(load_avatar(root / "avatar"), clip, camera)]
+    write_video(root / "head.mp4", frames, fps=24, crf=12)
+    return root
+
+
+def test_evaluate_synthetic_video_end_to_end(synthetic, tmp_path, capsys):
+    out = tmp_path / "report"
+    code = main(["evaluate", str(synthetic / "head.mp4"), "-o", str(out), "--avatar",
+                 str(synthetic / "avatar"), "--build-frame", "0", "--exclude", "2"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    doc = json.loads((out / "metrics.json").read_text())
+    s = doc["summary"]
+    assert s["frames"] == 12 and s["frames_evaluated"] == 9      # frames 0..2 excluded
+    # the only error is tracking (and H.264): the render lands on the video
+    # what is left is tracking error: 1-2 px of pose at 160 px shows at every silhouette edge
+    # against the white background (measured: PSNR 20.8, SSIM 0.76, whole frame 25.3 / 0.88,
+    # landmark error 1.3 px; thresholds ~2 dB / 0.05 below)
+    assert s["psnr"] > 19.0 and s["ssim"] > 0.70, s
+    assert s["psnr_full"] > s["psnr"] + 2            # constant background matches exactly
+    assert s["landmark_error_px"] is not None and s["landmark_error_px"] < 3.0, s
+    assert doc["summary"]["lpips"] is None and "LPIPS" in doc["lpips"]
+    rows = list(csv.DictReader((out / "frames.csv").open()))
+    assert len(rows) == 12 and [r["excluded"] for r in rows[:4]] == ["1", "1", "1", "0"]
+    assert np.mean([float(r["psnr"]) for r in rows if r["excluded"] == "0"]) == pytest.approx(s["psnr"], rel=1e-4)
+    from avatarkit.video import open_video
+
+    with open_video(out / "side_by_side.mp4") as v:
+        assert v.info.frame_count == 12 and v.info.width == 3 * 160 and v.info.height == 160
+    assert "PSNR" in cap.err and not list(tmp_path.glob(".report*"))
+
+
+def test_exact_motion_and_camera_reproduce_the_video(synthetic, tmp_path):
+    """With the clip and camera that made the video (no tracking), the render is the video up
+    to H.264: the comparison chain (bake, camera, frame matching, mask, metrics) adds nothing."""
+    from avatarkit.synthetic.head_video import head_video_camera
+    from avatarkit.track.evaluate import EvalOptions, render_and_compare
+    from avatarkit.track.tracker import TrackResult
+
+    clip = synthetic_clip()
+    T = clip.n_frames
+    result = TrackResult(clip, head_video_camera(160, distance=0.5), np.arange(T), np.zeros(T, bool),
+                         np.ones(T), np.full((T, 468, 2), np.nan, np.float32), np.full(T, np.nan))
+    rows, _ = render_and_compare(synthetic / "head.mp4", synthetic / "avatar", result, None,
+                                 EvalOptions(side_by_side=False), tmp_path)
+    assert len(rows) == T and not any(r.excluded for r in rows)
+    psnr = [r.psnr for r in rows]
+    assert min(psnr) > 33.0, psnr          # measured 36.5-38.3 dB (H.264 at crf 12)
+    assert min(r.ssim for r in rows) > 0.95      # measured 0.967-0.977
+
+
+# ---- bad input -------------------------------------------------------------------------------
+
+def _one_error_line(cap):
+    lines = [l for l in cap.err.splitlines() if l.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
+    assert "Traceback" not in cap.err
+    return lines[0]
+
+
+def test_not_a_video(tmp_path, capsys):
+    bad = tmp_path / "notes.mp4"
+    bad.write_text("not a video")
+    code = main(["evaluate", str(bad), "-o", str(tmp_path / "r")])
+    assert code == 2 and str(bad) in _one_error_line(capsys.readouterr())
+    assert not (tmp_path / "r").exists()
+
+
+def test_missing_video(tmp_path, capsys):
+    code = main(["evaluate", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "r")])
+    assert code == 2 and "not found" in _one_error_line(capsys.readouterr())
+
+
+def test_video_without_faces(tmp_path, capsys):
+    from avatarkit.export.video import write_video
+
+    path = tmp_path / "grey.mp4"
+    write_video(path, [np.full((64, 64, 3), 100, np.uint8)] * 3, fps=10)
+    code = main(["evaluate", str(path), "-o", str(tmp_path / "r"), "-q"])
+    line = _one_error_line(capsys.readouterr())
+    assert code == 2 and "no face" in line and str(path) in line
+    assert not (tmp_path / "r").exists() and not list(tmp_path.glob(".r.*"))
+
+
+def test_unwritable_or_foreign_report_folder(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code = main(["evaluate", str(blocker), "-o", str(blocker / "r")])
+    assert code == 2 and "output folder" in _one_error_line(capsys.readouterr())
+    other = tmp_path / "mine"
+    other.mkdir()
+    (other / "thesis.tex").write_text("keep")
+    code = main(["evaluate", str(blocker), "-o", str(other)])
+    assert code == 2 and "not empty" in _one_error_line(capsys.readouterr())
+    assert (other / "thesis.tex").read_text() == "keep"
+
+
+def test_build_frame_outside_the_video(synthetic, tmp_path, capsys):
+    code = main(["build", str(synthetic / "head.mp4"), "-o", str(tmp_path / "a"), "--frame", "40", "-q"])
+    line = _one_error_line(capsys.readouterr())
+    assert code == 2 and "outside the video" in line and not (tmp_path / "a").exists()
+
+
+def test_build_frame_of_something_not_a_video(tmp_path, capsys):
+    bad = tmp_path / "clip.mov"
+    bad.write_text("not a video")
+    code = main(["build", str(bad), "-o", str(tmp_path / "a"), "-q"])
+    line = _one_error_line(capsys.readouterr())
+    assert code == 2 and str(bad) in line and not (tmp_path / "a").exists()
+
+
+@pytest.mark.slow
+def test_build_from_a_video_frame_records_it(synthetic, tmp_path, capsys):
+    from avatarkit.avatar import read_manifest
+
+    code = main(["build", str(synthetic / "head.mp4"), "-o", str(tmp_path / "a"), "--frame", "3",
+                 "--n-bald", "3000", "--n-hair", "3000", "--no-preview", "-q"])
+    assert code == 0, capsys.readouterr().err
+    src = read_manifest(tmp_path / "a")["provenance"]["source_video"]
+    assert src["frame"] == 3 and src["video"].endswith("head.mp4")
+
+
+VIDEOS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "data" / "videos"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (VIDEOS / "talking_man_grey.mp4").exists(), reason="../shared/data/videos absent")
+def test_evaluate_a_real_clip_builds_tracks_and_reports(tmp_path):
+    from avatarkit.track.evaluate import EvalOptions, evaluate
+
+    r = evaluate(VIDEOS / "talking_man_grey.mp4", tmp_path / "r", options=EvalOptions(side_by_side=False))
+    s = r.summary
+    assert s["frames"] == 216 and s["frames_evaluated"] == 216 - 11
+    # measured 21.55 dB, 0.747, 6.4 px (build frame 59): ~2 dB / 0.05 / 50 % margins
+    assert s["psnr"] > 19.5 and s["ssim"] > 0.70 and s["landmark_error_px"] < 9.5, s
+    assert (tmp_path / "r" / "avatar" / "avatar.json").is_file()
+
+
+def test_recorded_build_frame_is_read_from_the_avatar(synthetic, tmp_path):
+    import shutil
+
+    from avatarkit.track.evaluate import recorded_build_frame
+
+    video = str(synthetic / "head.mp4")
+    assert recorded_build_frame(synthetic / "avatar", video) is None
+    copy = tmp_path / "avatar"
+    shutil.copytree(synthetic / "avatar", copy)
+    doc = json.loads((copy / "avatar.json").read_text())
+    doc["provenance"]["source_video"] = {"video": video, "frame": 4}
+    (copy / "avatar.json").write_text(json.dumps(doc))
+    assert recorded_build_frame(copy, video) == 4
+    assert recorded_build_frame(copy, str(tmp_path / "other.mp4")) is None
