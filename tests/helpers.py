@@ -43,3 +43,12 @@ def random_gaussians(n: int = 100, sh_degree: int = 0, seed: int = 0, extras=())
         sh=sh,
         extras=ex,
     )
+
+
+def one_error_line(cap) -> str:
+    """The CLI's stderr (a pytest capture) is exactly one `error: ...` line and no traceback:
+    returns that line."""
+    lines = [line for line in cap.err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
+    assert "Traceback" not in cap.err
+    return lines[0]

@@ -1,6 +1,7 @@
 """`avatarkit track` from the command line: a small rendered video end to end, and bad input."""
 import numpy as np
 import pytest
+from helpers import one_error_line
 
 from avatarkit.cli.main import main
 
@@ -45,18 +46,12 @@ def test_track_writes_a_clip_bake_reads_and_a_preview(tmp_path, capsys, head_mp4
     assert "tracked 5 frames" in cap.err
 
 
-def _one_error_line(cap):
-    lines = [l for l in cap.err.splitlines() if l.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
-    assert "Traceback" not in cap.err
-    return lines[0]
-
 
 def test_not_a_video(tmp_path, capsys):
     bad = tmp_path / "notes.mp4"
     bad.write_text("not a video")
     code, cap = run(capsys, "track", str(bad), "-o", str(tmp_path / "c.npz"))
-    assert code == 2 and str(bad) in _one_error_line(cap)
+    assert code == 2 and str(bad) in one_error_line(cap)
     assert not (tmp_path / "c.npz").exists()
 
 
@@ -66,28 +61,28 @@ def test_video_without_faces(tmp_path, capsys):
     path = tmp_path / "grey.mp4"
     write_video(path, [np.full((64, 64, 3), 100, np.uint8)] * 3, fps=10)
     code, cap = run(capsys, "track", str(path), "-o", str(tmp_path / "c.npz"), "-q")
-    line = _one_error_line(cap)
+    line = one_error_line(cap)
     assert code == 2 and "no face found in the first 3 frames" in line and str(path) in line
     assert not (tmp_path / "c.npz").exists()
 
 
 def test_frame_range_outside_the_video(tmp_path, capsys, head_mp4):
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--start", "40")
-    assert code == 2 and "outside the video" in _one_error_line(cap)
+    assert code == 2 and "outside the video" in one_error_line(cap)
 
 
 def test_unwritable_output_is_refused_before_any_work(tmp_path, capsys, head_mp4):
     blocker = tmp_path / "file"
     blocker.write_text("x")          # a path under a regular file: unwritable even as root
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(blocker / "c.npz"))
-    assert code == 2 and "output folder" in _one_error_line(cap)
+    assert code == 2 and "output folder" in one_error_line(cap)
 
 
 def test_wrong_output_extension(tmp_path, capsys, head_mp4):
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.json"))
-    assert code == 2 and ".npz" in _one_error_line(cap)
+    assert code == 2 and ".npz" in one_error_line(cap)
 
 
 def test_missing_video(tmp_path, capsys):
     code, cap = run(capsys, "track", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "c.npz"))
-    assert code == 2 and "not found" in _one_error_line(cap)
+    assert code == 2 and "not found" in one_error_line(cap)

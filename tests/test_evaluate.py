@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import one_error_line
 
 from avatarkit.cli.main import main
 from avatarkit.track import metrics
@@ -186,24 +187,18 @@ def test_exact_motion_and_camera_reproduce_the_video(synthetic, tmp_path):
 
 # ---- bad input -------------------------------------------------------------------------------
 
-def _one_error_line(cap):
-    lines = [l for l in cap.err.splitlines() if l.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
-    assert "Traceback" not in cap.err
-    return lines[0]
-
 
 def test_not_a_video(tmp_path, capsys):
     bad = tmp_path / "notes.mp4"
     bad.write_text("not a video")
     code = main(["evaluate", str(bad), "-o", str(tmp_path / "r")])
-    assert code == 2 and str(bad) in _one_error_line(capsys.readouterr())
+    assert code == 2 and str(bad) in one_error_line(capsys.readouterr())
     assert not (tmp_path / "r").exists()
 
 
 def test_missing_video(tmp_path, capsys):
     code = main(["evaluate", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "r")])
-    assert code == 2 and "not found" in _one_error_line(capsys.readouterr())
+    assert code == 2 and "not found" in one_error_line(capsys.readouterr())
 
 
 def test_video_without_faces(tmp_path, capsys):
@@ -212,7 +207,7 @@ def test_video_without_faces(tmp_path, capsys):
     path = tmp_path / "grey.mp4"
     write_video(path, [np.full((64, 64, 3), 100, np.uint8)] * 3, fps=10)
     code = main(["evaluate", str(path), "-o", str(tmp_path / "r"), "-q"])
-    line = _one_error_line(capsys.readouterr())
+    line = one_error_line(capsys.readouterr())
     assert code == 2 and "no face" in line and str(path) in line
     assert not (tmp_path / "r").exists() and not list(tmp_path.glob(".r.*"))
 
@@ -221,18 +216,18 @@ def test_unwritable_or_foreign_report_folder(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     code = main(["evaluate", str(blocker), "-o", str(blocker / "r")])
-    assert code == 2 and "output folder" in _one_error_line(capsys.readouterr())
+    assert code == 2 and "output folder" in one_error_line(capsys.readouterr())
     other = tmp_path / "mine"
     other.mkdir()
     (other / "thesis.tex").write_text("keep")
     code = main(["evaluate", str(blocker), "-o", str(other)])
-    assert code == 2 and "not empty" in _one_error_line(capsys.readouterr())
+    assert code == 2 and "not empty" in one_error_line(capsys.readouterr())
     assert (other / "thesis.tex").read_text() == "keep"
 
 
 def test_build_frame_outside_the_video(synthetic, tmp_path, capsys):
     code = main(["build", str(synthetic / "head.mp4"), "-o", str(tmp_path / "a"), "--frame", "40", "-q"])
-    line = _one_error_line(capsys.readouterr())
+    line = one_error_line(capsys.readouterr())
     assert code == 2 and "outside the video" in line and not (tmp_path / "a").exists()
 
 
@@ -240,7 +235,7 @@ def test_build_frame_of_something_not_a_video(tmp_path, capsys):
     bad = tmp_path / "clip.mov"
     bad.write_text("not a video")
     code = main(["build", str(bad), "-o", str(tmp_path / "a"), "-q"])
-    line = _one_error_line(capsys.readouterr())
+    line = one_error_line(capsys.readouterr())
     assert code == 2 and str(bad) in line and not (tmp_path / "a").exists()
 
 
