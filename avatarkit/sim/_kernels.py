@@ -65,22 +65,30 @@ FP_COUNT = 21
 
 
 @ti.func
-def sdf_lookup(sdf: ti.template(), q, origin, inv_h):
-    """Trilinear [value, unit gradient] (vec4) at rest-frame point q; outside the box the
-    distance to it is added to the value at the nearest node."""
-    nx, ny, nz = sdf.shape[0], sdf.shape[1], sdf.shape[2]
-    u = (q - origin) * inv_h
-    hi = vec3(nx - 1, ny - 1, nz - 1)
-    uc = ti.math.clamp(u, 0.0, hi)
-    outside = (u - uc).norm() / inv_h
-    i0 = ti.min(ti.cast(ti.floor(uc), ti.i32), ti.math.ivec3(nx - 2, ny - 2, nz - 2))
+def trilinear(grid: ti.template(), uc):
+    """Trilinear vec4 of grid (a 3-D field of vec4) at grid coordinates uc, already clamped to
+    [0, n - 1] (the Taichi twin of `sdf.trilinear`)."""
+    i0 = ti.min(ti.cast(ti.floor(uc), ti.i32),
+                ti.math.ivec3(grid.shape[0] - 2, grid.shape[1] - 2, grid.shape[2] - 2))
     t = uc - ti.cast(i0, ti.f32)
     out = vec4(0.0)
     for dx, dy, dz in ti.static(ti.ndrange(2, 2, 2)):
         wx = dx * t[0] + (1 - dx) * (1.0 - t[0])
         wy = dy * t[1] + (1 - dy) * (1.0 - t[1])
         wz = dz * t[2] + (1 - dz) * (1.0 - t[2])
-        out += wx * wy * wz * sdf[i0[0] + dx, i0[1] + dy, i0[2] + dz]
+        out += wx * wy * wz * grid[i0[0] + dx, i0[1] + dy, i0[2] + dz]
+    return out
+
+
+@ti.func
+def sdf_lookup(sdf: ti.template(), q, origin, inv_h):
+    """Trilinear [value, unit gradient] (vec4) at rest-frame point q; outside the box the
+    distance to it is added to the value at the nearest node."""
+    nx, ny, nz = sdf.shape[0], sdf.shape[1], sdf.shape[2]
+    u = (q - origin) * inv_h
+    uc = ti.math.clamp(u, 0.0, vec3(nx - 1, ny - 1, nz - 1))
+    outside = (u - uc).norm() / inv_h
+    out = trilinear(sdf, uc)
     g = vec3(out[1], out[2], out[3])
     g = g / ti.max(g.norm(), 1e-12)
     return vec4(out[0] + outside, g[0], g[1], g[2])
@@ -91,16 +99,7 @@ def skin_lookup(skin: ti.template(), q, origin, inv_h):
     """Trilinear joint weights (vec4) at rest-frame point q, clamped to the grid (outside it the
     nearest surface's weights are those of the border nodes)."""
     nx, ny, nz = skin.shape[0], skin.shape[1], skin.shape[2]
-    uc = ti.math.clamp((q - origin) * inv_h, 0.0, vec3(nx - 1, ny - 1, nz - 1))
-    i0 = ti.min(ti.cast(ti.floor(uc), ti.i32), ti.math.ivec3(nx - 2, ny - 2, nz - 2))
-    t = uc - ti.cast(i0, ti.f32)
-    out = vec4(0.0)
-    for dx, dy, dz in ti.static(ti.ndrange(2, 2, 2)):
-        wx = dx * t[0] + (1 - dx) * (1.0 - t[0])
-        wy = dy * t[1] + (1 - dy) * (1.0 - t[1])
-        wz = dz * t[2] + (1 - dz) * (1.0 - t[2])
-        out += wx * wy * wz * skin[i0[0] + dx, i0[1] + dy, i0[2] + dz]
-    return out
+    return trilinear(skin, ti.math.clamp((q - origin) * inv_h, 0.0, vec3(nx - 1, ny - 1, nz - 1)))
 
 
 @ti.func

@@ -26,6 +26,23 @@ from avatarkit.errors import InputError
 _BAND = 4
 
 
+def trilinear(grid: np.ndarray, uc: np.ndarray) -> np.ndarray:
+    """Trilinear interpolation of grid (nx, ny, nz, C) at grid coordinates uc (P, 3), already
+    clamped to [0, n - 1] -> (P, C) float64 (the numpy twin of `_kernels.trilinear`)."""
+    n = np.asarray(grid.shape[:3])
+    i0 = np.minimum(np.floor(uc).astype(np.int64), n - 2)
+    t = uc - i0
+    out = np.zeros((len(uc), grid.shape[3]))
+    for dx in (0, 1):
+        wx = t[:, 0] if dx else 1 - t[:, 0]
+        for dy in (0, 1):
+            wy = t[:, 1] if dy else 1 - t[:, 1]
+            for dz in (0, 1):
+                wz = t[:, 2] if dz else 1 - t[:, 2]
+                out += (wx * wy * wz)[:, None] * grid[i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz]
+    return out
+
+
 @dataclass(eq=False)
 class HeadSDF:
     """values_grad: (nx, ny, nz, 4) float32, [..., 0] signed distance (m), [..., 1:] unit gradient.
@@ -95,17 +112,7 @@ class HeadSDF:
         u = (p - self.origin) / self.spacing
         uc = np.clip(u, 0.0, n - 1)
         outside = np.linalg.norm(u - uc, axis=1) * self.spacing
-        i0 = np.minimum(np.floor(uc).astype(np.int64), n - 2)
-        t = uc - i0
-        out = np.zeros((len(p), 4))
-        g = self.values_grad
-        for dx in (0, 1):
-            wx = t[:, 0] if dx else 1 - t[:, 0]
-            for dy in (0, 1):
-                wy = t[:, 1] if dy else 1 - t[:, 1]
-                for dz in (0, 1):
-                    wz = t[:, 2] if dz else 1 - t[:, 2]
-                    out += (wx * wy * wz)[:, None] * g[i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz]
+        out = trilinear(self.values_grad, uc)
         grad = out[:, 1:] / np.maximum(np.linalg.norm(out[:, 1:], axis=1, keepdims=True), 1e-12)
         return out[:, 0] + outside, grad
 
@@ -218,17 +225,7 @@ class HeadSkin:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         n = np.asarray(self.weights.shape[:3])
         uc = np.clip((p - self.origin) / self.spacing, 0.0, n - 1)
-        i0 = np.minimum(np.floor(uc).astype(np.int64), n - 2)
-        t = uc - i0
-        out = np.zeros((len(p), self.JMAX))
-        for dx in (0, 1):
-            wx = t[:, 0] if dx else 1 - t[:, 0]
-            for dy in (0, 1):
-                wy = t[:, 1] if dy else 1 - t[:, 1]
-                for dz in (0, 1):
-                    wz = t[:, 2] if dz else 1 - t[:, 2]
-                    out += (wx * wy * wz)[:, None] * self.weights[i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz]
-        return out
+        return trilinear(self.weights, uc)
 
     def to_rest(self, points: np.ndarray, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points (P, 3) with the joints' transforms (J, 4, 4) (rest -> posed, this skin's
