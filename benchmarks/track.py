@@ -81,16 +81,22 @@ def synthetic(frames: int, size: int, avatar_dir: str | None) -> None:
         video = list(HeadVideo(clip, camera).frames())
         what = "template head"
     t_render = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    r = track_frames(video, model, shape, (size, size), 30.0, TrackOptions())
-    t_track = time.perf_counter() - t0
-    rot = [angle_deg(a, b) for a, b in zip(r.clip.rotation, clip.rotation)]
-    jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
-    print(f"synthetic ({what}, mixed clip, {frames} frames at {size}x{size}; render {t_render:.1f} s, "
-          f"track {t_track:.1f} s):")
-    print(f"  rotation error median {np.median(rot):.2f} deg (p90 {np.percentile(rot, 90):.2f}), "
-          f"jaw error median {np.median(jaw):.3f} rad, landmark error median "
-          f"{np.nanmedian(r.landmark_error):.2f} px, faces found {int(r.found.sum())}/{frames}")
+    print(f"synthetic ({what}, mixed clip, {frames} frames at {size}x{size}; render {t_render:.1f} s):")
+    figures = {}
+    for label, options in (("tracker", TrackOptions()),
+                           ("baseline: no landmark calibration", TrackOptions(calibration_frames=0))):
+        t0 = time.perf_counter()
+        r = track_frames(video, model, shape, (size, size), 30.0, options)
+        t_track = time.perf_counter() - t0
+        rot = [angle_deg(a, b) for a, b in zip(r.clip.rotation, clip.rotation)]
+        jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
+        figures[label] = (np.median(rot), np.median(jaw), np.nanmedian(r.landmark_error))
+        print(f"  {label}: rotation error median {np.median(rot):.2f} deg (p90 {np.percentile(rot, 90):.2f}), "
+              f"jaw error median {np.median(jaw):.3f} rad, landmark error median "
+              f"{np.nanmedian(r.landmark_error):.2f} px, faces found {int(r.found.sum())}/{frames}; "
+              f"track {t_track:.1f} s")
+    a, b = figures.values()
+    print(f"  ratios tracker/baseline: rotation {a[0] / b[0]:.2f}, jaw {a[1] / b[1]:.2f}, landmarks {a[2] / b[2]:.2f}")
 
 
 def real(limit: int | None) -> None:

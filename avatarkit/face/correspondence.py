@@ -52,19 +52,31 @@ TEMPLATE_VIEWS = ((0.0, 0.0), (-15.0, 0.0), (15.0, 0.0), (-30.0, 0.0), (30.0, 0.
 @dataclass(frozen=True, eq=False)
 class LandmarkEmbedding:
     """face_idx (K,) int64 triangles; bary (K, 3) float64 barycentric coordinates;
-    mesh_index (K,) int64: which of the 468 face-mesh points each one is."""
+    mesh_index (K,) int64: which of the 468 face-mesh points each one is; offset (K, 3)
+    float64 metres in the head's rest frame added to each point, or None (the files: FLAME's
+    and ours have none). Offsets are the tracker's per-video landmark calibration
+    (`track.calibrate`): where this person's face-mesh points sit beyond what the identity
+    coefficients can shape; they move with the head and, at the point's jaw weight, the jaw."""
 
     face_idx: np.ndarray
     bary: np.ndarray
     mesh_index: np.ndarray
+    offset: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.face_idx)
 
     def points(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """(K, 3) landmark positions on a mesh (vertices (V, 3), faces (F, 3))."""
+        """(K, 3) landmark positions on a mesh (vertices (V, 3), faces (F, 3)) at rest
+        (offsets added as they are: exact for a mesh without jaw rotation)."""
         tri = np.asarray(vertices, np.float64)[np.asarray(faces)[self.face_idx]]
-        return np.einsum("kj,kjd->kd", self.bary, tri)
+        p = np.einsum("kj,kjd->kd", self.bary, tri)
+        return p if self.offset is None else p + self.offset
+
+    def with_offset(self, offset: np.ndarray | None) -> "LandmarkEmbedding":
+        """The same points with `offset` (K, 3) metres (None: none)."""
+        off = None if offset is None else np.asarray(offset, np.float64).reshape(len(self), 3)
+        return LandmarkEmbedding(self.face_idx, self.bary, self.mesh_index, off)
 
     def check(self, num_faces: int, source=None) -> "LandmarkEmbedding":
         if len(self) == 0:

@@ -120,6 +120,7 @@ class LandmarkModel:
         self.used, inverse = np.unique(corners.ravel(), return_inverse=True)
         self.corner_rows = inverse.reshape(-1, 3)                          # (K, 3) rows of `used`
         self.bary = np.asarray(embedding.bary, np.float64)
+        self.offset = None if embedding.offset is None else np.asarray(embedding.offset, np.float64)
         u = self.used
         self.template = model.v_template[u].astype(np.float64)            # (U, 3)
         self.shapedirs = model.shapedirs[u].astype(np.float64)            # (U, 3, S)
@@ -155,13 +156,21 @@ class LandmarkModel:
             e = len(expr)
             v = v + t(self.exprdirs[:, :, :e]) @ expr
             joint = joint + t(self.jaw_joint_expr[:, :e]) @ expr
-        if jaw is not None:
-            r = axis_angle_to_matrix_torch(jaw)
+        r = axis_angle_to_matrix_torch(jaw) if jaw is not None else None
+        if r is not None:
             turned = (v - joint) @ r.T + joint
             w = t(self.jaw_weight)[:, None]
             v = v + w * (turned - v)
         tri = v[torch.from_numpy(self.corner_rows)]                     # (K, 3, 3)
-        return (t(self.bary)[:, :, None] * tri).sum(1)
+        out = (t(self.bary)[:, :, None] * tri).sum(1)
+        if self.offset is not None:
+            # an offset rides on its point: turned by the jaw at the point's jaw weight
+            off = t(self.offset)
+            if r is not None:
+                wk = (t(self.bary) * t(self.jaw_weight)[torch.from_numpy(self.corner_rows)]).sum(1)[:, None]
+                off = off + wk * (off @ r.T - off)
+            out = out + off
+        return out
 
     def points_numpy(self, shape=None, expr=None, jaw=None) -> np.ndarray:
         import torch

@@ -76,8 +76,14 @@ class FrameProblem:
         C = E + F
         dirs = np.concatenate([lm.exprdirs[:, :, :E], lm.shapedirs[:, :, :F]], axis=2).reshape(U, 3 * C)
         joint_dirs = np.concatenate([lm.jaw_joint_expr[:, :E], lm.jaw_joint_shape[:, :F]], axis=1)
-        return cls(B @ base, (B @ dirs).reshape(K, 3, C), Bw @ base, (Bw @ dirs).reshape(K, 3, C),
-                   Bw.sum(1), joint, joint_dirs, E)
+        lm0, jw0, jw_sum = B @ base, Bw @ base, Bw.sum(1)
+        if getattr(lm, "offset", None) is not None:
+            # an offset is a constant point added to the landmark, carried by the jaw at the
+            # landmark's jaw weight (as `face.fit.LandmarkModel` does)
+            lm0 = lm0 + lm.offset
+            jw0 = jw0 + jw_sum[:, None] * lm.offset
+        return cls(lm0, (B @ dirs).reshape(K, 3, C), jw0, (Bw @ dirs).reshape(K, 3, C),
+                   jw_sum, joint, joint_dirs, E)
 
     @property
     def num_coefficients(self) -> int:
@@ -201,3 +207,45 @@ def fit_frame(problem: FrameProblem, targets, focal: float, start: LandmarkFit |
         s[:C - E] += coef[E:]
     return LandmarkFit(rot.copy(), trans.copy(), s, coef[:E].copy(), jaw.copy(), float(focal),
                        pixel_errors(px[0], targets), {"total": cost})
+
+
+def landmark_offsets(problem: FrameProblem, fits: list, targets: list, focal: float) -> np.ndarray:
+    """(K, 3) rest-frame offsets that move each landmark onto where the face mesh put it, the
+    per-landmark median over frames (`fits`, `targets`: one `LandmarkFit` / `LandmarkTargets`
+    per frame). A frame's pixel residual is carried back at the landmark's depth into the
+    camera's image plane and turned into the head's rest frame by the fitted rotation, so
+    each frame constrains the two directions across its view (a frame says nothing about
+    depth along its own ray). Outline points get none: they slide along the silhouette."""
+    K = problem.lm0.shape[0]
+    steps = []
+    for fit, tg in zip(fits, targets):
+        w, h = tg.size
+        pts = problem.points(np.asarray(fit.expr, np.float64)[None], np.asarray(fit.jaw, np.float64)[None])[0]
+        R = _rodrigues(np.asarray(fit.rotation, np.float64)[None])[0]
+        cam = pts @ R.T + np.asarray(fit.translation, np.float64)
+        cam[:, 1:] *= -1.0                                              # OpenCV axes
+        z = np.maximum(cam[:, 2], 1e-4)
+        px = np.stack([focal * cam[:, 0] / z + w / 2, focal * cam[:, 1] / z + h / 2], axis=1)
+        d = np.zeros((K, 3))
+        d[:, :2] = (tg.xy - px) * (z / focal)[:, None]                  # OpenCV camera, metres
+        d[np.abs(tg.normal).sum(1) > 0] = 0.0
+        steps.append((d * np.array([1.0, -1.0, -1.0])) @ R)             # view frame -> rest: R^T
+    offset = np.median(np.stack(steps), axis=0)
+    return offset - rigid_part(offset, rest_points(problem), np.abs(targets[0].normal).sum(1) == 0)
+
+
+def rigid_part(offset: np.ndarray, points: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """(K, 3) the small rigid motion (w x p + t) closest to `offset` (K, 3) at `points` (K, 3)
+    over the rows `use` (least squares; zeros elsewhere): the part of a calibration that would
+    only turn or shift the whole face, which the pose already accounts for."""
+    p = points - points[use].mean(0)
+    K = len(p)
+    A = np.zeros((K, 3, 6))
+    A[:, :, 3:] = np.eye(3)
+    A[:, 0, 1], A[:, 0, 2] = p[:, 2], -p[:, 1]        # w x p, rows: x = w_y p_z - w_z p_y
+    A[:, 1, 0], A[:, 1, 2] = -p[:, 2], p[:, 0]        # y = w_z p_x - w_x p_z
+    A[:, 2, 0], A[:, 2, 1] = p[:, 1], -p[:, 0]        # z = w_x p_y - w_y p_x
+    x = np.linalg.lstsq(A[use].reshape(-1, 6), offset[use].reshape(-1), rcond=None)[0]
+    out = (A @ x)
+    out[~use] = 0.0
+    return out
