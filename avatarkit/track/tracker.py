@@ -9,7 +9,9 @@ Per frame (`track_frames`):
 2. Fit (`solve.fit_frame`: the objective of `face.fit`, the core the portrait build uses,
    minimised by Levenberg-Marquardt): the head's rotation and translation, the jaw and the head
    model's expression coefficients, with the identity shape fixed, warm-started from the
-   previous frame. Eyes from the iris centres (`gaze.eyes_pose`).
+   previous frame. Eyes from the iris centres (`gaze.eyes_pose`). Once the first
+   `calibration_frames` frames with a face are in, the landmark correspondence is calibrated
+   to this face (`FrameTracker.calibrate`) and those frames are fitted again.
 3. Confidence = presence / (1 + (median landmark error / (0.05 IOD))^2): 1 for a clean fit,
    falling as the fitted head misses the landmarks. A frame without a face has confidence 0.
 
@@ -59,7 +61,9 @@ class TrackOptions:
     expr_components: expression coefficients fitted (None: the model's, at most MAX_EXPR);
     focal: pixels (None: the portrait lens of `recon.fit.portrait_focal`); iterations:
     Levenberg-Marquardt steps per frame (`solve.fit_frame`); depth_weight, expr_prior,
-    jaw_prior: the objective's weights (`face.fit`). Tracking departs from the portrait fit's
+    jaw_prior: the objective's weights (`face.fit`); calibration_frames: frames with a face the
+    per-landmark calibration uses (`FrameTracker.calibrate`; below CALIBRATION_MIN: none).
+    Tracking departs from the portrait fit's
     defaults, as measured on rendered heads with known motion: the face mesh's relative depth
     biased the pitch (median rotation error 5.0 deg with it, 3.4 without), and a jaw prior
     stronger than the expression prior let expressions mimic an open jaw (jaw error 0.044 rad
