@@ -55,8 +55,9 @@ class LandmarkEmbedding:
     mesh_index (K,) int64: which of the 468 face-mesh points each one is; offset (K, 3)
     float64 metres in the head's rest frame added to each point, or None (the files: FLAME's
     and ours have none). Offsets are the tracker's per-video landmark calibration
-    (`track.calibrate`): where this person's face-mesh points sit beyond what the identity
-    coefficients can shape; they move with the head and, at the point's jaw weight, the jaw."""
+    (`track.tracker.FrameTracker.calibrate`): where this person's face-mesh points sit beyond
+    what the identity coefficients can shape; they move with the head and, at the point's jaw
+    weight, the jaw."""
 
     face_idx: np.ndarray
     bary: np.ndarray
