@@ -525,15 +525,7 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
     metres, +Y up.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("file not found", path)
-    try:
-        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
-            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Tf.ErrorException as e:
-        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
-    if stage is None:
-        raise FormatError("not a readable USD file", path)
+    stage = open_usd_stage(path)
     try:
         prims = find_splat_prims(stage)
         if prim_path is not None:
@@ -552,13 +544,32 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
             prim = prims[0]
         gs = read_splat_prim(prim, time)
         if world and len(gs):
-            gs = _to_metres_y_up(stage, prim, gs, time)
+            gs = to_metres_y_up(stage, prim, gs, time)
         return gs
     except AvatarKitError as e:
         raise e.with_path(path) from None
 
 
-def _to_metres_y_up(stage, prim, gs: GaussianSet, time) -> GaussianSet:
+def open_usd_stage(path: str | os.PathLike) -> Usd.Stage:
+    """The USD stage of `path`, fully loaded; FormatError/InputError naming the file when it
+    is missing or unreadable (USD's own complaints about missing references become warnings)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("file not found", path)
+    try:
+        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+    except Tf.ErrorException as e:
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
+    if stage is None:
+        raise FormatError("not a readable USD file", path)
+    return stage
+
+
+def to_metres_y_up(stage: Usd.Stage, prim: Usd.Prim, gs: GaussianSet, time: float | None) -> GaussianSet:
+    """`gs` read from `prim` at `time` (None: the earliest sample) moved into the world in
+    metres, +Y up: the prim's local-to-world transform (a similarity), the stage's
+    metersPerUnit and upAxis. Returned unchanged (bit-exact) when all three are identities."""
     tc = Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(float(time))
     m = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(tc)) \
         if prim.IsA(UsdGeom.Xformable) else np.eye(4)
@@ -705,5 +716,5 @@ def register() -> None:
 __all__ = ["USD_EXTENSIONS", "DEFAULT_PRIM_PATH", "ATTRIBUTE_NAMES", "ANIMATED_FIELDS", "SplatPrimWriter",
            "PointsPrimWriter", "check_frame_arrays", "bounding_box",
            "UsdWriteOptions", "create_stage", "declare_attributes", "open_output_stage", "flush_stage",
-           "find_splat_prims", "load_usd",
+           "find_splat_prims", "load_usd", "open_usd_stage", "to_metres_y_up",
            "read_splat_prim", "save_usd", "stage_up_axis", "validate_stage", "register"]
