@@ -29,7 +29,7 @@ The cage deformer's mean value coordinate weights (C x 2N float32: 205 MB for 50
 Gaussians) are NOT stored (rig format 2): they are recomputed from hair.ply and cage.ply with
 the Taichi MVC kernel (~2 s of 2 cores for 50k hair) when the loaded avatar's hair first moves
 (`CageDeformer.deferred`), exactly the weights a save of the loaded avatar would have stored. Top-k sparse weights were measured and rejected: on the whip
-clip they move hair up to 4.7 mm (k=64) from the dense result (README, "Avatars and baking").
+clip they move hair up to 4.7 mm (k=64) from the dense result (docs/baking-and-outputs.md, "Avatars and baking").
 Rig format 1 files, which hold the dense weights, are still read (and their weights used).
 
 `Avatar.save(folder)` writes a complete folder beside the target and renames it into place:
@@ -114,7 +114,7 @@ class HeadRef:
     @classmethod
     def for_file(cls, path: str | os.PathLike) -> "HeadRef":
         """A reference to a FLAME model file (absolute path and its SHA-256)."""
-        from avatarkit.head.io import file_sha256
+        from avatarkit.fileio import file_sha256
 
         p = Path(path)
         if not p.is_file():
@@ -134,7 +134,8 @@ class HeadRef:
 
         if self.kind == "template":
             return HeadModel.template()
-        from avatarkit.head.io import file_sha256, load_head_model
+        from avatarkit.fileio import file_sha256
+        from avatarkit.head.io import load_head_model
 
         p = self.resolve(folder)
         if not p.is_file():

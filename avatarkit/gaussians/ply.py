@@ -11,7 +11,7 @@ We *write* exactly that order, binary little endian, atomically; extras follow, 
 `name` for an (N,) extra or `name_0..name_{m-1}` for an (N, m) one.
 
 We *read* by property name in any order, from binary little/big endian or ASCII files, with any
-PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
+PLY scalar type. Decisions (documented in docs/converting-and-formats.md, "3DGS PLY files"):
 - position (`x y z`), rotation (`rot_0..3`), scale (`scale_0..2`) and `opacity` are required:
   a file without them is not a splat file, and a silent default would hide the problem.
 - colour is `f_dc_0..2`, or failing that `red green blue` (integer types are divided by their
@@ -27,7 +27,7 @@ PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
 - everything a file can get wrong is a FormatError naming the file: counts are checked against
   the file size before anything is allocated.
 
-Frames (`frame=` on both `read_ply` and `write_ply`; README "Axis conventions"): a PLY file
+Frames (`frame=` on both `read_ply` and `write_ply`; docs/converting-and-formats.md, "Axis conventions"): a PLY file
 carries no axes, and two conventions are in use. "yup" (default) is ours: metres, +Y up, the
 face toward +Z, what every other avatarkit file holds. "ydown" is the 3DGS/COLMAP frame
 (OpenCV camera axes: x right, y down, z forward, Niantic's "RDF") that trainers write and that
