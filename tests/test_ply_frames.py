@@ -11,8 +11,8 @@ from avatarkit.cli.main import main
 from avatarkit.convert import ConvertOptions, convert
 from avatarkit.errors import FormatError, InputError
 from avatarkit.export.ply_sequence import PlySequenceWriter, read_sidecar
-from avatarkit.gaussians.ply import (FLIP_SH_SIGNS, PLY_FRAMES, flip_y_down, read_ply, read_ply_arrays,
-                                     write_ply)
+from avatarkit.gaussians.ply import FLIP_SH_SIGNS, PLY_FRAMES, flip_y_down, read_ply, write_ply
+from avatarkit.gaussians.ply_table import read_ply_arrays
 from avatarkit.gaussians.sh import eval_sh, sh_rotation
 from avatarkit.rotations import quat_to_matrix
 from helpers import random_gaussians
