@@ -140,7 +140,7 @@ def test_convert_between_frames(tmp_path):
     convert(ours, tmp_path / "a.spz")
     convert(down, tmp_path / "b.spz", ConvertOptions(ply_frame="ydown"))
     assert (tmp_path / "a.spz").read_bytes() == (tmp_path / "b.spz").read_bytes()
-    from avatarkit.gaussians.usd import load_usd
+    from avatarkit.gaussians.usd_read import load_usd
 
     convert(down, tmp_path / "b.usda", ConvertOptions(ply_frame="ydown"))
     for name in ("means", "quats", "sh"):

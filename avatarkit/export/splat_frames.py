@@ -121,7 +121,7 @@ def _avatar(path: Path) -> SplatFrames:
 
 # --- USD ---------------------------------------------------------------------------------------
 def _usd(path: Path) -> SplatFrames:
-    from avatarkit.gaussians.usd import find_splat_prims, open_usd_stage, read_splat_prim, to_metres_y_up
+    from avatarkit.gaussians.usd_read import find_splat_prims, open_usd_stage, read_splat_prim, to_metres_y_up
 
     stage = open_usd_stage(path)
     prims = find_splat_prims(stage)
