@@ -224,7 +224,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     """Build an `Avatar` from a portrait (module docstring). progress(stage, index, total,
     seconds): called when each stage starts (seconds None) and ends. The `BuildReport` is in
     `avatar.provenance["build"]`; the previews (if rendered) in `avatar.build_previews`."""
-    from avatarkit.avatar import Avatar, HeadRef, _now, _tool_version
+    from avatarkit.avatar import Avatar, _now, _tool_version
+    from avatarkit.head.ref import HeadRef
     from avatarkit.face.correspondence import read_embedding
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
