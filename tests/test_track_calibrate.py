@@ -110,3 +110,27 @@ def test_calibration_recovers_landmarks_that_sit_off_the_template(template):
     assert rot_after < 0.5 and rot_after < rot_before, (rot_before, rot_after)
     # the rest landmarks moved by the offsets alone
     np.testing.assert_allclose(rest_points(problem) - points, offset, atol=1e-9)
+
+
+def test_a_tracked_result_carries_its_calibrated_embedding():
+    """What `track_frames` hands back names the offsets it fitted with (the preview and any
+    later projection of the fitted head need them); the result's landmark error uses them."""
+    from avatarkit.synthetic.head_video import HeadVideo, head_video_camera
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.track import TrackOptions, track_frames
+
+    T = 6
+    clip = MotionClip(fps=24.0, rotation=np.stack([np.zeros(T), np.linspace(-0.2, 0.2, T), np.zeros(T)], 1),
+                      translation=np.zeros((T, 3)), neck=np.zeros((T, 3)), jaw=np.zeros((T, 3)),
+                      eyes=np.zeros((T, 6)), expr=np.zeros((T, 9)))
+    frames = list(HeadVideo(clip, head_video_camera(192, distance=0.45), n_gaussians=8000).frames())
+    model = HeadModel.template()
+    r = track_frames(frames, model, np.zeros(model.num_shape), (192, 192), 24.0, TrackOptions(smoothing=1.0))
+    assert r.found.all()
+    off = r.embedding.offset
+    assert off is not None and off.shape == (len(r.embedding), 3)
+    # millimetres, not centimetres: a calibration, not a new face (measured: median 0.7 mm)
+    assert 1e-4 < np.median(np.linalg.norm(off, axis=1)) < 6e-3
+    plain = track_frames(frames, model, np.zeros(model.num_shape), (192, 192), 24.0,
+                         TrackOptions(smoothing=1.0, calibration_frames=0))
+    assert plain.embedding.offset is None

@@ -101,6 +101,7 @@ class TrackResult:
     landmark_error: np.ndarray
     raw: dict = field(default_factory=dict)
     model: Any = None          # the head model tracked with (not stored in the file)
+    embedding: Any = None      # its landmark embedding, calibrated offsets included (not stored)
 
     @property
     def num_frames(self) -> int:
@@ -321,7 +322,7 @@ def finish(raw: dict, confidence: np.ndarray, found: np.ndarray, frame_index: np
     W, H = ft.size
     camera = Camera(ft.focal, ft.focal, W / 2, H / 2, W, H, w2c)
     err = landmark_errors(ft, smooth, landmarks, found)
-    return TrackResult(clip, camera, frame_index, found, confidence, landmarks, err, raw, ft.model)
+    return TrackResult(clip, camera, frame_index, found, confidence, landmarks, err, raw, ft.model, ft.embedding)
 
 
 def _interpolate(v: np.ndarray, found: np.ndarray) -> np.ndarray:
