@@ -71,10 +71,13 @@ def write_overlay(video_path: str | os.PathLike, result, output: str | os.PathLi
     edges = _face_edges(model)
     from avatarkit.track.tracker import model_embedding
 
-    try:
-        emb = model_embedding(model)
-    except Exception:
-        emb = None
+    # the tracking's own embedding carries the per-video landmark calibration it was fitted with
+    emb = result.embedding if model is result.model else None
+    if emb is None:
+        try:
+            emb = model_embedding(model)
+        except Exception:
+            emb = None
     cam = result.camera
     p = os.fspath(video_path)
     T = result.num_frames
