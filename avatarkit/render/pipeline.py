@@ -13,10 +13,16 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    a 3-sigma footprint that touches no tile of the image (frustum culling).
 2. `sh_colors`: colour = max(0, SH(dir) + 0.5) up to degree 3, dir = unit(mean - camera
    centre), the INRIA `computeColorFromSH`. Not clamped above (as INRIA).
-3. `bin_gaussians`: 16x16 tiles; each Gaussian goes to every tile its 3-sigma square touches.
-   Depths are argsorted once (stable, so ties keep input order), then per-tile counts and a
-   front-to-back scatter give depth-sorted per-tile lists (`tile_offsets`, `gaussian_ids`).
-4. `rasterize`: per pixel, in list order, d = mean2d - pixel centre,
+3. `bin_gaussians`: 16x16 tiles; each Gaussian goes to every tile its 3-sigma square touches
+   and, given the opacities (as `render` does), that its alpha >= 1/255 ellipse
+   (d^T conic d <= 2 ln(255 opacity), widened by 1%) reaches with a pixel centre: an exact
+   ellipse-rectangle test that drops only tiles the compositor would find nothing to draw in
+   (the image is the same; ~28% fewer pairs on the bench scene). Depths are argsorted once
+   (stable, so ties keep input order); the depth-ordered Gaussians are cut into 16 chunks
+   that are counted and scattered in parallel, chunk after chunk within each tile's list, so
+   the per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted.
+4. `rasterize`: the splats' packed records are copied into list order first (the compositor
+   then reads memory sequentially); per pixel, in list order, d = mean2d - pixel centre,
    alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if compositing
    would bring the transmittance T below 1e-4 the pixel stops *before* that splat (INRIA);
    colour += c alpha T, T *= 1 - alpha. Output rgb = colour + T background, alpha = 1 - T,
