@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """`avatarkit evaluate` end to end on a real clip: seconds per stage, total wall and CPU time.
 
-Run: `.venv/bin/python benchmarks/evaluate.py [--video PATH] [--keep DIR]`
+Run: `.venv/bin/python benchmarks/evaluate.py [--video PATH] [--keep DIR] [--quick]`
 (default video: ../shared/data/videos/talking_man_glasses.mp4 beside the checkout, 250 frames
 at 480x480; the report goes to a temporary folder unless --keep).
 
@@ -77,7 +77,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--video", default=str(VIDEO))
     ap.add_argument("--keep", help="write the report here instead of a temporary folder")
+    ap.add_argument("--quick", action="store_true",
+                    help="only the metrics baseline on one synthetic frame: checks that the script runs")
     args = ap.parse_args()
+    if args.quick:
+        whole_s, box_s = metrics_baseline(0.3, 160, repeats=1)
+        print(f"quick: metrics of one 160x160 frame, whole frame {1000 * whole_s:.1f} ms, mask box "
+              f"{1000 * box_s:.1f} ms ({whole_s / box_s:.1f}x)")
+        return 0
     if not os.path.exists(args.video):
         print(f"no video at {args.video} (the shared clips live in ../shared beside the checkout)")
         return 0
