@@ -139,7 +139,7 @@ def load_any(path: Path, options: ConvertOptions, ply_decoder: str = "auto") -> 
         from avatarkit.gaussians.spz import read_spz
         return read_spz(path)
     if ext in USD_EXTENSIONS:
-        from avatarkit.gaussians.usd import load_usd
+        from avatarkit.gaussians.usd_read import load_usd
         return load_usd(path, prim_path=options.prim_path, time=options.time)
     raise InputError(f"unknown input format {path.suffix or '(no extension)'!r}; known: "
                      f"{', '.join(KNOWN_EXTENSIONS)}", path)
@@ -196,7 +196,8 @@ def convert(inputs: str | os.PathLike | Sequence[str | os.PathLike], output: str
             from avatarkit.gaussians.spz import write_spz
             write_spz(output, gs, version=options.spz_version)
         else:
-            from avatarkit.gaussians.usd import DEFAULT_PRIM_PATH, UsdWriteOptions, save_usd
+            from avatarkit.gaussians.usd import UsdWriteOptions, save_usd
+            from avatarkit.gaussians.usd_prims import DEFAULT_PRIM_PATH
             save_usd(output, gs, UsdWriteOptions(up_axis=options.up_axis.upper(),
                                                  prim_path=options.prim_path or DEFAULT_PRIM_PATH,
                                                  half=options.half))
@@ -216,7 +217,8 @@ _FLUSH_BYTES = 256 << 20
 def _write_sequence(frames: list[Path], output: Path, options: ConvertOptions,
                     progress: Callable[[int, int], None] | None) -> tuple[int, int]:
     from avatarkit.gaussians.ply import sequence_decoder
-    from avatarkit.gaussians.usd import DEFAULT_PRIM_PATH, SplatPrimWriter, flush_stage, open_output_stage
+    from avatarkit.gaussians.usd import flush_stage, open_output_stage
+    from avatarkit.gaussians.usd_prims import DEFAULT_PRIM_PATH, SplatPrimWriter
 
     decoder = sequence_decoder([p for p in frames if _ext(p) in PLY_EXTENSIONS])
     count = degree = 0

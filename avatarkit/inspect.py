@@ -21,7 +21,7 @@ from typing import Any, Callable, Union
 
 import numpy as np
 
-from avatarkit.errors import FormatError, InputError
+from avatarkit.errors import InputError
 
 Inspector = Callable[[Path], "Summary"]
 
@@ -162,7 +162,8 @@ def inspect_ply(path: Path) -> Summary:
 
     A valid PLY that is not a splat file (a mesh or plain point cloud: no rot/scale/opacity)
     gets a plain element listing instead of an error."""
-    from avatarkit.gaussians.ply import check_element_sizes, read_ply, read_ply_header
+    from avatarkit.gaussians.ply import read_ply
+    from avatarkit.gaussians.ply_header import check_element_sizes, read_ply_header
 
     header = read_ply_header(path)
     size = ByteCount(path.stat().st_size)

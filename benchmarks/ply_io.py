@@ -25,7 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from helpers import random_gaussians  # noqa: E402
 
-from avatarkit.gaussians.ply import read_ply, read_ply_header, write_ply  # noqa: E402
+from avatarkit.gaussians.ply import read_ply, write_ply  # noqa: E402
+from avatarkit.gaussians.ply_header import read_ply_header  # noqa: E402
 
 
 def timings(repeat: int, fn) -> tuple[float, float]:

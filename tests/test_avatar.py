@@ -395,7 +395,7 @@ def test_inspect_avatar_folder(folder):
 # --- rig file formats -------------------------------------------------------------------------------
 
 def test_rig_file_holds_no_dense_weights(folder, avatar):
-    from avatarkit.avatar import RIG_FORMAT
+    from avatarkit.hair_rig import RIG_FORMAT
 
     with np.load(folder / RIG_FILE) as z:
         assert str(z["format"]) == RIG_FORMAT == "avatarkit.rig/2"

@@ -10,7 +10,8 @@ from avatarkit.convert import ConvertOptions, convert, resolve_inputs
 from avatarkit.errors import FormatError, InputError, OutputError
 from avatarkit.gaussians.ply import read_ply, write_ply
 from avatarkit.gaussians.spz import read_spz
-from avatarkit.gaussians.usd import load_usd, validate_stage
+from avatarkit.gaussians.usd import validate_stage
+from avatarkit.gaussians.usd_read import load_usd
 from helpers import random_gaussians
 
 FIELDS = ("means", "quats", "scales", "opacities", "sh")

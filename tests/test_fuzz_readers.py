@@ -169,7 +169,7 @@ def _readers():
     from avatarkit.batch import load_batch
     from avatarkit.gaussians.ply import read_ply
     from avatarkit.gaussians.spz import read_spz
-    from avatarkit.gaussians.usd import load_usd
+    from avatarkit.gaussians.usd_read import load_usd
     from avatarkit.motion import load_clip
     from avatarkit.recon.image_io import read_image, read_mask
 

@@ -20,8 +20,9 @@ from avatarkit.errors import FormatError, InputError, OutputError
 from avatarkit.gaussians import GaussianSet
 from avatarkit.gaussians import ply as ply_module
 from avatarkit.gaussians.io import load_gaussians, register_format, save_gaussians
-from avatarkit.gaussians.ply import (OPACITY_EPS, VertexTable, parse_header, read_ply,
-                                     read_ply_arrays, read_ply_header, write_ply)
+from avatarkit.gaussians.ply import OPACITY_EPS, read_ply, write_ply
+from avatarkit.gaussians.ply_header import parse_header, read_ply_header
+from avatarkit.gaussians.ply_table import VertexTable, read_ply_arrays
 from avatarkit.gaussians.sh import SH_C0
 from helpers import random_gaussians
 

@@ -11,8 +11,8 @@ from avatarkit.cli.main import main
 from avatarkit.convert import ConvertOptions, convert
 from avatarkit.errors import FormatError, InputError
 from avatarkit.export.ply_sequence import PlySequenceWriter, read_sidecar
-from avatarkit.gaussians.ply import (FLIP_SH_SIGNS, PLY_FRAMES, flip_y_down, read_ply, read_ply_arrays,
-                                     write_ply)
+from avatarkit.gaussians.ply import FLIP_SH_SIGNS, PLY_FRAMES, flip_y_down, read_ply, write_ply
+from avatarkit.gaussians.ply_table import read_ply_arrays
 from avatarkit.gaussians.sh import eval_sh, sh_rotation
 from avatarkit.rotations import quat_to_matrix
 from helpers import random_gaussians
@@ -140,7 +140,7 @@ def test_convert_between_frames(tmp_path):
     convert(ours, tmp_path / "a.spz")
     convert(down, tmp_path / "b.spz", ConvertOptions(ply_frame="ydown"))
     assert (tmp_path / "a.spz").read_bytes() == (tmp_path / "b.spz").read_bytes()
-    from avatarkit.gaussians.usd import load_usd
+    from avatarkit.gaussians.usd_read import load_usd
 
     convert(down, tmp_path / "b.usda", ConvertOptions(ply_frame="ydown"))
     for name in ("means", "quats", "sh"):

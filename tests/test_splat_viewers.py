@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from avatarkit.convert import ConvertOptions, convert
-from avatarkit.gaussians.ply import flip_y_down, read_ply, read_ply_arrays, write_ply
+from avatarkit.gaussians.ply import flip_y_down, read_ply, write_ply
+from avatarkit.gaussians.ply_table import read_ply_arrays
 from avatarkit.gaussians.spz import DEFAULT_VERSION, SUPPORTED_VERSIONS, read_spz, write_spz
 from peers import SCRIPTS, npm_peer, python_peer, run_peer
 

@@ -10,7 +10,8 @@ import warnings
 import numpy as np
 import pytest
 
-from avatarkit.avatar import Avatar, HairRig, _rest_vertices, load_avatar
+from avatarkit.avatar import Avatar, _rest_vertices, load_avatar
+from avatarkit.hair_rig import HairRig
 from avatarkit.cage.inside import clipped_depth, surface_distance
 from avatarkit.cage.mesh import check_cage
 from avatarkit.cage.points import cage_points

@@ -8,9 +8,9 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdVol, Vt
 from avatarkit.errors import FormatError, InputError
 from avatarkit.gaussians import GaussianSet
 from avatarkit.gaussians.sh import SH_C0, SH_COUNTS
-from avatarkit.gaussians.usd import (SplatPrimWriter, UsdWriteOptions, create_stage, find_splat_prims,
-                                     load_usd, open_output_stage, read_splat_prim, save_usd,
-                                     validate_stage)
+from avatarkit.gaussians.usd import UsdWriteOptions, create_stage, open_output_stage, save_usd, validate_stage
+from avatarkit.gaussians.usd_prims import SplatPrimWriter
+from avatarkit.gaussians.usd_read import find_splat_prims, load_usd, read_splat_prim
 from helpers import random_gaussians
 
 FIELDS = ("means", "quats", "scales", "opacities", "sh")

@@ -14,7 +14,8 @@ from avatarkit.errors import InputError, OutputError
 from avatarkit.export.usd_stage import (CAGE_PATH, FACE_PATH, HAIR_PATH, HEAD_PATH, ROOT_PATH, UsdStageWriter,
                                         UsdWriteOptions, face_normals, inspect_usd, validate_stage,
                                         vertex_normals)
-from avatarkit.gaussians.usd import read_splat_prim, save_usd
+from avatarkit.gaussians.usd import save_usd
+from avatarkit.gaussians.usd_read import read_splat_prim
 from avatarkit.inspect import inspect_file
 from helpers import random_gaussians
 
@@ -536,7 +537,8 @@ def test_bad_frames_are_input_errors_and_leave_nothing(tmp_path, bake):
 @pytest.mark.parametrize("up_axis", ["Y", "Z"])
 def test_split_splat_writer_equals_write(up_axis):
     """write_static + write_samples author exactly what write(gs, time) does, Z-up turn included."""
-    from avatarkit.gaussians.usd import SplatPrimWriter, create_stage
+    from avatarkit.gaussians.usd import create_stage
+    from avatarkit.gaussians.usd_prims import SplatPrimWriter
 
     gs = [random_gaussians(40, sh_degree=2, seed=s) for s in (3, 4)]
     gs[1] = gs[0].replace(means=gs[1].means, quats=gs[1].quats, scales=gs[1].scales)

@@ -226,13 +226,14 @@ def _bad(capsys, args):
 
 
 @pytest.mark.parametrize("case", ["missing", "text_file", "bad_ply", "bad_ext", "bad_size", "no_folder",
-                                  "empty_folder", "too_small"])
+                                  "empty_folder", "too_small", "bad_usd"])
 def test_bad_input_exits_2_with_one_line(case, tmp_path, capsys):
     gs = random_gaussians(20, seed=6)
     write_ply(tmp_path / "ok.ply", gs)
     (tmp_path / "notes.txt").write_text("hello")
     (tmp_path / "bad.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 9\nend_header\n")
     (tmp_path / "empty").mkdir()
+    (tmp_path / "bad.usdc").write_bytes(b"not a crate file")
     args = {"missing": [str(tmp_path / "nope.usdc"), "-o", str(tmp_path / "o.html")],
             "text_file": [str(tmp_path / "notes.txt"), "-o", str(tmp_path / "o.html")],
             "bad_ply": [str(tmp_path / "bad.ply"), "-o", str(tmp_path / "o.html")],
@@ -240,11 +241,14 @@ def test_bad_input_exits_2_with_one_line(case, tmp_path, capsys):
             "bad_size": [str(tmp_path / "ok.ply"), "-o", str(tmp_path / "o.html"), "--max-size", "lots"],
             "no_folder": [str(tmp_path / "ok.ply"), "-o", str(tmp_path / "nowhere" / "o.html")],
             "empty_folder": [str(tmp_path / "empty"), "-o", str(tmp_path / "o.html")],
-            "too_small": [str(tmp_path / "ok.ply"), "-o", str(tmp_path / "o.html"), "--max-size", "2KB"]}[case]
+            "too_small": [str(tmp_path / "ok.ply"), "-o", str(tmp_path / "o.html"), "--max-size", "2KB"],
+            "bad_usd": [str(tmp_path / "bad.usdc"), "-o", str(tmp_path / "o.html")]}[case]
     code, err = _bad(capsys, args)
     assert code == 2, err
     assert err.startswith("error: ") and len(err.splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "o.html").exists()
+    if case == "bad_usd":
+        assert "bad.usdc" in err and "not a readable USD file" in err
 
 
 def test_cli_writes_a_page_and_reports(tmp_path, capsys):

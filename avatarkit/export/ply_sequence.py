@@ -275,7 +275,7 @@ def split_parts(gs: GaussianSet, path: str | os.PathLike | None = None) -> dict[
 def inspect_ply_sequence(path: Path):
     """Summary of a PLY-sequence folder (or its sequence.json): fps, frames, parts, files, size,
     and whether every listed file is there with the expected Gaussian count (first frame)."""
-    from avatarkit.gaussians.ply import read_ply_header
+    from avatarkit.gaussians.ply_header import read_ply_header
     from avatarkit.inspect import ByteCount, Summary
 
     path = Path(path)

@@ -121,17 +121,9 @@ def _avatar(path: Path) -> SplatFrames:
 
 # --- USD ---------------------------------------------------------------------------------------
 def _usd(path: Path) -> SplatFrames:
-    from pxr import Tf, Usd
+    from avatarkit.gaussians.usd_read import find_splat_prims, open_usd_stage, read_splat_prim, to_metres_y_up
 
-    from avatarkit.gaussians.usd import _to_metres_y_up, find_splat_prims, read_splat_prim
-
-    try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Tf.ErrorException as e:
-        last = str(e).strip().splitlines()[-1].strip() if str(e).strip() else "unreadable"
-        raise FormatError(f"not a readable USD file ({last})", path) from None
-    if stage is None:
-        raise FormatError("not a readable USD file", path)
+    stage = open_usd_stage(path)
     prims = find_splat_prims(stage)
     if not prims:
         raise FormatError("has no ParticleField3DGaussianSplat prim", path)
@@ -141,7 +133,7 @@ def _usd(path: Path) -> SplatFrames:
     def read(prim, t, world=True) -> GaussianSet:
         try:
             gs = read_splat_prim(prim, t)
-            return _to_metres_y_up(stage, prim, gs, t) if world and len(gs) else gs
+            return to_metres_y_up(stage, prim, gs, t) if world and len(gs) else gs
         except AvatarKitError as e:
             raise e.with_path(path) from None
 

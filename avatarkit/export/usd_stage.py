@@ -61,8 +61,10 @@ from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
 from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
 from avatarkit.fileio import make_temp_folder, write_failed
 from avatarkit.native_output import native_stderr_as_warnings
-from avatarkit.gaussians.usd import (USD_EXTENSIONS, PointsPrimWriter, SplatPrimWriter, bounding_box,
-                                     check_frame_arrays, declare_attributes, find_splat_prims, validate_stage)
+from avatarkit.gaussians.usd import USD_EXTENSIONS, validate_stage
+from avatarkit.gaussians.usd_prims import (PointsPrimWriter, SplatPrimWriter, bounding_box, check_frame_arrays,
+                                           declare_attributes)
+from avatarkit.gaussians.usd_read import find_splat_prims
 
 ROOT_PATH = "/Avatar"
 HEAD_PATH, FACE_PATH, HAIR_PATH, CAGE_PATH = (f"{ROOT_PATH}/{n}" for n in ("Head", "Face", "Hair", "Cage"))

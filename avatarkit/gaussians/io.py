@@ -87,7 +87,7 @@ def save_gaussians(path: str | os.PathLike, gs: GaussianSet, **kw) -> None:
 
 # Formats whose modules import heavy or optional dependencies register lazily by name.
 for _ext in (".usd", ".usda", ".usdc", ".usdz"):
-    register_format(_ext, loader="avatarkit.gaussians.usd:load_usd", saver="avatarkit.gaussians.usd:save_usd")
+    register_format(_ext, loader="avatarkit.gaussians.usd_read:load_usd", saver="avatarkit.gaussians.usd:save_usd")
 register_format(".spz", loader="avatarkit.gaussians.spz:read_spz", saver="avatarkit.gaussians.spz:write_spz")
 
 __all__ = ["load_gaussians", "save_gaussians", "register_format", "loadable_extensions",

@@ -11,7 +11,7 @@ We *write* exactly that order, binary little endian, atomically; extras follow, 
 `name` for an (N,) extra or `name_0..name_{m-1}` for an (N, m) one.
 
 We *read* by property name in any order, from binary little/big endian or ASCII files, with any
-PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
+PLY scalar type. Decisions (documented in docs/converting-and-formats.md, "3DGS PLY files"):
 - position (`x y z`), rotation (`rot_0..3`), scale (`scale_0..2`) and `opacity` are required:
   a file without them is not a splat file, and a silent default would hide the problem.
 - colour is `f_dc_0..2`, or failing that `red green blue` (integer types are divided by their
@@ -27,7 +27,7 @@ PLY scalar type. Decisions (documented in the README, "3DGS PLY files"):
 - everything a file can get wrong is a FormatError naming the file: counts are checked against
   the file size before anything is allocated.
 
-Frames (`frame=` on both `read_ply` and `write_ply`; README "Axis conventions"): a PLY file
+Frames (`frame=` on both `read_ply` and `write_ply`; docs/converting-and-formats.md, "Axis conventions"): a PLY file
 carries no axes, and two conventions are in use. "yup" (default) is ours: metres, +Y up, the
 face toward +Z, what every other avatarkit file holds. "ydown" is the 3DGS/COLMAP frame
 (OpenCV camera axes: x right, y down, z forward, Niantic's "RDF") that trainers write and that
@@ -40,40 +40,24 @@ reading converts back.
 """
 from __future__ import annotations
 
-import io
-import mmap
 import os
 import re
 import sys
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from avatarkit.errors import FormatError, InputError
 from avatarkit.fileio import atomic_path
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.gaussians.ply_table import VertexTable, open_vertex_table
 from avatarkit.gaussians.sh import SH_COUNTS, rgb_to_dc
 
-#: the header (up to and including `end_header`) must fit in this many bytes
-MAX_HEADER_BYTES = 64 * 1024
 #: opacities are clipped to [OPACITY_EPS, 1 - OPACITY_EPS] before the logit, so 0 and 1 stay finite
 OPACITY_EPS = 1e-6
 
-#: PLY type name (and the numpy-style aliases plyfile and others write) -> numpy type code
-PLY_TYPES: dict[str, str] = {
-    "char": "i1", "int8": "i1",
-    "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2",
-    "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4",
-    "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4",
-    "double": "f8", "float64": "f8",
-}
 #: numpy dtype -> the PLY name we write for it
 _WRITE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
                 "u4": "uint", "f4": "float", "f8": "double"}
-_FORMATS = {"ascii": "ascii", "binary_little_endian": "<", "binary_big_endian": ">"}
 
 POSITION = ("x", "y", "z")
 NORMAL = ("nx", "ny", "nz")
@@ -81,167 +65,6 @@ DC = ("f_dc_0", "f_dc_1", "f_dc_2")
 SCALE = ("scale_0", "scale_1", "scale_2")
 ROT = ("rot_0", "rot_1", "rot_2", "rot_3")
 RGB = ("red", "green", "blue")
-
-
-# --- header ------------------------------------------------------------------------------
-@dataclass
-class PlyProperty:
-    name: str
-    dtype: str                     # numpy type code without byte order, e.g. "f4"
-    count_dtype: str | None = None  # set for list properties: the type of the length prefix
-
-    @property
-    def is_list(self) -> bool:
-        return self.count_dtype is not None
-
-
-@dataclass
-class PlyElement:
-    name: str
-    count: int
-    properties: list[PlyProperty] = field(default_factory=list)
-
-    def property_names(self) -> list[str]:
-        return [p.name for p in self.properties]
-
-
-@dataclass
-class PlyHeader:
-    format: str          # "ascii", "binary_little_endian" or "binary_big_endian"
-    version: str
-    elements: list[PlyElement]
-    comments: list[str]
-    data_offset: int     # byte offset of the first data byte
-
-    @property
-    def byte_order(self) -> str:
-        """'<' or '>' for binary files, '' for ASCII."""
-        return "" if self.format == "ascii" else _FORMATS[self.format]
-
-    def element(self, name: str) -> PlyElement | None:
-        return next((e for e in self.elements if e.name == name), None)
-
-    def describe_format(self) -> str:
-        return {"ascii": "ascii", "binary_little_endian": "binary little endian",
-                "binary_big_endian": "binary big endian"}[self.format] + f" {self.version}"
-
-
-def parse_header(head: bytes, path: str | os.PathLike) -> PlyHeader:
-    """Parse the header at the start of `head` (the first bytes of the file)."""
-    if not head:
-        raise FormatError("empty file, not a PLY file", path)
-    if not (head.startswith(b"ply\n") or head.startswith(b"ply\r\n")):
-        raise FormatError("not a PLY file (it does not start with the 'ply' magic line)", path)
-    end = re.search(rb"(^|\n)end_header[ \t]*\r?\n", head)
-    if end is None:
-        if len(head) >= MAX_HEADER_BYTES:
-            raise FormatError(f"no 'end_header' in the first {MAX_HEADER_BYTES // 1024} KiB "
-                              "(header too long or corrupt)", path)
-        raise FormatError("header has no 'end_header' line (truncated file?)", path)
-    raw = head[:end.start()]
-    try:
-        text = raw.decode("ascii")
-    except UnicodeDecodeError:
-        raise FormatError("header contains non-ASCII bytes", path) from None
-    fmt = version = None
-    elements: list[PlyElement] = []
-    comments: list[str] = []
-    for lineno, line in enumerate(text.split("\n")[1:], start=2):
-        words = line.split()
-        if not words:
-            continue
-        key = words[0]
-        if key in ("comment", "obj_info"):
-            comments.append(line.strip()[len(key):].strip())
-        elif key == "format":
-            if fmt is not None:
-                raise FormatError(f"header line {lineno}: a second 'format' line", path)
-            if len(words) != 3 or words[1] not in _FORMATS:
-                raise FormatError(f"header line {lineno}: bad format line {line.strip()!r} "
-                                  f"(expected one of {', '.join(_FORMATS)})", path)
-            fmt, version = words[1], words[2]
-        elif key == "element":
-            if len(words) != 3:
-                raise FormatError(f"header line {lineno}: bad element line {line.strip()!r}", path)
-            try:
-                count = int(words[2])
-            except ValueError:
-                raise FormatError(f"header line {lineno}: element {words[1]!r} count "
-                                  f"{words[2]!r} is not an integer", path) from None
-            if count < 0:
-                raise FormatError(f"header line {lineno}: element {words[1]!r} has a negative "
-                                  f"count ({count})", path)
-            if any(e.name == words[1] for e in elements):
-                raise FormatError(f"header line {lineno}: element {words[1]!r} declared twice", path)
-            elements.append(PlyElement(words[1], count))
-        elif key == "property":
-            if not elements:
-                raise FormatError(f"header line {lineno}: property before any element", path)
-            prop = _parse_property(words, lineno, line, path)
-            if prop.name in elements[-1].property_names():
-                raise FormatError(f"header line {lineno}: property {prop.name!r} declared twice "
-                                  f"in element {elements[-1].name!r}", path)
-            elements[-1].properties.append(prop)
-        else:
-            raise FormatError(f"header line {lineno}: unknown keyword {key!r}", path)
-    if fmt is None:
-        raise FormatError("header has no 'format' line", path)
-    return PlyHeader(fmt, version, elements, comments, end.end())
-
-
-def _parse_property(words: list[str], lineno: int, line: str, path) -> PlyProperty:
-    def dtype_of(name: str) -> str:
-        if name not in PLY_TYPES:
-            raise FormatError(f"header line {lineno}: unknown property type {name!r}", path)
-        return PLY_TYPES[name]
-
-    if len(words) >= 2 and words[1] == "list":
-        if len(words) != 5:
-            raise FormatError(f"header line {lineno}: bad list property {line.strip()!r}", path)
-        count_dtype, item_dtype = dtype_of(words[2]), dtype_of(words[3])
-        if count_dtype[0] not in "iu":
-            raise FormatError(f"header line {lineno}: list length type {words[2]!r} is not an "
-                              "integer type", path)
-        return PlyProperty(words[4], item_dtype, count_dtype)
-    if len(words) != 3:
-        raise FormatError(f"header line {lineno}: bad property line {line.strip()!r}", path)
-    return PlyProperty(words[2], dtype_of(words[1]))
-
-
-def check_element_sizes(header: PlyHeader, file_size: int, path) -> None:
-    """FormatError unless the file is long enough for the element counts its header claims.
-
-    Lists count as empty and ASCII values as one digit plus a separator, so this is a lower
-    bound that can be checked before anything is allocated."""
-    need = 0
-    for e in header.elements:
-        if header.format == "ascii":
-            row = max(1, 2 * len(e.properties))
-        else:
-            row = sum(np.dtype(p.count_dtype if p.is_list else p.dtype).itemsize
-                      for p in e.properties)
-        need += e.count * row
-        if need > file_size - header.data_offset + (header.format == "ascii"):
-            raise FormatError(f"truncated: element {e.name!r} claims {e.count} rows, more than "
-                              f"the {file_size - header.data_offset} bytes after the header "
-                              "can hold", path)
-
-
-def read_ply_header(path: str | os.PathLike) -> PlyHeader:
-    """The parsed header of a PLY file (reads at most MAX_HEADER_BYTES)."""
-    with _open(path) as f:
-        return parse_header(f.read(MAX_HEADER_BYTES), path)
-
-
-def _open(path):
-    try:
-        return open(path, "rb")
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, expected a file", path) from None
-    except OSError as e:
-        raise InputError(f"cannot open: {e.strerror or e}", path) from None
 
 
 # --- frames ----------------------------------------------------------------------------------
@@ -269,243 +92,6 @@ def flip_y_down(gs: GaussianSet) -> GaussianSet:
     k = gs.sh.shape[1]
     return GaussianSet.from_checked(gs.means * _FLIP_POS, gs.quats * _FLIP_QUAT, gs.scales,
                                     gs.opacities, gs.sh * FLIP_SH_SIGNS[:k, None], gs.extras)
-
-
-# --- the vertex table --------------------------------------------------------------------
-#: rows per block when gathering columns: ~2 MB of input, so a block is read from memory once
-#: and every column is copied out of cache
-_GATHER_BLOCK_BYTES = 2 << 20
-
-
-class VertexTable:
-    """The vertex element as raw rows: `raw` (N, row_bytes) uint8 and per-property byte offsets.
-
-    `column`/`columns` give strided views (no copy); `gather` copies groups of properties into
-    contiguous arrays in one blocked pass over the rows (the fast path for big files).
-    """
-
-    def __init__(self, raw: np.ndarray, properties: list[PlyProperty], byte_order: str):
-        self.raw = raw  # (N, row_bytes) uint8, possibly a read-only memory map
-        self.byte_order = byte_order
-        self.dtypes: dict[str, np.dtype] = {}
-        self.offsets: dict[str, int] = {}
-        off = 0
-        for p in properties:
-            dt = np.dtype(byte_order + p.dtype)
-            self.dtypes[p.name], self.offsets[p.name] = dt, off
-            off += dt.itemsize
-        self.names = [p.name for p in properties]
-
-    def __len__(self) -> int:
-        return len(self.raw)
-
-    def column(self, name: str) -> np.ndarray:
-        """(N,) view of one property, on-disk byte order."""
-        dt, off = self.dtypes[name], self.offsets[name]
-        return self.raw[:, off:off + dt.itemsize].view(dt)[:, 0]
-
-    def columns(self, names) -> np.ndarray:
-        """(N, k) array of the named properties (a view when they are adjacent and same-typed)."""
-        names = list(names)
-        dt, off = self.dtypes[names[0]], self.offsets[names[0]]
-        adjacent = all(self.dtypes[n] == dt and self.offsets[n] == off + i * dt.itemsize
-                       for i, n in enumerate(names))
-        if adjacent:
-            return self.raw[:, off:off + len(names) * dt.itemsize].view(dt)
-        out_dt = np.result_type(*[self.dtypes[n].newbyteorder("=") for n in names])
-        out = np.empty((len(self), len(names)), out_dt)
-        for i, n in enumerate(names):  # a loop over properties, never over rows
-            out[:, i] = self.column(n)
-        return out
-
-    def gather(self, groups: list[list[str]]) -> list[np.ndarray]:
-        """Contiguous (N, k) copies of each group of properties, in native byte order.
-
-        Same result as `np.array(self.columns(g))` per group (the reference path,
-        used for rows mixing value sizes). When every property of the row has the same byte
-        size the rows are an (N, P) matrix of unsigned words, and `np.take` along axis 1 picks
-        any columns in any order in one call whose cost is mostly per row, not per column. So
-        each block of rows (~2 MB, read from memory once) gets one take of every wanted column,
-        and each group's k words per row are then copied out of cache as one opaque k-word
-        item: a 1-D strided copy instead of N tiny row copies.
-        """
-        n = len(self)
-        sizes = {dt.itemsize for dt in self.dtypes.values()}
-        uniform = len(sizes) == 1 and all(len({self.dtypes[c] for c in g}) == 1 for g in groups)
-        if not uniform or n == 0:  # always a copy: nothing returned may view the file mapping
-            return [_native(np.array(self.columns(g), order="C")) for g in groups]
-        word = np.dtype(f"u{sizes.pop()}")
-        matrix = self.raw.view(word)  # (N, P): one unsigned word per property
-        col = {name: i for i, name in enumerate(self.names)}
-        flat = np.array([col[c] for g in groups for c in g], np.intp)
-        bounds = np.cumsum([0] + [len(g) for g in groups])
-        outs = [np.empty((n, len(g)), word) for g in groups]
-        items = [np.dtype(f"V{len(g) * word.itemsize}") for g in groups]
-        out_items = [o.view(item)[:, 0] for o, item in zip(outs, items)]  # (N,) views
-        block = max(1, _GATHER_BLOCK_BYTES // self.raw.shape[1])
-        for a in range(0, n, block):  # a loop over blocks of ~8k rows, not over rows
-            buf = np.take(matrix[a:a + block], flat, axis=1)  # (rows, sum of k)
-            for dst, item, lo, hi in zip(out_items, items, bounds[:-1], bounds[1:]):
-                dst[a:a + block] = buf[:, lo:hi].view(item)[:, 0]
-        return [_native(o.view(self.dtypes[g[0]])) for o, g in zip(outs, groups)]
-
-
-def _native(a: np.ndarray) -> np.ndarray:
-    """The same values in native byte order (a copy only for big-endian data)."""
-    return a if a.dtype.isnative else a.astype(a.dtype.newbyteorder("="))
-
-
-def _row_dtype(props: list[PlyProperty], byte_order: str) -> np.dtype:
-    return np.dtype([(f"p{i}", byte_order + p.dtype) for i, p in enumerate(props)])
-
-
-def _binary_element_bytes(f, element: PlyElement, offset: int, file_size: int, byte_order: str,
-                          path) -> int:
-    """Byte size of a binary element we only skip. Lists must have a constant length."""
-    if not any(p.is_list for p in element.properties):
-        return element.count * _row_dtype(element.properties, byte_order).itemsize
-    if element.count == 0:
-        return 0
-    # Read the list lengths of the first row, assume every row has the same, then check that.
-    layout, pos = [], offset
-    for p in element.properties:
-        if p.is_list:
-            cdt = np.dtype(byte_order + p.count_dtype)
-            f.seek(pos)
-            b = f.read(cdt.itemsize)
-            if len(b) < cdt.itemsize:
-                raise FormatError(f"truncated in element {element.name!r}", path)
-            n = int(np.frombuffer(b, cdt)[0])
-            if n < 0:
-                raise FormatError(f"element {element.name!r}: negative list length {n} in "
-                                  f"property {p.name!r}", path)
-            layout.append((p, pos - offset, cdt, n))
-            pos += cdt.itemsize + n * np.dtype(p.dtype).itemsize
-        else:
-            pos += np.dtype(p.dtype).itemsize
-    row = pos - offset
-    total = element.count * row
-    if offset + total > file_size:
-        raise FormatError(f"truncated: element {element.name!r} ({element.count} rows) needs "
-                          f"{total} bytes but only {file_size - offset} remain", path)
-    f.seek(offset)
-    rows = np.fromfile(f, dtype=np.uint8, count=total)
-    if len(rows) != total:
-        raise FormatError(f"truncated in element {element.name!r}", path)
-    rows = rows.reshape(element.count, row)
-    for p, off, cdt, n in layout:
-        lengths = rows[:, off:off + cdt.itemsize].view(cdt)[:, 0]
-        if (lengths != n).any():
-            raise FormatError(f"element {element.name!r} comes before 'vertex' and its list "
-                              f"property {p.name!r} varies in length, which this reader cannot "
-                              "skip; write the vertex element first", path)
-    return total
-
-
-def _map_bytes(f, offset: int, nbytes: int) -> np.ndarray:
-    """`nbytes` bytes of `f` from `offset` as a uint8 array, memory-mapped when possible.
-
-    Mapping skips the copy np.fromfile makes; the caller has already checked the file is long
-    enough. (A file truncated by another process *while* we read it would fault; we accept
-    that: our own writers replace files by rename, never in place.)
-    """
-    if nbytes == 0:
-        return np.zeros(0, np.uint8)
-    try:
-        mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-        return np.frombuffer(mm, dtype=np.uint8, count=nbytes, offset=offset)
-    except (OSError, ValueError):  # not mappable (pipes, some network file systems)
-        f.seek(offset)
-        return np.fromfile(f, dtype=np.uint8, count=nbytes)
-
-
-def _read_vertex_table(path, header: PlyHeader, file_size: int) -> VertexTable:
-    vertex = header.element("vertex")
-    for p in vertex.properties:
-        if p.is_list:
-            raise FormatError(f"vertex property {p.name!r} is a list; 3DGS PLY vertex "
-                              "properties must be scalars", path)
-    n = vertex.count
-    if header.format == "ascii":
-        return _read_ascii_vertices(path, header, file_size)
-    order = header.byte_order
-    row = _row_dtype(vertex.properties, order).itemsize
-    with _open(path) as f:
-        offset = header.data_offset
-        for e in header.elements:
-            if e is vertex:
-                break
-            offset += _binary_element_bytes(f, e, offset, file_size, order, path)
-            if offset > file_size:
-                raise FormatError(f"truncated: element {e.name!r} ({e.count} rows) runs past "
-                                  "the end of the file", path)
-        need = n * row
-        if need > file_size - offset:
-            raise FormatError(f"truncated: {n} vertices of {row} bytes need {need} bytes but only "
-                              f"{file_size - offset} remain", path)
-        raw = _map_bytes(f, offset, need)
-    if len(raw) != need:  # the file shrank under us
-        raise FormatError("truncated vertex data", path)
-    return VertexTable(raw.reshape(n, row), vertex.properties, order)
-
-
-def _read_ascii_vertices(path, header: PlyHeader, file_size: int) -> VertexTable:
-    vertex = header.element("vertex")
-    n, nprops = vertex.count, len(vertex.properties)
-    remaining = file_size - header.data_offset
-    # Every value needs at least one digit and one separator: reject absurd counts up front.
-    if n * max(2 * nprops, 1) > remaining + 1:
-        raise FormatError(f"truncated: {n} ASCII vertices of {nprops} values cannot fit in the "
-                          f"{remaining} bytes after the header", path)
-    skip = 0
-    for e in header.elements:
-        if e is vertex:
-            break
-        skip += e.count
-        if skip > remaining:
-            raise FormatError(f"truncated: element {e.name!r} has more rows than the file has "
-                              "lines", path)
-    dtype = _row_dtype(vertex.properties, "<")
-    if n == 0:
-        return VertexTable(np.zeros((0, dtype.itemsize), np.uint8), vertex.properties, "<")
-    with _open(path) as f:
-        f.seek(header.data_offset)
-        data = f.read()
-    try:
-        text = data.decode("ascii")
-    except UnicodeDecodeError:
-        raise FormatError("ASCII PLY data contains non-ASCII bytes", path) from None
-    try:
-        rows = np.loadtxt(io.StringIO(text), dtype=dtype, comments=None, skiprows=skip,
-                          max_rows=n, ndmin=1)
-    except (ValueError, OverflowError, TypeError) as e:
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise FormatError(f"bad ASCII vertex data: {msg}", path) from None
-    if len(rows) != n:
-        raise FormatError(f"truncated: header promises {n} vertices, the file has {len(rows)}", path)
-    return VertexTable(np.ascontiguousarray(rows).view(np.uint8).reshape(n, dtype.itemsize),
-                       vertex.properties, "<")
-
-
-def _open_vertex_table(path) -> tuple[PlyHeader, VertexTable]:
-    with _open(path) as f:
-        head = f.read(MAX_HEADER_BYTES)
-        file_size = os.fstat(f.fileno()).st_size
-    header = parse_header(head, path)
-    if header.element("vertex") is None:
-        names = ", ".join(repr(e.name) for e in header.elements) or "none"
-        raise FormatError(f"no 'vertex' element (elements: {names})", path)
-    return header, _read_vertex_table(path, header, file_size)
-
-
-def read_ply_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Every vertex property of a PLY file as on disk: name -> (N,) array (native byte order).
-
-    Values are raw (log scales, logit opacity, channel-major f_rest); `read_ply` activates them.
-    """
-    _, table = _open_vertex_table(path)
-    return {name: table.column(name).astype(table.dtypes[name].newbyteorder("="))
-            for name in table.names}
 
 
 # --- PLY columns -> GaussianSet ------------------------------------------------------------
@@ -541,7 +127,7 @@ def read_ply(path: str | os.PathLike, *, decoder: str = "auto", frame: str = "yu
     if decoder not in DECODERS:
         raise ValueError(f"decoder must be one of {DECODERS}, got {decoder!r}")
     check_ply_frame(frame)
-    _, table = _open_vertex_table(path)
+    _, table = open_vertex_table(path)
     gs = _table_to_gaussians(table, path, decoder)
     return flip_y_down(gs) if frame == "ydown" else gs
 
@@ -908,8 +494,5 @@ def write_ply(path: str | os.PathLike, gs: GaussianSet, *, frame: str = "yup") -
         f.write(rows.reshape(-1).data)
 
 
-__all__ = ["read_ply", "write_ply", "read_ply_arrays", "sequence_decoder", "read_ply_header",
-           "PLY_FRAMES", "FLIP_SH_SIGNS", "check_ply_frame", "flip_y_down",
-           "parse_header", "check_element_sizes",
-           "ply_property_names", "PlyHeader", "PlyElement", "PlyProperty", "PLY_TYPES",
-           "OPACITY_EPS", "MAX_HEADER_BYTES"]
+__all__ = ["read_ply", "write_ply", "sequence_decoder", "PLY_FRAMES", "FLIP_SH_SIGNS", "check_ply_frame",
+           "flip_y_down", "ply_property_names", "OPACITY_EPS"]

@@ -189,7 +189,8 @@ def transfer_hair(source, target, margin: float = MARGIN, *, neighbours: int = N
     import datetime
 
     from avatarkit import __version__
-    from avatarkit.avatar import Avatar, HairRig
+    from avatarkit.avatar import Avatar
+    from avatarkit.hair_rig import HairRig
     from avatarkit.cage.build import build_cage
     from avatarkit.cage.mesh import check_cage
     from avatarkit.cage.points import cage_points

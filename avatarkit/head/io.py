@@ -9,7 +9,6 @@ import os
 from pathlib import Path
 
 from avatarkit.errors import InputError
-from avatarkit.fileio import file_sha256  # noqa: F401  (re-exported: avatar.py imports it from here)
 from avatarkit.head.flame import load_flame
 from avatarkit.head.model import HeadModel, load_template
 from avatarkit.head.npz import load_npz

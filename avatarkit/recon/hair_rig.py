@@ -3,7 +3,7 @@
 Mode (`HAIR_MODES`):
 - "cage": long hair is simulated. A closed cage of <= `cage_vertices` vertices is built around
   the hair (`avatarkit.cage.build_cage`) and the rig the avatar stores is computed
-  (`avatar.HairRig.build`: mean value coordinates of the hair in the cage, the XPBD model with
+  (`hair_rig.HairRig.build`: mean value coordinates of the hair in the cage, the XPBD model with
   roots attached to the scalp, proxy collision weights, the rest head's SDF).
 - "rigid": short hair does not swing; every hair Gaussian is bound to its nearest scalp
   triangle (`TriangleBinding`, the same local frames as the bald head), so it moves rigidly
@@ -85,7 +85,7 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
 
     mode: "cage" or "rigid" (see the module docstring). sdf: the rest head's `HeadSDF` if
     already built. progress(done, total): follows the cage weights."""
-    from avatarkit.avatar import HairRig
+    from avatarkit.hair_rig import HairRig
     from avatarkit.cage.build import build_cage
     from avatarkit.sim.sdf import HeadSDF
 

@@ -27,7 +27,6 @@ import numpy as np
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_reassign import ReassignConfig, Reassignment, reassign_boundary
 from avatarkit.recon.label_lifting import LabelLift, lift_labels
-from avatarkit.recon.label_lifting import render_label_images  # noqa: F401  (pipeline.py imports it from here)
 from avatarkit.recon.segment import HAIR
 from avatarkit.render.camera import Camera
 

@@ -28,7 +28,6 @@ from avatarkit.recon.hair_strands import (HAIR_REFERENCE_COUNT, HAIR_THICKNESS, 
                                           GrowthContext, grow_strands, hair_colours, hair_flow, hair_shell,
                                           hidden_from_camera, scalp_roots, unit_vectors)
 from avatarkit.recon.image_sampling import lookup
-from avatarkit.recon.import_lifter import ImportLifter  # noqa: F401  (pipeline.py imports both lifters from here)
 from avatarkit.recon.lifter import LiftResult
 from avatarkit.recon.visibility import depth_map
 from avatarkit.rotations import matrix_to_quat
@@ -156,4 +155,4 @@ class BuiltinLifter:
         return LiftResult(bald_set, hair, {**info, **hinfo, "lifter": self.name})
 
 
-__all__ = ["BuiltinLifter", "ImportLifter", "lift_hair"]
+__all__ = ["BuiltinLifter", "lift_hair"]

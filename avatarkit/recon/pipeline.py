@@ -224,7 +224,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     """Build an `Avatar` from a portrait (module docstring). progress(stage, index, total,
     seconds): called when each stage starts (seconds None) and ends. The `BuildReport` is in
     `avatar.provenance["build"]`; the previews (if rendered) in `avatar.build_previews`."""
-    from avatarkit.avatar import Avatar, HeadRef, _now, _tool_version
+    from avatarkit.avatar import Avatar, _now, _tool_version
+    from avatarkit.head.ref import HeadRef
     from avatarkit.face.correspondence import read_embedding
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
@@ -232,7 +233,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
     from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair
     from avatarkit.recon.image_io import load_image
-    from avatarkit.recon.lift import BuiltinLifter, ImportLifter
+    from avatarkit.recon.import_lifter import ImportLifter
+    from avatarkit.recon.lift import BuiltinLifter
     from avatarkit.recon.portrait import analyze_portrait
     from avatarkit.recon.segment import segment_portrait
     from avatarkit.sim.sdf import HeadSDF
@@ -343,8 +345,9 @@ def front_view_metrics(avatar, image: np.ndarray, segmentation, camera=None) -> 
     the 2D segmentation's, and the IoU of the two hair masks."""
     from skimage.metrics import structural_similarity
 
-    from avatarkit.recon.assemble import psnr, signed_distance
-    from avatarkit.recon.labels3d import render_label_images
+    from avatarkit.recon.assemble import psnr
+    from avatarkit.recon.label_lifting import render_label_images
+    from avatarkit.recon.mesh_distance import signed_distance
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.render import render
     from avatarkit.render.camera import Camera

@@ -128,7 +128,9 @@ def make_sample_avatar(n_hair: int = 50_000, n_bald: int = 50_000, style: str = 
     """The sample `Avatar`: template head, `n_bald` bald discs, about `n_hair` hair Gaussians of
     `style` (exactly n_hair unless too few strands root on the scalp), cage and rig.
     progress(done, total) follows the MVC weights, the slow step (tens of seconds at 50k)."""
-    from avatarkit.avatar import Avatar, HairRig, HeadRef, _now, _tool_version
+    from avatarkit.avatar import Avatar, _now, _tool_version
+    from avatarkit.hair_rig import HairRig
+    from avatarkit.head.ref import HeadRef
     from avatarkit.head.model import HeadModel
     from avatarkit.synthetic.head_hair import make_test_avatar
 
