@@ -29,22 +29,18 @@ hair is empty (0 Gaussians) and so is the cage (`BakeStatic.cage_faces` (0, 3), 
 View-dependent colour: `BakeStatic` holds one set of SH coefficients; a bald avatar whose SH
 bands turn with their triangles (sh_frame "local", degree > 0) is baked with its rest-pose SH.
 """
-# no `from __future__ import annotations`: Taichi evaluates the kernel's annotations
 import dataclasses
-import functools
 import math
-import os
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
 from avatarkit.baked import BakeFrame, BakeStatic, SplatFrame
-from avatarkit.errors import InputError, OutputError
-from avatarkit.fileio import check_output_folder
+from avatarkit.errors import InputError
 from avatarkit.limits import MAX_FPS, MAX_PREROLL_SECONDS, MIN_FPS
+from avatarkit.rig.binding_kernel import binding_to_world
 from avatarkit.sim.config import SimConfig
 
 #: frames posed per call of the head model (LBS is cheaper batched; bounds memory)
@@ -154,105 +150,6 @@ def prepare_clip(clip, head_model, config: BakeConfig):
         raise InputError(f"frame range {start}:{'' if stop is None else stop} is empty: the clip has "
                          f"{n} frames{' at ' + format(clip.fps, 'g') + ' fps' if config.fps else ''}")
     return clip, rng.start, rng.stop
-
-
-# --- bald Gaussians: triangle-local -> world (fast path) --------------------------------------------
-
-@functools.cache
-def _binding_kernel():
-    """A fused Taichi kernel of `TriangleBinding.to_world` (means, quats, scales only)."""
-    from avatarkit._taichi import ensure_taichi
-    from avatarkit.rig.frames import MIN_EDGE, MIN_RELATIVE_HEIGHT
-
-    ti = ensure_taichi()
-    f64 = ti.f64
-
-    @ti.kernel
-    def to_world(verts: ti.types.ndarray(dtype=ti.f32, ndim=2), faces: ti.types.ndarray(dtype=ti.i32, ndim=2),
-                 face_ids: ti.types.ndarray(dtype=ti.i32, ndim=1),
-                 local_means: ti.types.ndarray(dtype=ti.f32, ndim=2),
-                 local_quats: ti.types.ndarray(dtype=ti.f32, ndim=2),
-                 local_scales: ti.types.ndarray(dtype=ti.f32, ndim=2),
-                 means: ti.types.ndarray(dtype=ti.f32, ndim=2), quats: ti.types.ndarray(dtype=ti.f32, ndim=2),
-                 scales: ti.types.ndarray(dtype=ti.f32, ndim=2), bad: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-        # float64 inside, like the reference (rig.frames / rig.binding)
-        for i in range(face_ids.shape[0]):
-            f = face_ids[i]
-            a = ti.Vector([verts[faces[f, 0], 0], verts[faces[f, 0], 1], verts[faces[f, 0], 2]], dt=f64)
-            b = ti.Vector([verts[faces[f, 1], 0], verts[faces[f, 1], 1], verts[faces[f, 1], 2]], dt=f64)
-            c = ti.Vector([verts[faces[f, 2], 0], verts[faces[f, 2], 1], verts[faces[f, 2], 2]], dt=f64)
-            d1 = b - a
-            d2 = c - a
-            len0 = d1.norm()
-            e0 = d1 / ti.max(len0, MIN_EDGE)
-            nraw = e0.cross(d2)
-            height = nraw.norm()
-            if len0 <= MIN_EDGE or height <= MIN_RELATIVE_HEIGHT * len0:
-                bad[0] = f + 1
-            n = nraw / ti.max(height, 1e-300)
-            bb = e0.cross(n)
-            k = 0.5 * (len0 + height)
-            t = (a + b + c) / 3.0
-            lm = ti.Vector([local_means[i, 0], local_means[i, 1], local_means[i, 2]], dt=f64)
-            mu = k * (e0 * lm[0] + n * lm[1] + bb * lm[2]) + t
-            # R = [e0 | n | bb] (columns) -> quaternion, Shepperd's method as rotations.matrix_to_quat
-            m00, m01, m02 = e0[0], n[0], bb[0]
-            m10, m11, m12 = e0[1], n[1], bb[1]
-            m20, m21, m22 = e0[2], n[2], bb[2]
-            tr = m00 + m11 + m22
-            qw, qx, qy, qz = ti.f64(1.0), ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
-            if tr >= m00 and tr >= m11 and tr >= m22:
-                r = ti.sqrt(1.0 + tr) * 2.0
-                qw, qx, qy, qz = 0.25 * r, (m21 - m12) / r, (m02 - m20) / r, (m10 - m01) / r
-            elif m00 >= m11 and m00 >= m22:
-                r = ti.sqrt(1.0 + m00 - m11 - m22) * 2.0
-                qw, qx, qy, qz = (m21 - m12) / r, 0.25 * r, (m01 + m10) / r, (m02 + m20) / r
-            elif m11 >= m22:
-                r = ti.sqrt(1.0 + m11 - m00 - m22) * 2.0
-                qw, qx, qy, qz = (m02 - m20) / r, (m01 + m10) / r, 0.25 * r, (m12 + m21) / r
-            else:
-                r = ti.sqrt(1.0 + m22 - m00 - m11) * 2.0
-                qw, qx, qy, qz = (m10 - m01) / r, (m02 + m20) / r, (m12 + m21) / r, 0.25 * r
-            if qw < 0:
-                qw, qx, qy, qz = -qw, -qx, -qy, -qz
-            lw, lx, ly, lz = (ti.cast(local_quats[i, 0], f64), ti.cast(local_quats[i, 1], f64),
-                              ti.cast(local_quats[i, 2], f64), ti.cast(local_quats[i, 3], f64))
-            w = qw * lw - qx * lx - qy * ly - qz * lz
-            x = qw * lx + qx * lw + qy * lz - qz * ly
-            y = qw * ly - qx * lz + qy * lw + qz * lx
-            z = qw * lz + qx * ly - qy * lx + qz * lw
-            norm = ti.sqrt(w * w + x * x + y * y + z * z)
-            for j in ti.static(range(3)):
-                means[i, j] = ti.cast(mu[j], ti.f32)
-                scales[i, j] = ti.cast(k * local_scales[i, j], ti.f32)
-            quats[i, 0] = ti.cast(w / norm, ti.f32)
-            quats[i, 1] = ti.cast(x / norm, ti.f32)
-            quats[i, 2] = ti.cast(y / norm, ti.f32)
-            quats[i, 3] = ti.cast(z / norm, ti.f32)
-
-    return to_world
-
-
-def binding_to_world(binding, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fast `TriangleBinding.to_world` for one mesh pose: vertices (V, 3) -> means (N, 3),
-    quats (N, 4) wxyz, scales (N, 3), float32. InputError if a host triangle collapsed."""
-    v = np.ascontiguousarray(vertices, dtype=np.float32)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise InputError(f"vertices must have shape (V, 3), got {v.shape}")
-    if not np.isfinite(v).all():
-        raise InputError("vertices contain non-finite values")
-    n = len(binding)
-    means = np.empty((n, 3), np.float32)
-    quats = np.empty((n, 4), np.float32)
-    scales = np.empty((n, 3), np.float32)
-    bad = np.zeros(1, np.int32)
-    if n:
-        local = binding.local
-        _binding_kernel()(v, binding.faces, binding.face_ids, local.means, local.quats, local.scales,
-                          means, quats, scales, bad)
-    if bad[0]:
-        raise InputError(f"triangle {int(bad[0]) - 1} collapsed (zero area); its Gaussians have no frame")
-    return means, quats, scales
 
 
 # --- the bake ---------------------------------------------------------------------------------------
@@ -413,155 +310,6 @@ def bake(avatar, clip, config: BakeConfig | None = None) -> tuple[BakeStatic, Ba
     return static, frames
 
 
-# --- writers ---------------------------------------------------------------------------------------
-
-class PreviewWriter:
-    """Renders each baked frame (bald + hair) with the CPU splat renderer into an .mp4/.gif.
-
-    The camera frames the head of the first frame (the mesh's bounds, with room for hair around
-    it) from the front; with `orbit` it turns once around the head over the clip. Same shape as
-    the other bake writers: `begin(static)`, `write(frame)`, `close()`, `abort()`."""
-
-    def __init__(self, path: str | os.PathLike, size: int = 384, orbit: bool = False,
-                 background=(1.0, 1.0, 1.0), elevation_deg: float = 5.0, margin: float = 1.3):
-        from avatarkit.export.video import video_format
-
-        self.path = Path(path)
-        video_format(self.path)  # OutputError for anything but .mp4/.gif
-        if int(size) != size or size < 16:
-            raise InputError(f"preview size must be an integer >= 16 pixels, got {size!r}")
-        self.size, self.orbit, self.background = int(size), bool(orbit), background
-        self.elevation_deg, self.margin = float(elevation_deg), float(margin)
-        self._video = None
-        self._static: BakeStatic | None = None
-        self._target = self._distance = None
-        self.frames = 0
-
-    def __enter__(self) -> "PreviewWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is not None:
-            self.abort()
-        elif self._video is not None:
-            self.close()
-        return False
-
-    def begin(self, static: BakeStatic) -> None:
-        from avatarkit.export.video import VideoWriter
-
-        self._static = static
-        self._video = VideoWriter(self.path, fps=static.fps)
-
-    def camera(self, frame: BakeFrame):
-        from avatarkit.render import Camera, framing
-
-        if self._target is None:
-            v = frame.head_vertices
-            self._target, self._distance = framing((v.min(0), v.max(0)), 30.0, self.size, self.size,
-                                                   self.margin)
-        n = max(self._static.n_frames, 1)
-        azimuth = 360.0 * frame.index / n if self.orbit else 0.0
-        return Camera.orbit(self._target, azimuth, self.elevation_deg, self._distance, 30.0,
-                            self.size, self.size)
-
-    def write(self, frame: BakeFrame) -> None:
-        from avatarkit.gaussians import GaussianSet
-        from avatarkit.render import render
-
-        if self._video is None:
-            raise InputError("write() needs begin() first")
-        s = self._static
-        gs = GaussianSet.concat([frame.gaussians(s, "face").replace(extras={}),
-                                 frame.gaussians(s, "hair").replace(extras={})])
-        self._video.append(render(gs, self.camera(frame), self.background).rgb)
-        self.frames += 1
-
-    def close(self) -> Path:
-        video, self._video = self._video, None
-        if video is not None:
-            video.close()
-        return self.path
-
-    def abort(self) -> None:
-        video, self._video = self._video, None
-        if video is not None:  # leaving its block with an exception deletes the partial file
-            video.__exit__(RuntimeError, RuntimeError("bake aborted"), None)
-
-
-WRITER_KINDS = ("usd", "ply", "preview")
-
-
-def make_writer(kind: str, target: str | os.PathLike, options: dict | None = None):
-    """The bake writer of one output kind: "usd" -> `UsdStageWriter` (options: the fields of
-    `UsdWriteOptions`), "ply" -> `PlySequenceWriter` (split, ply_frame), "preview" -> `PreviewWriter`
-    (size, orbit). Options left out take the writer's defaults."""
-    options = dict(options or {})
-    if kind == "usd":
-        from avatarkit.export.usd_stage import UsdStageWriter, UsdWriteOptions
-
-        return UsdStageWriter(target, UsdWriteOptions(**options))
-    if kind == "ply":
-        from avatarkit.export.ply_sequence import PlySequenceWriter
-
-        return PlySequenceWriter(target, **options)
-    if kind == "preview":
-        return PreviewWriter(target, **options)
-    raise InputError(f"unknown bake output kind {kind!r}; use one of {', '.join(WRITER_KINDS)}")
-
-
-def check_output(kind: str, path: str | os.PathLike) -> Path:
-    """Raise OutputError unless `path` can receive a bake output of `kind` (see `make_writer`):
-    a known extension (usd, preview), not a folder (usd, preview) or not a file (ply), and a
-    writable folder to go in. Cheap: meant to run before anything is loaded or baked."""
-    p = Path(path)
-    if kind == "ply":
-        if p.exists() and not p.is_dir():
-            raise OutputError("is a file, not a folder", p)
-        check_output_folder(p if p.exists() else p.parent)
-        return p
-    if kind == "usd":
-        from avatarkit.gaussians.usd import USD_EXTENSIONS as extensions
-        what = "USD"
-    elif kind == "preview":
-        from avatarkit.export.video import VIDEO_EXTENSIONS as extensions
-        what = "preview"
-    else:
-        raise InputError(f"unknown bake output kind {kind!r}; use one of {', '.join(WRITER_KINDS)}")
-    if p.suffix.lower() not in extensions:
-        raise OutputError(f"unknown {what} extension {p.suffix or '(none)'!r}; use one of "
-                          f"{', '.join(extensions)}", p)
-    if p.is_dir():
-        raise OutputError("is a folder, not a file name", p)
-    check_output_folder(p.parent)
-    return p
-
-
-def output_bytes(kind: str, path: str | os.PathLike) -> int:
-    """Bytes on disk of a written output: its file or its folder's files, plus for "usd" the
-    stage's `<name>_clips/` folder of value-clip layers (not for .usdz, which holds them)."""
-    p = Path(path)
-    size = _tree_bytes(p)
-    clips = usd_clips_folder(p) if kind == "usd" else None
-    return size + (_tree_bytes(clips) if clips is not None else 0)
-
-
-def usd_clips_folder(path: str | os.PathLike) -> Path | None:
-    """The `<name>_clips/` folder written beside a USD stage, if there is one."""
-    from avatarkit.export.usd_stage import CLIP_FOLDER_SUFFIX
-
-    p = Path(path)
-    clips = p.parent / (p.stem + CLIP_FOLDER_SUFFIX)
-    return clips if p.suffix.lower() != ".usdz" and clips.is_dir() else None
-
-
-def _tree_bytes(path: Path) -> int:
-    if path.is_dir():
-        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
-    return path.stat().st_size if path.exists() else 0
-
-
-
 @dataclass
 class BakeSummary:
     """What `run_bake` did: frames written, wall time, per-stage and per-writer seconds, and
@@ -618,6 +366,5 @@ def run_bake(avatar, clip, config: BakeConfig | None, writers: Sequence[Any],
     return BakeSummary(frames.produced, time.perf_counter() - t0, timings, results)
 
 
-__all__ = ["BakeConfig", "BakeFrames", "BakeSummary", "PreviewWriter", "WRITER_KINDS", "bake",
-           "binding_to_world", "check_clip", "check_output", "make_writer", "output_bytes",
-           "prepare_clip", "run_bake", "usd_clips_folder", "MAX_TRANSLATION"]
+__all__ = ["BakeConfig", "BakeFrames", "BakeSummary", "MAX_TRANSLATION", "bake", "check_clip", "prepare_clip",
+           "run_bake"]

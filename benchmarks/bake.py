@@ -170,7 +170,7 @@ def main(argv: list[str]) -> None:
     os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
     import numpy as np
 
-    from avatarkit.bake import binding_to_world
+    from avatarkit.rig.binding_kernel import binding_to_world
     from avatarkit.synthetic.sample_avatar import make_sample_avatar
 
     print(f"bake benchmark: sample avatar {n_bald:,} bald + {n_hair:,} hair Gaussians, {frames}-frame "

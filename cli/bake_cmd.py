@@ -82,7 +82,7 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, ply_frame, preview, 
     # every output is checked before anything is loaded or baked
     if not (output or ply_dir or preview):
         raise InputError("nothing to write: give -o OUT.usdc, --ply-dir DIR and/or --preview OUT.mp4")
-    from avatarkit.bake import check_output
+    from avatarkit.bake_writers import check_output
 
     out_path = check_output("usd", output) if output else None
     ply_path = check_output("ply", ply_dir) if ply_dir else None
@@ -92,7 +92,8 @@ def bake_cmd(avatar_dir, clip_path, output, ply_dir, split, ply_frame, preview, 
     if (orbit or preview_size != 384) and not preview:
         raise InputError("--orbit and --preview-size apply to the preview: give --preview too")
 
-    from avatarkit.bake import BakeConfig, make_writer, output_bytes, run_bake, usd_clips_folder
+    from avatarkit.bake import BakeConfig, run_bake
+    from avatarkit.bake_writers import make_writer, output_bytes, usd_clips_folder
     from avatarkit.render.preview import parse_vec3
     from avatarkit.sim.config import SimConfig
 

@@ -7,8 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
-from avatarkit.bake import (BakeConfig, PreviewWriter, bake, binding_to_world, check_clip,
-                            prepare_clip, run_bake)
+from avatarkit.bake import BakeConfig, bake, check_clip, prepare_clip, run_bake
+from avatarkit.bake_writers import PreviewWriter
+from avatarkit.rig.binding_kernel import binding_to_world
 from avatarkit.errors import InputError
 from avatarkit.head.model import HeadParams
 from avatarkit.motion import ExprDimsWarning, MotionClip, make_clip
@@ -330,7 +331,7 @@ def test_hairless_avatar_bakes_its_head_only(baked, shake, tmp_path):
 
     from pxr import Usd
 
-    from avatarkit.bake import make_writer
+    from avatarkit.bake_writers import make_writer
     from avatarkit.export.usd_stage import CAGE_PATH, FACE_PATH, HAIR_PATH, HEAD_PATH, validate_stage
     from avatarkit.gaussians.ply import read_ply
     from test_avatar import hairless_avatar

@@ -129,7 +129,7 @@ def test_missing_or_unreadable_batch_file(tmp_path):
 
 
 def test_schema_and_literals_agree_with_the_library():
-    from avatarkit.bake import PreviewWriter
+    from avatarkit.bake_writers import PreviewWriter
     from avatarkit.batch.engines import ENGINES
     from avatarkit.cli import batch_cmd
     from avatarkit.cli.main import COMMANDS

@@ -120,7 +120,8 @@ def _problems(report: dict) -> list[str]:
 def baked_stages(tmp_path_factory):
     """The small sample avatar (FLAME-layout template head with eyeballs, a real cage) baked
     with a nod into each STAGES variant as one file, plus a chunked stage and a convert file."""
-    from avatarkit.bake import BakeConfig, make_writer, run_bake
+    from avatarkit.bake import BakeConfig, run_bake
+    from avatarkit.bake_writers import make_writer
     from avatarkit.convert import convert
     from avatarkit.motion import make_clip
     from avatarkit.sim.config import SimConfig

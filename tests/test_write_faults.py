@@ -38,18 +38,18 @@ def _bake(writers_of: Callable[[Path], list], frames: int = 4):
 
 def _usd_stage(chunk_frames):
     def writers(folder):
-        from avatarkit.bake import make_writer
+        from avatarkit.bake_writers import make_writer
         return [make_writer("usd", folder / "out.usdc", {"chunk_frames": chunk_frames})]
     return writers
 
 
 def _ply_sequence(folder):
-    from avatarkit.bake import make_writer
+    from avatarkit.bake_writers import make_writer
     return [make_writer("ply", folder / "out_ply", {"split": False})]
 
 
 def _gif_preview(folder):
-    from avatarkit.bake import make_writer
+    from avatarkit.bake_writers import make_writer
     return [make_writer("preview", folder / "out.gif", {"size": 32})]
 
 

@@ -113,7 +113,8 @@ def run_job(job: BakeJob, outdir: str | os.PathLike, *, avatar: Any = None, kind
     loaded here. inputs: the inputs' hashes if already known. Returns the result ("done", or
     "skipped" if nothing needed writing); raises on failure (AvatarKitError for bad input;
     nothing is left half-written under an output's name)."""
-    from avatarkit.bake import make_writer, run_bake
+    from avatarkit.bake import run_bake
+    from avatarkit.bake_writers import make_writer
     from avatarkit.errors import InputError, OutputError
 
     t0 = time.perf_counter()
