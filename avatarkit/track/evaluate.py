@@ -8,10 +8,13 @@ Steps (`evaluate`):
    portrait build (`recon.pipeline.build_avatar`), saved under REPORT_DIR/avatar.
 2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
+   When step 1 tracked the video to choose the frame, its face meshes are reused (`meshes=`:
+   the same result, only the fits run again).
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
-   mask, background set to one colour in both), the same on the whole composited frame, and the
+   mask, background set to one colour in both), the same on the whole composited frame (both
+   computed on the mask's bounding box, `metrics.region_metrics`: the same numbers), and the
    landmark error: the face mesh detected on our render against the one detected on the video
    (median pixels over the 468 points, and that divided by the video face's eye distance).
    Frames within `exclude` frames of the build frame are reported but left out of the summary
