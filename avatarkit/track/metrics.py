@@ -17,7 +17,9 @@ covariances: `skimage.metrics.structural_similarity` with those settings) comput
 composited full images, its map averaged over the mask's pixels (and over channels). The
 full-frame figures (`psnr_full`, `ssim_full`: the composited images compared whole, as the
 papers' tables do after removing the background) are reported beside them; they rise with the
-share of constant background in the frame.
+share of constant background in the frame. `evaluate` computes all four on the mask's bounding
+box (`region_metrics`, with `ssim_map_fast`, an OpenCV twin of skimage's SSIM): the same
+numbers as `masked_psnr` and `ssim_map` on the whole frames, which stay as the references.
 """
 from __future__ import annotations
 
