@@ -26,7 +26,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
 REPO = Path(__file__).resolve().parents[1]
 PEER_CPP_100K = 0.80   # s/frame, compiled C++ single-thread rasterizer (the project's bench notes)
 PEER_TORCH_50K = 9.0   # s/frame, pure-PyTorch tiled rasterizer on CPU
-TARGET_100K = 0.10
+TARGET_100K = 0.07  # issue 17: median wall s/frame at 512x512, 2 cores, quiet machine
 
 
 def main() -> int:

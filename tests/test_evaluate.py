@@ -70,6 +70,45 @@ def test_ssim_cases():
     assert metrics.masked_ssim(x, y, mask) == pytest.approx(smap[mask].mean())
 
 
+@pytest.mark.parametrize("case", ["blob", "border", "corner", "empty", "whole", "small_frame"])
+def test_metrics_on_the_mask_box_equal_the_whole_frame_ones(case):
+    rng = np.random.default_rng(len(case))
+    h, w = (18, 23) if case == "small_frame" else (70, 90)
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = {"blob": (yy - 35) ** 2 + (xx - 50) ** 2 < 15 ** 2,
+            "border": (xx < 12) & (yy > 20) & (yy < 50),
+            "corner": (xx > w - 9) & (yy > h - 7),
+            "empty": np.zeros((h, w), bool),
+            "whole": np.ones((h, w), bool),
+            "small_frame": (yy - 9) ** 2 + (xx - 11) ** 2 < 16}[case]
+    bg = (1.0, 1.0, 1.0)
+    a = metrics.composite(rng.integers(0, 256, (h, w, 3), dtype=np.uint8), mask, bg)
+    b = metrics.composite(np.clip(a + rng.normal(0, 0.1, a.shape), 0, 1), mask, bg)
+    got = metrics.region_metrics(a, b, mask)
+    ssim_full, smap = metrics.ssim_map(a, b)
+    want = {"psnr": metrics.masked_psnr(a, b, mask), "psnr_full": metrics.masked_psnr(a, b, np.ones_like(mask)),
+            "ssim": float(smap[mask].mean()) if mask.any() else float("nan"), "ssim_full": ssim_full}
+    for k, v in want.items():
+        if math.isnan(v):
+            assert math.isnan(got[k]), k
+        else:
+            assert got[k] == pytest.approx(v, rel=1e-10, abs=1e-10), k
+    if case == "blob":
+        assert 0.5 < got["ssim"] < 0.99 and got["ssim_full"] > got["ssim"]  # a real difference
+
+
+def test_fast_ssim_map_equals_skimage():
+    rng = np.random.default_rng(3)
+    a = rng.uniform(size=(37, 52, 3))
+    b = np.clip(a + rng.normal(0, 0.2, a.shape), 0, 1)
+    b[:10, :10] = a[:10, :10]                    # a patch where the images agree
+    value, smap = metrics.ssim_map(a, b)
+    fast_value, fast_map = metrics.ssim_map_fast(a, b)
+    assert fast_value == pytest.approx(value, abs=1e-12)
+    np.testing.assert_allclose(fast_map, smap, atol=1e-11)
+    assert 0.2 < value < 0.9
+
+
 def test_landmark_error_and_eye_distance():
     pts = np.zeros((468, 2))
     pts[33], pts[133], pts[362], pts[263] = (0, 0), (2, 0), (10, 0), (12, 0)
@@ -183,6 +222,25 @@ def test_exact_motion_and_camera_reproduce_the_video(synthetic, tmp_path):
     psnr = [r.psnr for r in rows]
     assert min(psnr) > 33.0, psnr          # measured 36.5-38.3 dB (H.264 at crf 12)
     assert min(r.ssim for r in rows) > 0.95      # measured 0.967-0.977
+
+
+def test_second_tracking_from_the_first_ones_meshes_is_the_same(synthetic):
+    """evaluate tracks twice (the template, to choose the build frame; then the avatar): the
+    second run reuses the first one's face meshes and must equal a tracking from scratch."""
+    from avatarkit.track.video import track_video
+
+    video, avatar = synthetic / "head.mp4", synthetic / "avatar"
+    template = track_video(video, end=4)
+    scratch = track_video(video, avatar=avatar, end=4)
+    replay = track_video(video, avatar=avatar, end=4, meshes=template.meshes)
+    assert len(template.meshes) == 4 and template.found.all()
+    for k in ("rotation", "translation", "jaw", "expr", "eyes"):
+        np.testing.assert_array_equal(getattr(replay.clip, k), getattr(scratch.clip, k), err_msg=k)
+    np.testing.assert_array_equal(replay.landmarks, scratch.landmarks)
+    np.testing.assert_array_equal(replay.confidence, scratch.confidence)
+    assert not np.array_equal(replay.clip.translation, template.clip.translation)  # another model
+    with pytest.raises(ValueError, match="meshes"):
+        track_video(video, avatar=avatar, end=4, meshes=template.meshes[:2])
 
 
 # ---- bad input -------------------------------------------------------------------------------

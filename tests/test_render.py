@@ -10,8 +10,8 @@ from avatarkit.gaussians import GaussianSet
 from avatarkit.gaussians.sh import SH_COUNTS, rgb_to_dc, sh_basis
 from avatarkit.render import (Camera, bin_gaussians, project_gaussians, rasterize, render,
                               sh_colors)
-from avatarkit.render.pipeline import depth_order
-from avatarkit.render.reference import (isotropic_screen_sigma, project_reference,
+from avatarkit.render.pipeline import depth_order, tile_q_limits
+from avatarkit.render.reference import (ellipse_meets_tiles, isotropic_screen_sigma, project_reference,
                                         render_reference, sh_colors_reference)
 
 IDENTITY_QUAT = [1.0, 0.0, 0.0, 0.0]
@@ -119,6 +119,36 @@ def test_binning_gives_depth_sorted_lists_of_covering_splats():
         got = bins.gaussian_ids[bins.tile_offsets[t]:bins.tile_offsets[t + 1]]
         np.testing.assert_array_equal(got, expected)
     assert bins.tile_counts.shape == (bins.tiles_y, bins.tiles_x)
+
+
+def test_snug_binning_drops_only_tiles_the_splat_cannot_reach():
+    # more splats than binning chunks, large and needle-like ones among them
+    gs, cam = random_scene(400, 6, 0, width=83, height=61)
+    gs = gs.replace(scales=gs.scales * np.where(np.arange(len(gs))[:, None] % 7 == 0, [8.0, 0.1, 0.1], 1.0))
+    proj = project_gaussians(gs, cam)
+    loose, snug = bin_gaussians(proj, cam), bin_gaussians(proj, cam, gs.opacities)
+    qlims = tile_q_limits(gs.opacities)
+    # float64 alpha of every splat at every pixel centre
+    py, px = np.mgrid[0:cam.height, 0:cam.width] + 0.5
+    a, b, c = (proj.conics[:, j, None, None].astype(np.float64) for j in range(3))
+    dx = proj.means2d[:, 0, None, None] - px
+    dy = proj.means2d[:, 1, None, None] - py
+    alpha = gs.opacities[:, None, None] * np.exp(-0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy)
+    dropped_any = 0
+    for t in range(snug.tiles_x * snug.tiles_y):
+        ty, tx = divmod(t, snug.tiles_x)
+        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
+        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
+        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
+                                    tx, ty, cam)
+        np.testing.assert_array_equal(got, all_ids[meets])  # same depth order, a subset
+        dropped = all_ids[~meets]
+        dropped_any += len(dropped)
+        tile = alpha[dropped, ty * 16:(ty + 1) * 16, tx * 16:(tx + 1) * 16]
+        assert tile.size == 0 or tile.max() < 0.9 / 255  # a dropped splat never reaches 1/255
+    assert 0.1 * len(loose.gaussian_ids) < dropped_any  # the test is not vacuous
+    full_lists = rasterize(proj, sh_colors(gs, cam), gs.opacities, loose, cam)[0]
+    np.testing.assert_array_equal(render(gs, cam).rgb, full_lists)  # the same image
 
 
 def test_depth_order_is_a_stable_argsort():

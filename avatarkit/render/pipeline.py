@@ -13,10 +13,16 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    a 3-sigma footprint that touches no tile of the image (frustum culling).
 2. `sh_colors`: colour = max(0, SH(dir) + 0.5) up to degree 3, dir = unit(mean - camera
    centre), the INRIA `computeColorFromSH`. Not clamped above (as INRIA).
-3. `bin_gaussians`: 16x16 tiles; each Gaussian goes to every tile its 3-sigma square touches.
-   Depths are argsorted once (stable, so ties keep input order), then per-tile counts and a
-   front-to-back scatter give depth-sorted per-tile lists (`tile_offsets`, `gaussian_ids`).
-4. `rasterize`: per pixel, in list order, d = mean2d - pixel centre,
+3. `bin_gaussians`: 16x16 tiles; each Gaussian goes to every tile its 3-sigma square touches
+   and, given the opacities (as `render` does), that its alpha >= 1/255 ellipse
+   (d^T conic d <= 2 ln(255 opacity), widened by 1%) reaches with a pixel centre: an exact
+   ellipse-rectangle test that drops only tiles the compositor would find nothing to draw in
+   (the image is the same; ~28% fewer pairs on the bench scene). Depths are argsorted once
+   (stable, so ties keep input order); the depth-ordered Gaussians are cut into 16 chunks
+   that are counted and scattered in parallel, chunk after chunk within each tile's list, so
+   the per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted.
+4. `rasterize`: the splats' packed records are copied into list order first (the compositor
+   then reads memory sequentially); per pixel, in list order, d = mean2d - pixel centre,
    alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if compositing
    would bring the transmittance T below 1e-4 the pixel stops *before* that splat (INRIA);
    colour += c alpha T, T *= 1 - alpha. Output rgb = colour + T background, alpha = 1 - T,
@@ -169,8 +175,19 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
     return order.astype(np.int32)
 
 
-def bin_gaussians(proj: Projection, camera: Camera) -> TileBins:
-    """Stage 3 (see the module docstring)."""
+def tile_q_limits(opacities: np.ndarray) -> np.ndarray:
+    """(N,) float32 bound on q = d^T conic d beyond which a splat's alpha is below 1/255:
+    alpha = opacity exp(-q / 2) >= 1/255 <=> q <= 2 ln(255 opacity); widened by 1% + 0.05 so
+    float32 rounding in the compositor (errors ~1e-7 of the largest term of q) can never make
+    a pixel the tile test left out pass the alpha test."""
+    op = np.maximum(np.asarray(opacities, np.float64), ALPHA_MIN)
+    return (2.0 * np.log(op / ALPHA_MIN) * 1.01 + 0.05).astype(np.float32)
+
+
+def bin_gaussians(proj: Projection, camera: Camera, opacities: np.ndarray | None = None) -> TileBins:
+    """Stage 3 (see the module docstring). With `opacities` (N,) a splat goes only to the tiles
+    of its 3-sigma rect that its alpha >= 1/255 ellipse reaches (exact ellipse-rectangle test,
+    `tile_q_limits`): the same image, ~30% fewer pairs on the bench scene."""
     tiles_x, tiles_y = tile_grid(camera)
     n_tiles = tiles_x * tiles_y
     visible = np.flatnonzero(proj.radii > 0).astype(np.int32)
@@ -178,12 +195,24 @@ def bin_gaussians(proj: Projection, camera: Camera) -> TileBins:
     if len(visible) == 0:
         return TileBins(tiles_x, tiles_y, offsets, np.zeros(0, np.int32))
     order = visible[depth_order(proj.depths[visible])]
+    if opacities is None:
+        qlims = np.full(len(proj.radii), -1.0, np.float32)
+    else:
+        qlims = tile_q_limits(opacities)
     k = _kernels()
-    counts = np.zeros(n_tiles, np.int32)
-    k.count_tiles(proj.tile_rects, tiles_x, counts)
-    np.cumsum(counts, out=offsets[1:])
+    s_rects = np.empty((len(order), 4), np.int32)
+    s_geo = np.empty((len(order), 8), np.float64)
+    rank = np.full(len(proj.radii), -1, np.int32)
+    rank[order] = np.arange(len(order), dtype=np.int32)
+    k.sort_bin_data(rank, proj.tile_rects, proj.means2d, proj.conics, qlims, s_rects, s_geo)
+    args = (s_rects, s_geo, tiles_x, camera.width, camera.height)
+    counts = np.zeros((k.BIN_CHUNKS, n_tiles), np.int32)
+    k.count_tiles(*args, counts)
+    np.cumsum(counts.sum(axis=0), out=offsets[1:])
+    # chunk c's entries of tile t start after the earlier chunks' entries of that tile
+    cursor = (np.cumsum(counts, axis=0) - counts + offsets[:-1]).astype(np.int32)
     ids = np.empty(int(offsets[-1]), np.int32)
-    k.scatter_tiles(order, proj.tile_rects, tiles_x, offsets, np.zeros(n_tiles, np.int32), ids)
+    k.scatter_tiles(order, *args, cursor, ids)
     return TileBins(tiles_x, tiles_y, offsets, ids)
 
 
@@ -205,7 +234,9 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
     packed = np.empty((len(proj.radii), k.PACK), np.float32)  # only visible rows are read
     k.pack_splats(proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
                   np.ascontiguousarray(colors, np.float32), proj.depths, proj.radii, packed)
-    k.rasterize(bins.tile_offsets, bins.gaussian_ids, packed, float(bg[0]), float(bg[1]),
+    pairs = np.empty((len(bins.gaussian_ids), k.PACK), np.float32)
+    k.gather_pairs(bins.gaussian_ids, packed, pairs)
+    k.rasterize(bins.tile_offsets, pairs, float(bg[0]), float(bg[1]),
                 float(bg[2]), rgb, trans, depth)
     return rgb, 1.0 - trans, depth
 
@@ -226,7 +257,7 @@ def render(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0),
     t1 = time.perf_counter()
     colors = sh_colors(gaussians, camera)
     t2 = time.perf_counter()
-    bins = bin_gaussians(proj, camera)
+    bins = bin_gaussians(proj, camera, gaussians.opacities)
     t3 = time.perf_counter()
     rgb, alpha, depth = rasterize(proj, colors, gaussians.opacities, bins, camera, bg)
     t4 = time.perf_counter()

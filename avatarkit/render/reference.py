@@ -68,6 +68,30 @@ def sh_colors_reference(gaussians: GaussianSet, camera: Camera) -> np.ndarray:
     return eval_sh(gaussians.sh.astype(np.float64), d)
 
 
+def ellipse_meets_tiles(means2d: np.ndarray, conics: np.ndarray, qlims: np.ndarray, tx: int,
+                        ty: int, camera: Camera) -> np.ndarray:
+    """(N,) bool: does splat i's ellipse q = d^T conic d <= qlims[i] reach the rectangle of
+    tile (tx, ty)'s pixel centres? The numpy float64 twin of the fast binning's test (q is
+    convex: its minimum over the rectangle is at the mean when inside, else on an edge, at the
+    edge's 1D minimum clamped to the edge)."""
+    x0, y0 = tx * TILE_SIZE + 0.5, ty * TILE_SIZE + 0.5
+    x1 = min(tx * TILE_SIZE + TILE_SIZE, camera.width) - 0.5
+    y1 = min(ty * TILE_SIZE + TILE_SIZE, camera.height) - 0.5
+    m = np.asarray(means2d, np.float64)
+    a, b, c = (np.asarray(conics, np.float64)[:, j] for j in range(3))
+    best = np.full(len(m), np.inf)
+    for X in (x0, x1):
+        dx = X - m[:, 0]
+        dy = np.clip(-b * dx / c, y0 - m[:, 1], y1 - m[:, 1])
+        best = np.minimum(best, a * dx * dx + 2 * b * dx * dy + c * dy * dy)
+    for Y in (y0, y1):
+        dy = Y - m[:, 1]
+        dx = np.clip(-b * dy / a, x0 - m[:, 0], x1 - m[:, 0])
+        best = np.minimum(best, a * dx * dx + 2 * b * dx * dy + c * dy * dy)
+    inside = (m[:, 0] >= x0) & (m[:, 0] <= x1) & (m[:, 1] >= y0) & (m[:, 1] <= y1)
+    return inside | (best <= np.asarray(qlims, np.float64))
+
+
 def rasterize_reference(proj: Projection, colors: np.ndarray, opacities: np.ndarray,
                         camera: Camera, background=(0.0, 0.0, 0.0)):
     """Stage 3+4: for every tile, the Gaussians whose rect covers it, sorted by depth (stable),

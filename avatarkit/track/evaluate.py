@@ -8,10 +8,13 @@ Steps (`evaluate`):
    portrait build (`recon.pipeline.build_avatar`), saved under REPORT_DIR/avatar.
 2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
+   When step 1 tracked the video to choose the frame, its face meshes are reused (`meshes=`:
+   the same result, only the fits run again).
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
-   mask, background set to one colour in both), the same on the whole composited frame, and the
+   mask, background set to one colour in both), the same on the whole composited frame (both
+   computed on the mask's bounding box, `metrics.region_metrics`: the same numbers), and the
    landmark error: the face mesh detected on our render against the one detected on the video
    (median pixels over the 468 points, and that divided by the video face's eye distance).
    Frames within `exclude` frames of the build frame are reported but left out of the summary
@@ -162,24 +165,30 @@ def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarr
     ours = metrics.to_float(render_rgb)           # rendered on the background colour already
     theirs = metrics.composite(video_rgb, mask, options.background)
     ours_c = metrics.composite(ours, mask, options.background)
-    ssim_full, smap = metrics.ssim_map(ours_c, theirs)
-    vals = {"mask_fraction": float(mask.mean()),
-            "psnr": metrics.masked_psnr(ours_c, theirs, mask),
-            "ssim": float(smap[mask].mean()) if mask.any() else float("nan"),
-            "psnr_full": metrics.masked_psnr(ours_c, theirs, np.ones_like(mask)),
-            "ssim_full": ssim_full}
+    # on the mask's bounding box: the whole-frame numbers at a fraction of the cost
+    vals = {"mask_fraction": float(mask.mean()), **metrics.region_metrics(ours_c, theirs, mask)}
     return vals, theirs, mask
 
 
 def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
-           progress: Progress | None) -> tuple[Path, int]:
-    from avatarkit.track.build_frame import build_from_video
+           progress: Progress | None, timings: dict) -> tuple[Path, int, object]:
+    """Build the avatar into report/avatar -> (folder, build frame, the template tracking that
+    chose the frame or None). The tracking's face meshes are reused by the second tracking."""
+    from avatarkit.track.build_frame import build_from_video, choose_build_frame
+    from avatarkit.track.video import track_video
 
+    t0 = time.perf_counter()
+    tracking = None
+    if frame is None:
+        step = (lambda d, t: progress("choosing the build frame", d, t)) if progress else None
+        tracking = track_video(video, progress=step)
+        frame = choose_build_frame(tracking)
+    timings["choose_frame"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     target = report / "avatar"
-    index = build_from_video(video, target, frame, n_bald=options.n_bald, n_hair=options.n_hair,
-                             progress=(lambda d, t: progress("choosing the build frame", d, t))
-                             if progress else None)
-    return target, index
+    index = build_from_video(video, target, frame, n_bald=options.n_bald, n_hair=options.n_hair)
+    timings["build"] = time.perf_counter() - t0
+    return target, index, tracking
 
 
 def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
@@ -207,21 +216,21 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         info = v.info
     timings: dict[str, float] = {}
     with atomic_folder(target) as staged:   # tag "partial": swept if a run dies
-        t0 = time.perf_counter()
         build_frame = options.build_frame
+        tracking = None
         if avatar is None:
-            avatar_dir, build_frame = _build(video, staged, build_frame, options, progress)
+            avatar_dir, build_frame, tracking = _build(video, staged, build_frame, options, progress, timings)
             built = True
         else:
             avatar_dir, built = Path(avatar), False
             if build_frame is None:
                 build_frame = recorded_build_frame(avatar_dir, video)
-        timings["build"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         from avatarkit.track.video import track_video
 
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
-        result = track_video(video, avatar=avatar_dir, progress=step)
+        result = track_video(video, avatar=avatar_dir, progress=step,
+                             meshes=tracking.meshes if tracking is not None else None)
         timings["track"] = time.perf_counter() - t0
         frames, rest = render_and_compare(video, avatar_dir, result, build_frame, options, staged, progress)
         timings.update(rest)

@@ -17,7 +17,9 @@ covariances: `skimage.metrics.structural_similarity` with those settings) comput
 composited full images, its map averaged over the mask's pixels (and over channels). The
 full-frame figures (`psnr_full`, `ssim_full`: the composited images compared whole, as the
 papers' tables do after removing the background) are reported beside them; they rise with the
-share of constant background in the frame.
+share of constant background in the frame. `evaluate` computes all four on the mask's bounding
+box (`region_metrics`, with `ssim_map_fast`, an OpenCV twin of skimage's SSIM): the same
+numbers as `masked_psnr` and `ssim_map` on the whole frames, which stay as the references.
 """
 from __future__ import annotations
 
@@ -68,6 +70,105 @@ def ssim_map(a: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
     value, full = structural_similarity(to_float(a), to_float(b), channel_axis=2, full=True,
                                         **SSIM_SETTINGS)
     return float(value), full.mean(axis=2)
+
+
+#: radius in pixels of skimage's Gaussian window at SSIM_SETTINGS (truncate 3.5 x sigma, rounded)
+SSIM_RADIUS = int(3.5 * SSIM_SETTINGS["sigma"] + 0.5)
+
+
+def mask_box(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+    """(rows, cols) slices of the bounding box of `mask` (H, W) grown by `margin` pixels and
+    clipped to the image; None when the mask is empty."""
+    m = np.asarray(mask, bool)
+    rows, cols = np.flatnonzero(m.any(axis=1)), np.flatnonzero(m.any(axis=0))
+    if not len(rows):
+        return None
+    h, w = m.shape
+    return (slice(max(rows[0] - margin, 0), min(rows[-1] + 1 + margin, h)),
+            slice(max(cols[0] - margin, 0), min(cols[-1] + 1 + margin, w)))
+
+
+def region_metrics(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
+    """psnr / ssim over `mask` and psnr_full / ssim_full over the whole frame of two composited
+    images a, b (H, W, 3) that are equal outside `mask` (both the background there), computed
+    on the mask's bounding box only with `ssim_map_fast`: the same numbers as `masked_psnr` /
+    `ssim_map` on the whole frames (to float rounding; tests compare them), at a fraction of
+    the cost.
+
+    Why it is exact: outside the mask the squared error is 0, and SSIM's map is 1 wherever the
+    Gaussian window (radius `SSIM_RADIUS`) sees only equal pixels. The box is grown by twice
+    that radius, so every pixel whose window reaches the mask lies at least a radius inside
+    the box (or at the image border, where the box's border is the image's), and its value on
+    the box equals its value on the whole frame; the rest of the frame contributes 1 each.
+    """
+    m = np.asarray(mask, bool)
+    h, w = m.shape
+    box = mask_box(m, 2 * SSIM_RADIUS)
+    if box is None:
+        return {"psnr": float("nan"), "ssim": float("nan"), "psnr_full": float("inf"), "ssim_full": 1.0}
+    fa, fb = to_float(a[box]), to_float(b[box])
+    mb = m[box]
+    sq = (fa - fb) ** 2                                         # (h', w', 3), 0 outside the mask
+    mse_mask = float(sq[mb].mean())
+    mse_full = float(sq.sum()) / (h * w * 3)
+    out = {"psnr": float("inf") if mse_mask == 0 else float(10.0 * np.log10(1.0 / mse_mask)),
+           "psnr_full": float("inf") if mse_full == 0 else float(10.0 * np.log10(1.0 / mse_full))}
+    win = 2 * SSIM_RADIUS + 1
+    if min(fa.shape[:2]) < win:         # a box narrower than the window: only on tiny frames
+        ssim_full, smap = ssim_map_fast(a, b)
+        out.update(ssim=float(smap[m].mean()), ssim_full=ssim_full)
+        return out
+    _, s = _ssim_float(fa, fb)          # (h', w') map on the box, averaged over channels
+    out["ssim"] = float(s[mb].mean())
+    # skimage's whole-image value: the mean over the frame less a border of the window's radius
+    r = SSIM_RADIUS
+    inner = np.zeros((h, w), bool)
+    inner[r:h - r, r:w - r] = True
+    inner_box = inner[box]
+    n_inner = int(inner.sum())
+    n_rest = n_inner - int(inner_box.sum())
+    out["ssim_full"] = float((s[inner_box].sum() + n_rest) / n_inner)
+    return out
+
+
+def ssim_map_fast(a: np.ndarray, b: np.ndarray) -> tuple[float, np.ndarray]:
+    """`ssim_map` with OpenCV's separable filter instead of scipy's: the same Gaussian taps
+    (radius `SSIM_RADIUS`, normalised as scipy does), the same mirrored border (scipy's
+    'reflect' is OpenCV's BORDER_REFLECT) and the same formula as skimage's, all three channels
+    per call; equal to `ssim_map` to float rounding (tests compare them), ~8x faster."""
+    return _ssim_float(to_float(a), to_float(b))
+
+
+def _ssim_float(fa: np.ndarray, fb: np.ndarray) -> tuple[float, np.ndarray]:
+    """`ssim_map_fast` of float64 images already in [0, 1]."""
+    import cv2
+
+    r = SSIM_RADIUS
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    taps = np.exp(-0.5 * (x / SSIM_SETTINGS["sigma"]) ** 2)
+    taps /= taps.sum()
+
+    def blur(img):
+        return cv2.sepFilter2D(img, cv2.CV_64F, taps, taps, borderType=cv2.BORDER_REFLECT)
+
+    ux, uy = blur(fa), blur(fb)
+    vx = blur(fa * fa) - ux * ux
+    vy = blur(fb * fb) - uy * uy
+    vxy = blur(fa * fb) - ux * uy
+    c1 = (0.01 * SSIM_SETTINGS["data_range"]) ** 2
+    c2 = (0.03 * SSIM_SETTINGS["data_range"]) ** 2
+    num = 2 * ux * uy
+    num += c1
+    num *= 2 * vxy + c2
+    den = ux * ux
+    den += uy * uy
+    den += c1
+    vx += vy
+    vx += c2
+    den *= vx
+    s = np.divide(num, den, out=num)
+    h, w = s.shape[:2]
+    return float(s[r:h - r, r:w - r].mean(axis=(0, 1)).mean()), s.mean(axis=2)
 
 
 def masked_ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:

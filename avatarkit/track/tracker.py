@@ -29,7 +29,6 @@ head about its root joint J0, so the clip's translation is t - o - J0 + R J0.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
@@ -102,6 +101,7 @@ class TrackResult:
     raw: dict = field(default_factory=dict)
     model: Any = None          # the head model tracked with (not stored in the file)
     embedding: Any = None      # its landmark embedding, calibrated offsets included (not stored)
+    meshes: list | None = None  # the per-frame face meshes (None: no face), for `track_frames(meshes=)`
 
     @property
     def num_frames(self) -> int:
@@ -238,15 +238,21 @@ class FrameTracker:
 
 def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, int], fps: float,
                  options: TrackOptions | None = None, progress: Callable[[int], None] | None = None,
-                 name: str = "", embedding=None) -> TrackResult:
+                 name: str = "", embedding=None, meshes: list | None = None) -> TrackResult:
     """Track `frames` (objects with `.index` and `.rgb` (H, W, 3) uint8, e.g. `video.Frame`s)
     of size (width, height) at `fps` with `model` and identity `shape` (S,). `progress(i)` is
-    called after each frame. Raises InputError when no frame has a face."""
+    called after each frame. Raises InputError when no frame has a face.
+
+    meshes: the face meshes of these frames from an earlier tracking (`TrackResult.meshes`),
+    used instead of running the face mesh again. The landmark step does not depend on the head
+    model (its regions come from the previous mesh), so a second tracking of the same frames
+    with another model gives the same result as tracking from scratch, at the fits' cost only.
+    """
     options = options or TrackOptions()
     ft = FrameTracker(model, shape, size, options, embedding)
     E = model.num_expr
     rows = {k: [] for k in ("rotation", "translation", "jaw", "expr", "eyes")}
-    index, found, conf, marks = [], [], [], []
+    index, found, conf, marks, seen = [], [], [], [], []
     # the first frames with a face wait for the landmark calibration, then are fitted again
     pending = [] if options.calibration_frames >= CALIBRATION_MIN else None
 
@@ -268,7 +274,13 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         for row, m in pending:
             store(row, *ft.fit(m))
     for i, frame in enumerate(frames):
-        mesh = ft.landmarks(frame.rgb)
+        if meshes is None:
+            mesh = ft.landmarks(frame.rgb)
+        elif i < len(meshes):
+            mesh = meshes[i]
+        else:
+            raise ValueError(f"meshes holds {len(meshes)} frames, the frames go on past that")
+        seen.append(mesh)
         index.append(int(frame.index))
         if mesh is None:
             ft.reset()
@@ -298,7 +310,9 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     raw = {k: np.asarray(v, np.float64).reshape(len(index), -1) for k, v in rows.items()}
     conf = np.asarray(conf, np.float64)
     landmarks = np.stack(marks)
-    return finish(raw, conf, found, np.asarray(index), landmarks, ft, fps, options, name)
+    result = finish(raw, conf, found, np.asarray(index), landmarks, ft, fps, options, name)
+    result.meshes = seen
+    return result
 
 
 def finish(raw: dict, confidence: np.ndarray, found: np.ndarray, frame_index: np.ndarray,

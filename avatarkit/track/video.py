@@ -62,13 +62,16 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
                 head_model: str | os.PathLike | None = None,
                 landmark_embedding: str | os.PathLike | None = None, start: int = 0,
                 end: int | None = None, options: TrackOptions | None = None,
-                progress: Callable[[int, int], None] | None = None) -> TrackResult:
+                progress: Callable[[int, int], None] | None = None,
+                meshes: list | None = None) -> TrackResult:
     """Track the face in the video (or image folder at 30 fps) at `path`, frames start..end-1.
 
     avatar: an avatar folder whose head model and identity drive the fit; head_model: a head
     model file (FLAME .pkl/.npz) whose identity is fitted; neither: the built-in template.
     landmark_embedding: FLAME's mediapipe_landmark_embedding.npz for a FLAME model.
-    progress(done, total) after each frame. Raises AvatarKitError subclasses naming the file.
+    progress(done, total) after each frame. meshes: `TrackResult.meshes` of an earlier tracking
+    of the same frames (`track_frames`): the face mesh is not run again. Raises AvatarKitError
+    subclasses naming the file.
     """
     from avatarkit.video import open_video, resample
 
@@ -77,12 +80,13 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
     options = options or TrackOptions()
     p = os.fspath(path)
     try:
-        return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress)
+        return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress, meshes)
     except InputError as e:
         raise e.with_path(p) from None   # messages without a file name get the video's
 
 
-def _track(p, avatar, head_model, landmark_embedding, start, end, options, progress) -> TrackResult:
+def _track(p, avatar, head_model, landmark_embedding, start, end, options, progress,
+           meshes=None) -> TrackResult:
     from avatarkit.video import open_video, resample
 
     with open_video(p, fps=30.0 if os.path.isdir(p) else None) as video:
@@ -111,7 +115,7 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         frames = _with_source_index(frames)
         step = (lambda i: progress(i + 1, total)) if progress is not None else None
         name = os.path.splitext(os.path.basename(p.rstrip("/")))[0]
-        return track_frames(frames, model, shape, size, fps, options, step, name, embedding)
+        return track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes)
 
 
 class _Indexed:
