@@ -113,3 +113,17 @@ def test_silhouette_counts_views_where_a_point_falls_outside_the_person():
     img = _image((0.5, 0.5, 0.5))
     views = [View(img, cam, labels), View(img, cam, labels), View(img, cam, None)]
     assert silhouette_outside(pts, views).tolist() == [0, 2, 0]
+
+
+def test_hidden_hair_takes_the_colour_of_the_nearest_seen_hair():
+    from avatarkit.recon.multiview import fill_hidden_hair
+
+    means = np.array([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0], [1.01, 0, 0], [0.005, 0.001, 0], [1.004, 0, 0]])
+    colours = np.array([[1, 0, 0], [1, 0, 0], [0, 0, 1], [0, 0, 1], [0, 1, 0], [0, 1, 0]], np.float32)
+    source = np.array([1, 1, 1, 1, 0, 0], bool)
+    target = np.array([0, 0, 0, 0, 1, 1], bool)
+    out, n = fill_hidden_hair(means, colours, source, target, k=2)
+    assert n == 2
+    np.testing.assert_allclose(out[4], [1, 0, 0])
+    np.testing.assert_allclose(out[5], [0, 0, 1])
+    np.testing.assert_allclose(out[:4], colours[:4])

@@ -12,7 +12,9 @@ head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyf
 
 Visibility (`view_samples`): the union of bald and hair Gaussians is rendered from the keyframe's
 camera; a Gaussian is seen when its centre projects inside the image onto a pixel with alpha >
-`ALPHA_MIN`, labelled skin or hair in that keyframe's segmentation, and its camera depth is at
+`ALPHA_MIN`, labelled skin or hair in that keyframe's segmentation at least `EDGE_MARGIN` of
+the image away from any other label (a pose a few pixels off would otherwise sample the
+background or the clothes at the silhouette), and its camera depth is at
 most the rendered depth there + `DEPTH_TOLERANCE` (the render's depth is the alpha-weighted
 expected depth of the front surface). A seen Gaussian's sample is the keyframe image at its
 projection (bilinear); its weight is cos(angle between the surface normal and the direction to
@@ -23,8 +25,11 @@ the direction away from the head (the shell's outward direction).
 Colour (`blend_colours`): each Gaussian's colour = the weighted mean of its samples over the
 keyframes, the reference view's weight multiplied by `REFERENCE_WEIGHT` (the portrait build's
 colours, matched to the reference photo afterwards, keep priority on the face); a Gaussian no
-keyframe saw keeps the portrait build's colour (its fill). Gaussians of the bald head bound to
-the neck are left alone: the tracked head turns, the neck and the clothes below it do not.
+keyframe saw keeps the portrait build's colour (its fill), except hidden hair: hair no keyframe
+saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyframe did see
+(the back of the head is the colour of the hair around it; the single view's fill there is
+whatever the photo showed in front of it). Gaussians of the bald head bound to the neck are
+left alone: the tracked head turns, the neck and the clothes below it do not.
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
@@ -45,7 +50,11 @@ ALPHA_MIN = 0.5
 #: metres a Gaussian may lie behind the rendered depth and still count as seen
 DEPTH_TOLERANCE = 0.008
 #: views at a grazing angle (cos below this) give no sample
-MIN_COS = 0.25
+MIN_COS = 0.35
+#: samples only this far (share of the image's longer side) inside the skin + hair region
+EDGE_MARGIN = 0.015
+#: hidden hair takes the mean colour of this many nearest seen hair Gaussians
+HAIR_NEIGHBOURS = 8
 #: the reference keyframe's weight factor (the portrait build's view)
 REFERENCE_WEIGHT = 3.0
 #: the person mask is dilated by this share of the image's longer side before the hull test
@@ -129,8 +138,14 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     depth = r.depth[ix[:, 1], ix[:, 0]]
     seen = ok & (alpha > ALPHA_MIN) & (np.asarray(z) <= depth + depth_tolerance)
     if view.labels is not None:
+        import cv2
+
         allowed = (SKIN, HAIR) if sample_labels is None else tuple(sample_labels)
-        seen &= np.isin(view.labels[ix[:, 1], ix[:, 0]], allowed)
+        region = np.isin(view.labels, allowed).astype(np.uint8)
+        e = int(round(EDGE_MARGIN * max(region.shape)))
+        if e > 0:
+            region = cv2.erode(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
+        seen &= region[ix[:, 1], ix[:, 0]] > 0
     to_cam = camera_centre(cam)[None] - np.asarray(gaussians.means, np.float64)
     to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
     cos = np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_cam)
@@ -163,6 +178,22 @@ def blend_colours(current: np.ndarray, samples: list[Samples], keep: np.ndarray 
     out = current.copy()
     out[seen] = (num[seen] / den[seen, None]).astype(np.float32)
     return np.clip(out, 0.0, 1.0), seen
+
+
+def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray, target: np.ndarray,
+                     k: int = HAIR_NEIGHBOURS) -> tuple[np.ndarray, int]:
+    """colours (N, 3) with rows `target` (N,) bool replaced by the mean colour of their k nearest
+    `source` (N,) bool rows (by centre). Returns (colours, rows filled)."""
+    from scipy.spatial import cKDTree
+
+    out = np.asarray(colours, np.float32).copy()
+    if not source.any() or not target.any():
+        return out, 0
+    k = int(min(k, source.sum()))
+    _, idx = cKDTree(np.asarray(means)[source]).query(np.asarray(means)[target], k=k)
+    idx = np.asarray(idx).reshape(int(target.sum()), k)
+    out[target] = out[source][idx].mean(axis=1)
+    return out, int(target.sum())
 
 
 def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SILHOUETTE_MARGIN) -> np.ndarray:
@@ -249,14 +280,18 @@ class VideoViews:
             keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
         samples = [view_samples(both, normals, v) for v in views]
         colours, seen = blend_colours(both.colors, samples, keep)
+        is_hair = np.zeros(len(both), bool)
+        is_hair[len(bald):] = True
+        colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
         seen_by = np.stack([s.seen for s in samples])                  # (V, N)
         figures = {"seen": int(seen.sum()), "of": len(both),
                    "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
+                   "hidden_hair_filled": int(filled),
                    "per_view": [int(s.seen.sum()) for s in samples]}
         both = both.with_colors(colours)
         return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
 
 
-__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "Samples",
+__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "EDGE_MARGIN", "HAIR_NEIGHBOURS", "Samples", "fill_hidden_hair",
            "Keyframe", "VideoViews", "View", "blend_colours", "camera_centre", "keyframe_cameras", "pose_matrix",
            "silhouette_outside", "view_samples"]
