@@ -127,3 +127,24 @@ def test_hidden_hair_takes_the_colour_of_the_nearest_seen_hair():
     np.testing.assert_allclose(out[4], [1, 0, 0])
     np.testing.assert_allclose(out[5], [0, 0, 1])
     np.testing.assert_allclose(out[:4], colours[:4])
+
+
+def test_refine_over_the_reference_view_alone_is_refine_colours():
+    """The multi-view colour matching with one (reference) view is the single-view one."""
+    from avatarkit.recon.assemble import refine_colours
+    from avatarkit.recon.multiview import refine_colours_views
+    from avatarkit.recon.segment import BACKGROUND, SKIN
+
+    rng = np.random.default_rng(1)
+    gs = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    gs = gs.with_colors(rng.random((len(gs), 3)).astype(np.float32))
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    photo = (rng.random((SIZE, SIZE, 3)) * 255).astype(np.uint8)
+    labels = np.full((SIZE, SIZE), BACKGROUND, np.int32)
+    labels[12:52, 12:52] = SKIN
+    normals = np.tile([0.0, 0.0, 1.0], (len(gs), 1))
+    a, fa = refine_colours(gs, cam, photo, labels == SKIN, iterations=3)
+    b, fb = refine_colours_views(gs, normals, [View(photo, cam, labels, 0.7, reference=True)], iterations=3)
+    np.testing.assert_allclose(b.colors, a.colors, atol=1e-5)
+    assert fb["psnr_after"] == pytest.approx(fa["psnr_after"], abs=1e-3)
+    assert fb["psnr_after"] > fb["psnr_before"]

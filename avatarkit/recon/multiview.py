@@ -180,6 +180,73 @@ def blend_colours(current: np.ndarray, samples: list[Samples], keep: np.ndarray 
     return np.clip(out, 0.0, 1.0), seen
 
 
+def refine_colours_views(gaussians, normals: np.ndarray, views: list[View], iterations: int = 4,
+                         step: float = 1.0, min_weight: float = 0.05):
+    """`recon.assemble.refine_colours` over several views: each round renders every labelled
+    view, takes its residual inside the view's skin + hair region and, per Gaussian that shows
+    there (blending weight summed over the region >= min_weight pixels), the residual averaged
+    over its footprint, as refine_colours does; a Gaussian's update is the mean of its views'
+    updates weighted by (1e-3 + cos^2) x sharpness (x `REFERENCE_WEIGHT` for the reference), so
+    with the reference view alone this is refine_colours. Returns (recoloured set, figures:
+    mean PSNR over the views' regions before and after)."""
+    import cv2
+
+    from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
+    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.recon.label_lifting import accumulate_weights
+    from avatarkit.recon.segment import HAIR, SKIN
+    from avatarkit.render import render
+
+    gs = gaussians
+    rgb = gs.colors.astype(np.float32)
+    prep = []
+    for v in views:
+        if v.labels is None:
+            continue
+        cam = v.camera
+        m = np.isin(v.labels, (SKIN, HAIR))
+        target = v.image.astype(np.float32) / 255.0
+        bg = np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32)
+        px, _ = cam.project(gs.means)
+        shows = accumulate_weights(gs, cam, m.astype(np.int32), 2)[:, 1] >= min_weight
+        shows &= np.isfinite(px).all(axis=1)
+        to_cam = camera_centre(cam)[None] - np.asarray(gs.means, np.float64)
+        to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
+        cos = np.clip(np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_cam), 0, 1)
+        w = (1e-3 + cos ** 2) * float(v.sharpness) * (REFERENCE_WEIGHT if v.reference else 1.0)
+        prep.append(dict(cam=cam, m=m, target=target, bg=bg, px=px, shows=shows, w=w, level=None))
+    history = []
+    for it in range(iterations + 1):
+        num = np.zeros((len(gs), 3))
+        den = np.zeros(len(gs))
+        scores = []
+        for p in prep:
+            r = render(gs, p["cam"], background=p["bg"])
+            scores.append(psnr(r.rgb, p["target"], p["m"]))
+            if it == iterations or not p["shows"].any():
+                continue
+            sh = p["shows"]
+            if p["level"] is None:
+                sigma = r.meta["radii"][sh] / 3.0
+                p["level"] = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
+            err = (p["target"] - r.rgb) * p["m"][:, :, None]
+            delta = np.zeros((int(sh.sum()), 3), np.float32)
+            for j, sg in enumerate(_BLUR_SIGMAS):
+                sel = p["level"] == j
+                if sel.any():
+                    e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
+                    delta[sel] = sample_image(e, p["px"][sh][sel])
+            num[sh] += p["w"][sh, None] * delta
+            den[sh] += p["w"][sh]
+        history.append(float(np.mean(scores)) if scores else float("nan"))
+        if it == iterations or not (den > 0).any():
+            break
+        upd = den > 0
+        rgb[upd] = np.clip(rgb[upd] + step * (num[upd] / den[upd, None]).astype(np.float32), 0.0, 1.0)
+        gs = gs.with_colors(rgb)
+    return gs, {"views": len(prep), "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)}
+
+
 def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray, target: np.ndarray,
                      k: int = HAIR_NEIGHBOURS) -> tuple[np.ndarray, int]:
     """colours (N, 3) with rows `target` (N,) bool replaced by the mean colour of their k nearest
@@ -292,6 +359,6 @@ class VideoViews:
         return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
 
 
-__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "EDGE_MARGIN", "HAIR_NEIGHBOURS", "Samples", "fill_hidden_hair",
+__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "EDGE_MARGIN", "HAIR_NEIGHBOURS", "Samples", "fill_hidden_hair", "refine_colours_views",
            "Keyframe", "VideoViews", "View", "blend_colours", "camera_centre", "keyframe_cameras", "pose_matrix",
            "silhouette_outside", "view_samples"]
