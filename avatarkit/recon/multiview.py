@@ -10,7 +10,7 @@ frame, keyframe k sees the avatar's rest frame through
 so every keyframe is registered to the build's own reference camera (`keyframe_cameras`). The
 head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyframes`).
 
-Visibility (`view_samples`): the union of bald and hair Gaussians is rendered from the keyframe's
+Visibility (`view_samples`, with `recon.visibility.seen_from`): the union of bald and hair Gaussians is rendered from the keyframe's
 camera; a Gaussian is seen when its centre projects inside the image onto a pixel with alpha >
 `ALPHA_MIN`, labelled skin or hair in that keyframe's segmentation at least `EDGE_MARGIN` of
 the image away from any other label (a pose a few pixels off would otherwise sample the
@@ -104,8 +104,7 @@ def keyframe_cameras(build_camera: Camera, build_pose: np.ndarray, reference_pos
 
 def camera_centre(camera: Camera) -> np.ndarray:
     """(3,) the camera's position in its world."""
-    w2c = np.asarray(camera.world_to_camera, np.float64)
-    return -w2c[:3, :3].T @ w2c[:3, 3]
+    return np.asarray(camera.camera_center, np.float64)
 
 
 @dataclass
@@ -125,18 +124,16 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     (default skin and hair; None labels in the view: every pixel)."""
     from avatarkit.recon.image_sampling import sample_image
     from avatarkit.recon.segment import HAIR, SKIN
+    from avatarkit.recon.visibility import seen_from
     from avatarkit.render import render
 
     cam = view.camera
     r = render_result if render_result is not None else render(gaussians, cam, background=(0.0, 0.0, 0.0))
-    px, z = cam.project(gaussians.means)
+    seen, px, cos = seen_from(np.asarray(gaussians.means, np.float64), np.asarray(normals, np.float64), cam,
+                              r.depth, cam, tol=depth_tolerance, min_facing=MIN_COS)
     px = np.asarray(px, np.float64)
-    ok = np.isfinite(px).all(axis=1) & (np.asarray(z) > 0)
-    ok &= (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
-    ix = np.clip(np.floor(np.where(ok[:, None], px, 0)).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
-    alpha = r.alpha[ix[:, 1], ix[:, 0]]
-    depth = r.depth[ix[:, 1], ix[:, 0]]
-    seen = ok & (alpha > ALPHA_MIN) & (np.asarray(z) <= depth + depth_tolerance)
+    ix = np.clip(np.floor(np.where(np.isfinite(px), px, 0)).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
+    seen &= r.alpha[ix[:, 1], ix[:, 0]] > ALPHA_MIN
     if view.labels is not None:
         import cv2
 
@@ -146,10 +143,6 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
         if e > 0:
             region = cv2.erode(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
         seen &= region[ix[:, 1], ix[:, 0]] > 0
-    to_cam = camera_centre(cam)[None] - np.asarray(gaussians.means, np.float64)
-    to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
-    cos = np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_cam)
-    seen &= cos >= MIN_COS
     weight = np.where(seen, np.clip(cos, 0, 1) ** 2 * float(view.sharpness), 0.0)
     weight *= REFERENCE_WEIGHT if view.reference else 1.0
     colour = np.zeros((len(gaussians), 3), np.float32)
