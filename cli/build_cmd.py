@@ -37,16 +37,21 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--n-hair", type=click.IntRange(min=100), default=40_000, show_default=True,
               help="Hair Gaussians, at most (built-in lifter).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Varies the sampling.")
-@click.option("--frame", type=click.IntRange(min=0), help="PORTRAIT is a video: build from this frame "
-              "(0-based; default: the most frontal frame with a neutral mouth, from a tracking).")
+@click.option("--frame", type=click.IntRange(min=0), help="PORTRAIT is a video: build from this one frame "
+              "only (0-based). Default: build from the whole video (see --keyframes).")
+@click.option("--keyframes", type=click.IntRange(min=1, max=24), default=6, show_default=True,
+              help="PORTRAIT is a video: fuse at most this many keyframes chosen by head pose "
+              "(1: the single most frontal neutral frame).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
               face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
-              preview, quiet):
+              keyframes, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
-    one frame of a PORTRAIT video (MP4, MOV, MKV, AVI, WebM; see --frame).
+    a PORTRAIT video (MP4, MOV, MKV, AVI, WebM): by default from the whole video (tracked;
+    keyframes covering the head's turns give the identity shape, colours and hair bounds;
+    docs/video-build.md), with --frame N from that one frame.
 
     Writes the avatar folder (avatar.json, bald.ply, hair.ply, cage.ply, rig.npz, previews)
     atomically: on any error nothing is left under OUTPUT.
@@ -57,6 +62,7 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
       avatarkit build me.jpg -o me --hair-mask me_hair.png
       avatarkit build me.jpg -o me --head-splats head.ply --bald-splats bald.ply
       avatarkit build me.jpg -o me --head-model ~/flame/generic_model.pkl --flame-params track.npz
+      avatarkit build turn.mp4 -o me
       avatarkit build talk.mp4 -o me --frame 40
     """
     import time
@@ -82,6 +88,19 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
     from avatarkit.track.build_frame import is_video
 
     source = None
+    if frame is None and is_video(portrait):
+        from avatarkit.track.video_build import build_video_avatar
+
+        if not quiet:
+            click.echo("tracking the video ...", err=True)
+        try:
+            avatar = build_video_avatar(portrait, options, keyframes=keyframes, progress=progress)
+        except BaseException:
+            if not quiet:
+                click.echo(" failed", err=True)
+            raise
+        _finish(avatar, output, quiet, t0)
+        return
     if frame is not None or is_video(portrait):
         # a video: the chosen frame goes through a temporary PNG into the same portrait build
         import tempfile
@@ -110,8 +129,20 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
     if source is not None:
         tmp.cleanup()
         avatar.provenance["source_video"] = source
+    _finish(avatar, output, quiet, t0)
+
+
+def _finish(avatar, output, quiet, t0):
+    import time
+
+    from avatarkit.recon.pipeline import save_avatar
+
     path = save_avatar(avatar, output)
     if not quiet:
+        video = avatar.provenance.get("source_video") or {}
+        if video.get("keyframes"):
+            frames = ", ".join(str(k["frame"]) for k in video["keyframes"])
+            click.echo(f"keyframes: {frames} (reference {video['frame']}; {video.get('mode')})", err=True)
         build = avatar.provenance.get("build", {})
         for w in build.get("warnings", []):
             click.echo(f"warning: {w}", err=True)

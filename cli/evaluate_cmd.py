@@ -13,32 +13,40 @@ from avatarkit.cli.options import cli_warnings, quiet_option
               "avatar in avatar/). An earlier report there is replaced.")
 @click.option("--avatar", type=click.Path(file_okay=False),
               help="Evaluate this avatar instead of building one from the video.")
-@click.option("--build-frame", type=click.IntRange(min=0), help="Video frame to build from (default: "
-              "the most frontal frame with a neutral mouth, from a tracking). With --avatar: the "
+@click.option("--build-frame", type=click.IntRange(min=0), help="Build from this one video frame "
+              "(default: build from the whole video, as `avatarkit build VIDEO`). With --avatar: the "
               "frame it was built from, excluded with its neighbours.")
+@click.option("--compare-single", is_flag=True, help="Also build from the video build's reference "
+              "frame alone and report that single-frame build on the same held-out frames.")
 @click.option("--exclude", type=click.IntRange(min=0), default=5, show_default=True,
-              help="Frames either side of the build frame left out of the summary.")
+              help="Frames either side of the build frame (and of every keyframe of a video "
+              "build) left out of the summary.")
 @click.option("--simulate-hair", is_flag=True, help="Simulate the hair in the bake (default: it "
               "rides the head rigidly).")
 @click.option("--side-by-side/--no-side-by-side", default=True, show_default=True,
               help="Write side_by_side.mp4 (video | our render | error heat map).")
 @quiet_option
-def evaluate_cmd(video, output, avatar, build_frame, exclude, simulate_hair, side_by_side, quiet):
-    """Self-reenactment: build an avatar from one frame of VIDEO, drive it with the motion tracked
-    from the whole video, render every frame from the tracked camera and compare with the video
+def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, simulate_hair, side_by_side,
+                 quiet):
+    """Self-reenactment: build an avatar from VIDEO (or one frame of it), drive it with the motion
+    tracked from the whole video, render every frame from the tracked camera and compare with the video
     (PSNR and SSIM on the person region, face-mesh landmark error). See docs/evaluation.md.
 
     \b
     Examples:
       avatarkit evaluate talk.mp4 -o talk_eval
       avatarkit evaluate talk.mp4 -o talk_eval --avatar me/ --build-frame 40
+      avatarkit evaluate turn.mp4 -o turn_eval --compare-single
     """
     from avatarkit.cli.track_cmd import _LazyBar
     from avatarkit.track.evaluate import EvalOptions, check_report_target, evaluate
 
     check_report_target(output)
+    if compare_single and (avatar is not None or build_frame is not None):
+        raise click.UsageError("--compare-single compares the video build with the single-frame build: "
+                               "it does not go with --avatar or --build-frame")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
-                          side_by_side=side_by_side)
+                          side_by_side=side_by_side, compare_single=compare_single)
     current: dict = {}           # the stage whose bar is shown (one bar per stage, in turn)
 
     def progress(stage, done, total):
@@ -64,4 +72,8 @@ def evaluate_cmd(video, output, avatar, build_frame, exclude, simulate_hair, sid
                    f"SSIM {f(s['ssim'], '.3f')} (person region); whole frame PSNR {f(s['psnr_full'], '.2f')}, "
                    f"SSIM {f(s['ssim_full'], '.3f')}; landmark error {f(s['landmark_error_px'], '.2f')} px "
                    "(median); LPIPS not reported", err=True)
+        one = s.get("single_frame")
+        if one:
+            click.echo(f"single-frame build on the same frames: PSNR {f(one['psnr'], '.2f')} dB, SSIM "
+                       f"{f(one['ssim'], '.3f')}; whole frame PSNR {f(one['psnr_full'], '.2f')}", err=True)
         click.echo(f"wrote {output}", err=True)

@@ -5,6 +5,9 @@
     save_tracking / load_tracking              io.py: the clip .npz with camera and confidence
     whittaker                                  smooth.py: zero-lag smoothing
     eyes_pose                                  gaze.py: eye rotations from the iris
+    choose_keyframes                           keyframes.py: a video build's keyframes by head pose
+    fit_joint_identity                         joint_identity.py: one shape over several views
+    build_video_avatar                         video_build.py: `avatarkit build VIDEO`
 """
 from avatarkit.track.io import load_tracking, save_tracking
 from avatarkit.track.smooth import whittaker

@@ -3,9 +3,12 @@ drive it with the motion tracked from the whole video, render every frame from t
 camera and compare with the video.
 
 Steps (`evaluate`):
-1. The avatar: given (`avatar=`), or built from frame `build_frame` of the video (default:
-   `build_frame.choose_build_frame` on a tracking of the video with the template head) by the
-   portrait build (`recon.pipeline.build_avatar`), saved under REPORT_DIR/avatar.
+1. The avatar: given (`avatar=`), built from frame `build_frame` of the video by the portrait
+   build (`recon.pipeline.build_avatar`), or (neither given) built from the whole video
+   (`track.video_build`, as `avatarkit build VIDEO` does), saved under REPORT_DIR/avatar. With
+   `compare_single` the single-frame build of the video build's reference frame is made too
+   (REPORT_DIR/avatar_single_frame) and evaluated on the same frames: the summary's
+   `single_frame` entry.
 2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
    When step 1 tracked the video to choose the frame, its face meshes are reused (`meshes=`:
@@ -17,8 +20,8 @@ Steps (`evaluate`):
    computed on the mask's bounding box, `metrics.region_metrics`: the same numbers), and the
    landmark error: the face mesh detected on our render against the one detected on the video
    (median pixels over the 468 points, and that divided by the video face's eye distance).
-   Frames within `exclude` frames of the build frame are reported but left out of the summary
-   (the avatar saw them). LPIPS is not computed: it needs network weights we cannot ship.
+   Frames within `exclude` frames of the build frame, or of any keyframe of a video build, are
+   reported but left out of the summary (the avatar saw them); the same frames for both builds. LPIPS is not computed: it needs network weights we cannot ship.
 5. Outputs in REPORT_DIR: metrics.json (summary + settings), frames.csv (one row per frame),
    side_by_side.mp4 (video | our render | error heat map), written into a temporary folder and
    renamed into place at the end (nothing half-written on failure or Ctrl-C).
@@ -65,6 +68,7 @@ class EvalOptions:
     side_by_side: bool = True
     n_bald: int = 40_000
     n_hair: int = 40_000
+    compare_single: bool = False
 
 
 @dataclass
@@ -170,10 +174,28 @@ def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarr
     return vals, theirs, mask
 
 
+def _build_video(video: str, report: Path, options: EvalOptions,
+                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int]]:
+    """The whole-video build into report/avatar -> (folder, reference frame, keyframes)."""
+    from avatarkit.recon.pipeline import BuildOptions, save_avatar
+    from avatarkit.track.video_build import build_video_avatar
+
+    t0 = time.perf_counter()
+    target = report / "avatar"
+    avatar = build_video_avatar(video, BuildOptions(preview=False, n_bald=options.n_bald, n_hair=options.n_hair),
+                                track_progress=(lambda d, t: progress("tracking for the build", d, t))
+                                if progress else None)
+    save_avatar(avatar, target)
+    timings["build"] = time.perf_counter() - t0
+    src = avatar.provenance["source_video"]
+    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]]
+
+
 def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
-           progress: Progress | None, timings: dict) -> tuple[Path, int, object]:
-    """Build the avatar into report/avatar -> (folder, build frame, the template tracking that
-    chose the frame or None). The tracking's face meshes are reused by the second tracking."""
+           progress: Progress | None, timings: dict, name: str = "avatar") -> tuple[Path, int, object]:
+    """Build the avatar from one frame into report/name -> (folder, build frame, the template
+    tracking that chose the frame or None). The tracking's face meshes are reused by the second
+    tracking."""
     from avatarkit.track.build_frame import build_from_video, choose_build_frame
     from avatarkit.track.video import track_video
 
@@ -185,7 +207,7 @@ def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
         frame = choose_build_frame(tracking)
     timings["choose_frame"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    target = report / "avatar"
+    target = report / name
     index = build_from_video(video, target, frame, n_bald=options.n_bald, n_hair=options.n_hair)
     timings["build"] = time.perf_counter() - t0
     return target, index, tracking
@@ -218,7 +240,11 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
     with atomic_folder(target) as staged:   # tag "partial": swept if a run dies
         build_frame = options.build_frame
         tracking = None
-        if avatar is None:
+        keyframes: list[int] = []
+        if avatar is None and build_frame is None:
+            avatar_dir, build_frame, keyframes = _build_video(video, staged, options, progress, timings)
+            built = True
+        elif avatar is None:
             avatar_dir, build_frame, tracking = _build(video, staged, build_frame, options, progress, timings)
             built = True
         else:
@@ -232,13 +258,32 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         result = track_video(video, avatar=avatar_dir, progress=step,
                              meshes=tracking.meshes if tracking is not None else None)
         timings["track"] = time.perf_counter() - t0
-        frames, rest = render_and_compare(video, avatar_dir, result, build_frame, options, staged, progress)
+        centres = sorted(set(keyframes) | ({build_frame} if build_frame is not None else set()))
+        frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
         timings.update(rest)
         summary = summarise(frames)
+        if options.compare_single:
+            if not keyframes:
+                from avatarkit.errors import InputError
+
+                raise InputError("comparing with the single-frame build needs the video build "
+                                 "(no --avatar, no --build-frame)")
+            t0 = time.perf_counter()
+            single_dir, _, _ = _build(video, staged, build_frame, options, None, {}, "avatar_single_frame")
+            single_result = track_video(video, avatar=single_dir,
+                                        progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
+                                        if progress else None)
+            single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
+            single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
+                                                  staged, progress)
+            summary["single_frame"] = {k: _json_value(v) for k, v in summarise(single_frames).items()}
+            timings["single_frame"] = time.perf_counter() - t0
         settings = {
             "video": os.path.abspath(video), "width": info.width, "height": info.height,
             "fps": result.clip.fps, "avatar": "built (REPORT_DIR/avatar)" if built else os.path.abspath(avatar_dir),
-            "build_frame": build_frame, "exclude": options.exclude,
+            "build_frame": build_frame, "keyframes": keyframes,
+            "build": ("video (keyframes fused)" if keyframes else "single frame" if built else "given"),
+            "exclude": options.exclude,
             "mask": f"render alpha > {options.alpha_threshold} (same mask for both images)",
             "background": list(options.background),
             "ssim": {k: v for k, v in metrics.SSIM_SETTINGS.items()},
@@ -251,10 +296,11 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
     return report
 
 
-def render_and_compare(video, avatar_dir, result, build_frame: int | None, options: EvalOptions,
+def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOptions,
                        staged: Path, progress: Progress | None = None) -> tuple[list[FrameMetrics], dict]:
     """Bake `result.clip` (a TrackResult) on the avatar, render each frame with `result.camera`,
     compare with the video's frame `result.frame_index[i]`; side_by_side.mp4 into `staged`.
+    build_frame: a frame number or a list of them (keyframes) whose neighbours are excluded.
     -> (per-frame metrics, seconds per stage)."""
     from avatarkit.avatar import load_avatar
     from avatarkit.bake import BakeConfig, bake
@@ -271,6 +317,7 @@ def render_and_compare(video, avatar_dir, result, build_frame: int | None, optio
     T = result.num_frames
     index = np.asarray(result.frame_index, np.int64)
     follower = MeshFollower()
+    centres = np.asarray([] if build_frame is None else np.atleast_1d(build_frame), np.int64)
     rows: list[FrameMetrics] = []
     writer = VideoWriter(staged / "side_by_side.mp4", fps=result.clip.fps) if options.side_by_side else None
     try:
@@ -298,7 +345,7 @@ def render_and_compare(video, avatar_dir, result, build_frame: int | None, optio
                 err = metrics.landmark_error(mesh, video_mesh)
                 iod = metrics.interocular(video_mesh) if video_mesh is not None else float("nan")
                 t4 = time.perf_counter()
-                excluded = build_frame is not None and abs(int(index[i]) - int(build_frame)) <= options.exclude
+                excluded = bool(len(centres)) and int(np.abs(centres - int(index[i])).min()) <= options.exclude
                 rows.append(FrameMetrics(i, int(index[i]), bool(excluded), bool(result.found[i]),
                                          float(result.confidence[i]), vals["mask_fraction"], vals["psnr"],
                                          vals["ssim"], vals["psnr_full"], vals["ssim_full"], err,

@@ -1,0 +1,357 @@
+"""Several calibrated views of the rest avatar (a video build's keyframes): cameras, visibility,
+multi-view colour, hair label votes and the silhouette bound on the hair.
+
+Cameras. The keyframes' head poses come from the joint identity fit (`track.joint_identity`) in
+`face.fit`'s view frame (X_view = M_k X_head, camera at the origin). The portrait build fits the
+reference keyframe again (`recon.fit`, with landmarks, face width and silhouette) and the
+avatar lives in that fit's head frame, M_b. With M_r the joint fit's pose of the same reference
+frame, keyframe k sees the avatar's rest frame through
+    X_view_k = M_k M_r^-1 M_b X_avatar
+so every keyframe is registered to the build's own reference camera (`keyframe_cameras`). The
+head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyframes`).
+
+Visibility (`view_samples`, with `recon.visibility.seen_from`): the union of bald and hair Gaussians is rendered from the keyframe's
+camera; a Gaussian is seen when its centre projects inside the image onto a pixel with alpha >
+`ALPHA_MIN`, labelled skin or hair in that keyframe's segmentation at least `EDGE_MARGIN` of
+the image away from any other label (a pose a few pixels off would otherwise sample the
+background or the clothes at the silhouette), and its camera depth is at
+most the rendered depth there + `DEPTH_TOLERANCE` (the render's depth is the alpha-weighted
+expected depth of the front surface). A seen Gaussian's sample is the keyframe image at its
+projection (bilinear); its weight is cos(angle between the surface normal and the direction to
+the camera)^2 x the keyframe's sharpness, zero below `MIN_COS` (grazing views smear).
+Normals are the head SDF's gradient at the Gaussian: the bald head's surface normal, and for hair
+the direction away from the head (the shell's outward direction).
+
+Colour (`blend_colours`): each Gaussian's colour = the weighted mean of its samples over the
+keyframes, the reference view's weight multiplied by `REFERENCE_WEIGHT` (the portrait build's
+colours, matched to the reference photo afterwards, keep priority on the face); a Gaussian no
+keyframe saw keeps the portrait build's colour (its fill), except hidden hair: hair no keyframe
+saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyframe did see
+(the back of the head is the colour of the hair around it; the single view's fill there is
+whatever the photo showed in front of it). Gaussians of the bald head bound to the neck are
+left alone: the tracked head turns, the neck and the clothes below it do not.
+
+Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
+lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
+whose centre projects inside a keyframe's image but outside that keyframe's person mask
+(segmentation label != background, dilated by `SILHOUETTE_MARGIN` of the image's longer side to
+absorb the poses' error) is outside the visual hull and is removed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from avatarkit.render.camera import Camera
+
+#: a pixel with less rendered alpha shows no surface
+ALPHA_MIN = 0.5
+#: metres a Gaussian may lie behind the rendered depth and still count as seen
+DEPTH_TOLERANCE = 0.008
+#: views at a grazing angle (cos below this) give no sample
+MIN_COS = 0.35
+#: samples only this far (share of the image's longer side) inside the skin + hair region
+EDGE_MARGIN = 0.015
+#: hidden hair takes the mean colour of this many nearest seen hair Gaussians
+HAIR_NEIGHBOURS = 8
+#: the reference keyframe's weight factor (the portrait build's view)
+REFERENCE_WEIGHT = 3.0
+#: the person mask is dilated by this share of the image's longer side before the hull test
+SILHOUETTE_MARGIN = 0.02
+
+_CV = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass
+class View:
+    """One keyframe seen by the rest avatar: image (H, W, 3) uint8; camera (rest frame ->
+    image); labels (H, W) int32 segmentation (None: not segmented); sharpness in [0, 1];
+    frame: the video frame number; reference: the portrait build's view."""
+
+    image: np.ndarray
+    camera: Camera
+    labels: np.ndarray | None = None
+    sharpness: float = 1.0
+    frame: int = -1
+    reference: bool = False
+    info: dict = field(default_factory=dict)
+
+
+def pose_matrix(rotation, translation) -> np.ndarray:
+    """(4, 4) X_view = R X + t from axis-angle rotation (3,) and translation (3,)."""
+    from avatarkit.rotations import axis_angle_to_matrix
+
+    m = np.eye(4)
+    m[:3, :3] = axis_angle_to_matrix(np.asarray(rotation, np.float64))
+    m[:3, 3] = np.asarray(translation, np.float64)
+    return m
+
+
+def keyframe_cameras(build_camera: Camera, build_pose: np.ndarray, reference_pose: np.ndarray,
+                     poses: list[np.ndarray]) -> list[Camera]:
+    """Cameras of the avatar's rest frame for keyframe poses (4, 4) (module docstring): the
+    build's camera intrinsics, extrinsics C M_k M_r^-1 M_b. build_pose: M_b; reference_pose: M_r."""
+    fix = np.linalg.inv(reference_pose) @ build_pose
+    out = []
+    for m in poses:
+        w2c = np.eye(4)
+        w2c[:3] = (np.diag([1.0, -1.0, -1.0, 1.0]) @ m @ fix)[:3]
+        c = build_camera
+        out.append(Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height, w2c))
+    return out
+
+
+def camera_centre(camera: Camera) -> np.ndarray:
+    """(3,) the camera's position in its world."""
+    return np.asarray(camera.camera_center, np.float64)
+
+
+@dataclass
+class Samples:
+    """One view's samples: seen (N,) bool; weight (N,) float64 (0 where not seen); colour (N, 3)
+    float32 in [0, 1] (valid where seen)."""
+
+    seen: np.ndarray
+    weight: np.ndarray
+    colour: np.ndarray
+
+
+def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
+                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None) -> Samples:
+    """Visibility, weight and colour of every Gaussian in one view (module docstring).
+    normals: (N, 3) unit outward normals. sample_labels: labels whose pixels may be sampled
+    (default skin and hair; None labels in the view: every pixel)."""
+    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.recon.segment import HAIR, SKIN
+    from avatarkit.recon.visibility import seen_from
+    from avatarkit.render import render
+
+    cam = view.camera
+    r = render_result if render_result is not None else render(gaussians, cam, background=(0.0, 0.0, 0.0))
+    seen, px, cos = seen_from(np.asarray(gaussians.means, np.float64), np.asarray(normals, np.float64), cam,
+                              r.depth, cam, tol=depth_tolerance, min_facing=MIN_COS)
+    px = np.asarray(px, np.float64)
+    ix = np.clip(np.floor(np.where(np.isfinite(px), px, 0)).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
+    seen &= r.alpha[ix[:, 1], ix[:, 0]] > ALPHA_MIN
+    if view.labels is not None:
+        import cv2
+
+        allowed = (SKIN, HAIR) if sample_labels is None else tuple(sample_labels)
+        region = np.isin(view.labels, allowed).astype(np.uint8)
+        e = int(round(EDGE_MARGIN * max(region.shape)))
+        if e > 0:
+            region = cv2.erode(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
+        seen &= region[ix[:, 1], ix[:, 0]] > 0
+    weight = np.where(seen, np.clip(cos, 0, 1) ** 2 * float(view.sharpness), 0.0)
+    weight *= REFERENCE_WEIGHT if view.reference else 1.0
+    colour = np.zeros((len(gaussians), 3), np.float32)
+    if seen.any():
+        colour[seen] = sample_image(view.image.astype(np.float32) / 255.0, px[seen])
+    return Samples(seen, weight, colour)
+
+
+def blend_colours(current: np.ndarray, samples: list[Samples], keep: np.ndarray | None = None,
+                  current_weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) colours: the weighted mean of the views' samples where any view saw the Gaussian,
+    `current` elsewhere and where `keep` (N,) bool. current_weight: (N,) weight of `current`
+    in the mean (default 0). Returns (colours, seen (N,) bool)."""
+    current = np.asarray(current, np.float32)
+    num = np.zeros((len(current), 3))
+    den = np.zeros(len(current))
+    for s in samples:
+        num += s.weight[:, None] * s.colour
+        den += s.weight
+    seen = den > 0
+    if keep is not None:
+        seen &= ~np.asarray(keep, bool)
+    if current_weight is not None:
+        num += current_weight[:, None] * current
+        den += current_weight
+    out = current.copy()
+    out[seen] = (num[seen] / den[seen, None]).astype(np.float32)
+    return np.clip(out, 0.0, 1.0), seen
+
+
+def refine_colours_views(gaussians, normals: np.ndarray, views: list[View], iterations: int = 4,
+                         step: float = 1.0, min_weight: float = 0.05):
+    """`recon.assemble.refine_colours` over several views: each round renders every labelled
+    view, takes its residual inside the view's skin + hair region and, per Gaussian that shows
+    there (blending weight summed over the region >= min_weight pixels), the residual averaged
+    over its footprint, as refine_colours does; a Gaussian's update is the mean of its views'
+    updates weighted by (1e-3 + cos^2) x sharpness (x `REFERENCE_WEIGHT` for the reference), so
+    with the reference view alone this is refine_colours. Returns (recoloured set, figures:
+    mean PSNR over the views' regions before and after)."""
+    import cv2
+
+    from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
+    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.recon.label_lifting import accumulate_weights
+    from avatarkit.recon.segment import HAIR, SKIN
+    from avatarkit.render import render
+
+    gs = gaussians
+    rgb = gs.colors.astype(np.float32)
+    prep = []
+    for v in views:
+        if v.labels is None:
+            continue
+        cam = v.camera
+        m = np.isin(v.labels, (SKIN, HAIR))
+        target = v.image.astype(np.float32) / 255.0
+        bg = np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32)
+        px, _ = cam.project(gs.means)
+        shows = accumulate_weights(gs, cam, m.astype(np.int32), 2)[:, 1] >= min_weight
+        shows &= np.isfinite(px).all(axis=1)
+        to_cam = camera_centre(cam)[None] - np.asarray(gs.means, np.float64)
+        to_cam /= np.maximum(np.linalg.norm(to_cam, axis=1, keepdims=True), 1e-12)
+        cos = np.clip(np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_cam), 0, 1)
+        w = (1e-3 + cos ** 2) * float(v.sharpness) * (REFERENCE_WEIGHT if v.reference else 1.0)
+        prep.append(dict(cam=cam, m=m, target=target, bg=bg, px=px, shows=shows, w=w, level=None))
+    history = []
+    for it in range(iterations + 1):
+        num = np.zeros((len(gs), 3))
+        den = np.zeros(len(gs))
+        scores = []
+        for p in prep:
+            r = render(gs, p["cam"], background=p["bg"])
+            scores.append(psnr(r.rgb, p["target"], p["m"]))
+            if it == iterations or not p["shows"].any():
+                continue
+            sh = p["shows"]
+            if p["level"] is None:
+                sigma = r.meta["radii"][sh] / 3.0
+                p["level"] = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
+            err = (p["target"] - r.rgb) * p["m"][:, :, None]
+            delta = np.zeros((int(sh.sum()), 3), np.float32)
+            for j, sg in enumerate(_BLUR_SIGMAS):
+                sel = p["level"] == j
+                if sel.any():
+                    e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
+                    delta[sel] = sample_image(e, p["px"][sh][sel])
+            num[sh] += p["w"][sh, None] * delta
+            den[sh] += p["w"][sh]
+        history.append(float(np.mean(scores)) if scores else float("nan"))
+        if it == iterations or not (den > 0).any():
+            break
+        upd = den > 0
+        rgb[upd] = np.clip(rgb[upd] + step * (num[upd] / den[upd, None]).astype(np.float32), 0.0, 1.0)
+        gs = gs.with_colors(rgb)
+    return gs, {"views": len(prep), "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)}
+
+
+def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray, target: np.ndarray,
+                     k: int = HAIR_NEIGHBOURS) -> tuple[np.ndarray, int]:
+    """colours (N, 3) with rows `target` (N,) bool replaced by the mean colour of their k nearest
+    `source` (N,) bool rows (by centre). Returns (colours, rows filled)."""
+    from scipy.spatial import cKDTree
+
+    out = np.asarray(colours, np.float32).copy()
+    if not source.any() or not target.any():
+        return out, 0
+    k = int(min(k, source.sum()))
+    _, idx = cKDTree(np.asarray(means)[source]).query(np.asarray(means)[target], k=k)
+    idx = np.asarray(idx).reshape(int(target.sum()), k)
+    out[target] = out[source][idx].mean(axis=1)
+    return out, int(target.sum())
+
+
+def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SILHOUETTE_MARGIN) -> np.ndarray:
+    """(P,) int: in how many labelled views the point projects inside the image but outside
+    the dilated person mask (module docstring)."""
+    import cv2
+
+    from avatarkit.recon.segment import BACKGROUND
+
+    count = np.zeros(len(points), np.int64)
+    for v in views:
+        if v.labels is None:
+            continue
+        person = (v.labels != BACKGROUND).astype(np.uint8)
+        r = max(1, int(round(margin * max(person.shape))))
+        person = cv2.dilate(person, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        px, z = v.camera.project(points)
+        px = np.asarray(px, np.float64)
+        h, w = person.shape
+        inside = np.isfinite(px).all(axis=1) & (np.asarray(z) > 0)
+        inside &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        ix = np.clip(np.floor(np.where(inside[:, None], px, 0)).astype(np.int64), 0, [w - 1, h - 1])
+        count += inside & (person[ix[:, 1], ix[:, 0]] == 0)
+    return count
+
+
+@dataclass
+class Keyframe:
+    """A keyframe as the video build hands it over: image (H, W, 3) uint8; pose (4, 4) the
+    joint fit's head pose in the view frame; sharpness in [0, 1]; frame: video frame number."""
+
+    image: np.ndarray
+    pose: np.ndarray
+    sharpness: float
+    frame: int
+
+
+@dataclass
+class VideoViews:
+    """What a video build passes to `build_avatar`: shape (S,) the joint identity; keyframes:
+    the reference first (its image is the portrait being built); info: figures for the report."""
+
+    shape: np.ndarray
+    keyframes: list[Keyframe]
+    info: dict = field(default_factory=dict)
+
+    def register(self, fit, image: np.ndarray, labels: np.ndarray, options=None) -> list[View]:
+        """The keyframes as `View`s of the fitted rest head (`keyframe_cameras`), each other
+        keyframe segmented (`recon.segment`); a keyframe whose face the portrait analysis does
+        not find keeps no labels (it still gives colours) and a warning."""
+        from avatarkit.errors import AvatarKitError
+        from avatarkit.recon.portrait import analyze_portrait
+        from avatarkit.recon.segment import segment_portrait
+
+        ref = self.keyframes[0]
+        cams = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), ref.pose,
+                                [k.pose for k in self.keyframes])
+        detector = getattr(options, "face_detector", "auto")
+        views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True)]
+        for k, cam in zip(self.keyframes[1:], cams[1:]):
+            v = View(k.image, cam, None, k.sharpness, k.frame, False)
+            try:
+                analysis = analyze_portrait(k.image, None, detector=detector)
+                v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
+            except AvatarKitError as e:
+                v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
+            views.append(v)
+        return views
+
+    def summary(self, views: list[View]) -> dict:
+        return {**self.info, "views": len(views), "segmented": int(sum(v.labels is not None for v in views))}
+
+    def colour(self, bald, hair, views: list[View], fit, sdf):
+        """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
+        figures)."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+
+        both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+        _, normals = sdf.query(both.means)
+        keep = np.zeros(len(both), bool)
+        model = fit.model
+        if "neck" in model.regions and "binding" in bald.extras:
+            neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
+            keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
+        samples = [view_samples(both, normals, v) for v in views]
+        colours, seen = blend_colours(both.colors, samples, keep)
+        is_hair = np.zeros(len(both), bool)
+        is_hair[len(bald):] = True
+        colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
+        seen_by = np.stack([s.seen for s in samples])                  # (V, N)
+        figures = {"seen": int(seen.sum()), "of": len(both),
+                   "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
+                   "hidden_hair_filled": int(filled),
+                   "per_view": [int(s.seen.sum()) for s in samples]}
+        both = both.with_colors(colours)
+        return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
+
+
+__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "EDGE_MARGIN", "HAIR_NEIGHBOURS", "Samples", "fill_hidden_hair", "refine_colours_views",
+           "Keyframe", "VideoViews", "View", "blend_colours", "camera_centre", "keyframe_cameras", "pose_matrix",
+           "silhouette_outside", "view_samples"]

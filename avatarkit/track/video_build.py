@@ -1,0 +1,110 @@
+"""Build an avatar from a whole video (`avatarkit build VIDEO`): every keyframe the tracker saw.
+
+Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
+
+    track      the video with the template head (or --head-model)      track.video
+    keyframes  face sharpness of every frame; keyframes by head pose    track.keyframes
+    identity   one identity shape over the keyframes' landmarks         track.joint_identity
+    (build)    the portrait build of the reference keyframe with that   recon.pipeline
+               shape and the keyframes as extra views                   recon.multiview
+
+A video whose head never turns gives one keyframe: the build is then exactly the single-frame
+build of that frame (`build VIDEO --frame N`), and the report says so.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+#: expression coefficients fitted per keyframe in the joint identity fit (the keyframes are
+#: chosen neutral; a few absorb what is left of a smile)
+IDENTITY_EXPR = 10
+
+
+def joint_identity(result, keyframes, size: tuple[int, int]):
+    """`track.joint_identity.JointFit` over the keyframes of a TrackResult (its model's
+    identity coefficients, at most `recon.fit.FLAME_SHAPE_COMPONENTS` of a FLAME model)."""
+    from avatarkit.face.fit import LandmarkModel
+    from avatarkit.recon.fit import FLAME_SHAPE_COMPONENTS
+    from avatarkit.track.joint_identity import fit_joint_identity, targets_from_points
+    from avatarkit.track.solve import FrameProblem
+    from avatarkit.track.tracker import model_embedding
+
+    model = result.model
+    emb = model_embedding(model)
+    lm = LandmarkModel(model, emb)
+    S = model.num_shape if model.name == "template" else min(model.num_shape, FLAME_SHAPE_COMPONENTS)
+    problem = FrameProblem.from_landmark_model(lm, np.zeros(model.num_shape), min(IDENTITY_EXPR, model.num_expr),
+                                               shape_components=S)
+    idx = keyframes.clip_index
+    targets = [targets_from_points(result.landmarks[t], emb, size) for t in idx]
+    focal = float(result.camera.fx)
+    return fit_joint_identity(problem, targets, focal, result.raw["rotation"][idx],
+                              result.raw["translation"][idx], np.asarray(result.clip.shape, np.float64)[:S])
+
+
+def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
+                       progress=None, track_progress: Callable[[int, int], None] | None = None):
+    """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
+    keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
+    build's stage callback; track_progress(done, total) per tracked frame. The provenance gets
+    `source_video` {video, frame (the reference), keyframes, mode}."""
+    from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
+    from avatarkit.recon.pipeline import BuildOptions, build_avatar
+    from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness
+    from avatarkit.track.tracker import TrackOptions
+    from avatarkit.track.video import track_video
+
+    options = options or BuildOptions()
+    options.check()
+    video = os.fspath(video)
+    timings = {}
+    t0 = time.perf_counter()
+    result = track_video(video, head_model=options.head_model, landmark_embedding=options.landmark_embedding,
+                         options=TrackOptions(face_index=options.face_index or 0), progress=track_progress)
+    timings["track"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sharp = video_sharpness(video, result)
+    kf = choose_keyframes(result, sharp, KEYFRAMES if keyframes is None else int(keyframes))
+    images = read_frames(video, kf.frame_index)
+    timings["keyframes"] = time.perf_counter() - t0
+    ref_frame = int(kf.frame_index[0])
+    source = {"video": os.path.abspath(video), "frame": ref_frame, "mode": "video",
+              "keyframes": kf.summary()}
+    views = None
+    if len(kf) > 1:
+        t0 = time.perf_counter()
+        size = (result.camera.width, result.camera.height)
+        jf = joint_identity(result, kf, size)
+        shape = np.zeros(result.model.num_shape)
+        shape[:len(jf.shape)] = jf.shape
+        timings["identity"] = time.perf_counter() - t0
+        views = VideoViews(shape, [Keyframe(images[int(f)], pose_matrix(jf.rotation[k], jf.translation[k]),
+                                            float(kf.sharpness[k]), int(f))
+                                   for k, f in enumerate(kf.frame_index)],
+                           {"keyframes": [int(f) for f in kf.frame_index],
+                            "identity_median_error_px": [round(float(e), 3) for e in jf.median_error_px]})
+    else:
+        source["mode"] = "single frame (the head does not turn: one keyframe)"
+    with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp:
+        from avatarkit.export.images import write_png
+
+        png = Path(tmp) / f"frame{ref_frame}.png"
+        write_png(png, images[ref_frame])
+        if options.name is None:
+            options.name = Path(video).stem
+        avatar = build_avatar(png, options, progress, views=views)
+    avatar.provenance["source_video"] = source
+    avatar.provenance["source_image"] = f"{os.path.abspath(video)} (frame {ref_frame})"
+    build = avatar.provenance["build"]
+    build["timings_s"] = {**{k: round(v, 3) for k, v in timings.items()}, **build["timings_s"]}
+    build["total_s"] = round(sum(build["timings_s"].values()), 3)
+    return avatar
+
+
+__all__ = ["IDENTITY_EXPR", "build_video_avatar", "joint_identity"]

@@ -1,0 +1,168 @@
+"""Video build benchmark: the whole-video build against the single-frame build (its baseline,
+run in the same process).
+
+Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--frames 32] [--skip-real] [--quick]`
+
+Prints
+  - synthetic: the sample avatar turning its head (`synthetic.turning_video`), built from the
+    whole video and from the video build's reference frame alone; PSNR of each build's rest
+    render against the known avatar's at front, three-quarter and profile views, and the
+    video build's gain (target: profile >= +3 dB);
+  - real clips (../shared/data/videos/*.mp4 beside the checkout, skipped when absent):
+    `evaluate --compare-single` (self-reenactment on the held-out frames: keyframes +-5
+    excluded for both builds): PSNR / SSIM of the video build and the single-frame build and
+    the gain (target >= +1 dB);
+  - time: the video build of the largest real clip (250 frames 480x480: target <= 120 s on 2
+    cores) wall and CPU seconds, per stage, and the single-frame build of one of its frames
+    (the ratio is the video build's cost over it). The shared clips barely turn (one
+    keyframe), so `--time-synthetic` times a 250-frame 480x480 synthetic turning video too,
+    where every multi-view stage runs.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import os
+import sys
+import tempfile
+import time
+
+os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+
+import numpy as np  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
+
+
+def cpu_model() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str) -> None:
+    from avatarkit.export.images import write_png
+    from avatarkit.recon.pipeline import BuildOptions, build_avatar
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.synthetic.turning_video import novel_view_psnr, write_turning_video
+    from avatarkit.track.video_build import build_video_avatar
+    from avatarkit.video import read_frame
+
+    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style="short", cage_vertices=200)
+    path = os.path.join(tmp, "turn.mp4")
+    write_turning_video(truth, path, size=size, frames=frames)
+
+    def opts():
+        return BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
+
+    t0 = time.perf_counter()
+    video = build_video_avatar(path, opts())
+    tv = time.perf_counter() - t0
+    ref = video.provenance["source_video"]["frame"]
+    png = os.path.join(tmp, "ref.png")
+    write_png(png, read_frame(path, ref).rgb)
+    t0 = time.perf_counter()
+    single = build_avatar(png, opts())
+    ts = time.perf_counter() - t0
+    pv, ps = novel_view_psnr(video, truth, size), novel_view_psnr(single, truth, size)
+    keys = [k["frame"] for k in video.provenance["source_video"]["keyframes"]]
+    print(f"synthetic turning video ({frames} frames {size}x{size}, sample avatar; keyframes {keys}, "
+          f"reference {ref}); builds {counts[0]} bald + {counts[1]} hair")
+    print(f"  {'azimuth':>8s} {'single dB':>10s} {'video dB':>10s} {'gain':>7s}")
+    for az in pv:
+        print(f"  {az:8.0f} {ps[az]:10.2f} {pv[az]:10.2f} {pv[az] - ps[az]:+7.2f}")
+    prof = np.mean([pv[a] - ps[a] for a in pv if abs(a) == 90])
+    print(f"  profile gain (mean of +-90): {prof:+.2f} dB (target >= +3 dB); build wall: video "
+          f"{tv:.1f} s, single {ts:.1f} s")
+
+
+def real(videos: list[str], counts: tuple[int, int], tmp: str) -> None:
+    from avatarkit.track.evaluate import EvalOptions, evaluate
+
+    for v in videos:
+        out = os.path.join(tmp, os.path.basename(v) + ".eval")
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        report = evaluate(v, out, options=EvalOptions(compare_single=True, side_by_side=False,
+                                                      n_bald=counts[0], n_hair=counts[1]))
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        s, one = report.summary, report.summary["single_frame"]
+        print(f"{os.path.basename(v)}: {s['frames_evaluated']} of {s['frames']} frames held out "
+              f"(keyframes {report.settings['keyframes']} +-{report.settings['exclude']} excluded)")
+        for name, m in (("video build", s), ("single-frame build", one)):
+            print(f"  {name:<19s} PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.3f}  whole-frame PSNR "
+                  f"{m['psnr_full']:.2f}  landmark {m['landmark_error_px']:.2f} px")
+        print(f"  gain: {s['psnr'] - one['psnr']:+.2f} dB person region, {s['psnr_full'] - one['psnr_full']:+.2f} "
+              f"dB whole frame (target >= +1 dB); evaluate wall {wall:.0f} s, CPU {cpu:.0f} s")
+
+
+def timing(video: str, counts: tuple[int, int], tmp: str) -> None:
+    from avatarkit.recon.pipeline import BuildOptions
+    from avatarkit.track.build_frame import build_image
+    from avatarkit.track.video_build import build_video_avatar
+    from avatarkit.video import open_video, read_frame
+
+    with open_video(video) as v:
+        info, n = v.info, len(v)
+    t0, c0 = time.perf_counter(), time.process_time()
+    avatar = build_video_avatar(video, BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False))
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    ref = avatar.provenance["source_video"]["frame"]
+    t0, c0 = time.perf_counter(), time.process_time()
+    build_image(read_frame(video, ref).rgb, os.path.join(tmp, "single"),
+                BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False))
+    swall, scpu = time.perf_counter() - t0, time.process_time() - c0
+    stages = avatar.provenance["build"]["timings_s"]
+    print(f"video build of {os.path.basename(video)} ({n} frames {info.width}x{info.height}, "
+          f"{counts[0]} + {counts[1]} Gaussians): wall {wall:.1f} s, CPU {cpu:.1f} s "
+          "(target <= 120 s on 2 cores)")
+    print("  stages (wall s): " + ", ".join(f"{k} {s:.1f}" for k, s in stages.items()))
+    print(f"  baseline single-frame build of frame {ref}: wall {swall:.1f} s, CPU {scpu:.1f} s; "
+          f"ratio video / single: wall {wall / swall:.2f}x, CPU {cpu / scpu:.2f}x")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--size", type=int, default=192)
+    ap.add_argument("--frames", type=int, default=32)
+    ap.add_argument("--skip-real", action="store_true", help="only the synthetic video")
+    ap.add_argument("--skip-synthetic", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, synthetic only (CI)")
+    ap.add_argument("--time-synthetic", action="store_true",
+                    help="also time the build of a 250-frame 480x480 synthetic turning video")
+    a = ap.parse_args()
+    print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
+    counts = (40_000, 40_000)
+    with tempfile.TemporaryDirectory(prefix="bench-video-") as tmp:
+        if a.quick:
+            synthetic(128, 24, (3000, 1500), tmp)
+            return
+        if not a.skip_synthetic:
+            synthetic(a.size, a.frames, (8000, 4000), tmp)
+        if a.time_synthetic:
+            from avatarkit.synthetic.sample_avatar import make_sample_avatar
+            from avatarkit.synthetic.turning_video import write_turning_video
+
+            path = os.path.join(tmp, "turn250.mp4")
+            write_turning_video(make_sample_avatar(n_hair=3000, n_bald=12000, style="short", cage_vertices=200),
+                                path, size=480, frames=250)
+            timing(path, counts, tmp)
+        videos = sorted(glob.glob(os.path.join(VIDEOS, "*.mp4")))
+        if a.skip_real or not videos:
+            if not videos:
+                print("real clips: ../shared/data/videos not beside the checkout: skipped")
+            return
+        timing(max(videos, key=os.path.getsize), counts, tmp)
+        real(videos, counts, tmp)
+    print(f"load at the end {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()

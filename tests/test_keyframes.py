@@ -1,0 +1,80 @@
+"""Keyframe choice (`track.keyframes`) on hand-made trackings whose answer is known."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from avatarkit.track.keyframes import choose_keyframes, face_sharpness, yaw_pitch
+
+
+def _tracking(yaw, pitch=None, jaw=None, conf=None):
+    T = len(yaw)
+    from scipy.spatial.transform import Rotation
+
+    pitch = np.zeros(T) if pitch is None else np.asarray(pitch, float)
+    rot = Rotation.from_euler("YXZ", np.stack([yaw, pitch, np.zeros(T)], 1)).as_rotvec()
+    j = np.zeros((T, 3))
+    if jaw is not None:
+        j[:, 0] = jaw
+    clip = SimpleNamespace(rotation=rot, jaw=j, expr=np.zeros((T, 10)))
+    conf = np.full(T, 0.9) if conf is None else np.asarray(conf, float)
+    return SimpleNamespace(clip=clip, confidence=conf, found=np.ones(T, bool),
+                           frame_index=np.arange(100, 100 + T), num_frames=T)
+
+
+def test_yaw_pitch_reads_back_euler_angles():
+    r = _tracking(np.array([0.3, -0.5]), np.array([0.1, -0.2]))
+    np.testing.assert_allclose(yaw_pitch(r.clip.rotation), [[0.3, 0.1], [-0.5, -0.2]], atol=1e-9)
+
+
+def test_turn_left_right_up_gives_the_extremes_and_the_frontal_reference():
+    # 0..20: frontal -> 40 deg left; 20..40: back and -> 40 deg right; 40..60: back, nod up 25 deg
+    yaw = np.concatenate([np.linspace(0, 0.7, 21), np.linspace(0.7, -0.7, 20), np.linspace(-0.7, 0, 10),
+                          np.zeros(10)])
+    pitch = np.concatenate([np.zeros(51), np.linspace(0, 0.45, 10)])
+    jaw = np.zeros(61)
+    jaw[19:22] = 0.4          # the mouth opens at the left extreme: its neighbours should win
+    r = _tracking(yaw, pitch, jaw)
+    k = choose_keyframes(r, count=4)
+    assert k.clip_index[0] == 0                      # frontal, neutral
+    assert k.reference == 0 and k.frame_index[0] == 100
+    got = {tuple(np.round(np.degrees(p)).astype(int)) for p in k.yaw_pitch[1:]}
+    yaws = sorted(p[0] for p in got)
+    assert yaws[0] <= -38 and yaws[-1] >= 30          # both extremes (left one next to the open jaw)
+    assert max(p[1] for p in got) >= 24               # the nod
+    assert not set(k.clip_index.tolist()) & {19, 20, 21}   # open mouth avoided
+    assert len(k.summary()) == 4
+
+
+def test_blurred_frames_lose_to_sharp_neighbours():
+    yaw = np.linspace(0, 0.6, 31)
+    sharp = np.ones(31)
+    sharp[28:] = 0.05                                  # the last frames are blurred
+    k = choose_keyframes(_tracking(yaw), sharpness=sharp, count=2)
+    assert k.clip_index[1] == 27
+
+
+def test_a_head_that_never_turns_gives_the_reference_alone():
+    yaw = 0.02 * np.sin(np.linspace(0, 6, 40))
+    k = choose_keyframes(_tracking(yaw))
+    assert len(k) == 1
+
+
+def test_unconfident_frames_are_never_keyframes():
+    yaw = np.linspace(-0.6, 0.6, 25)
+    conf = np.full(25, 0.9)
+    conf[:3] = 0.3
+    k = choose_keyframes(_tracking(yaw, conf=conf), count=3)
+    assert min(k.clip_index) >= 3
+
+
+def test_face_sharpness_falls_with_blur():
+    import cv2
+
+    rng = np.random.default_rng(0)
+    img = (rng.random((96, 96, 3)) * 255).astype(np.uint8)
+    marks = np.array([[10.0, 10.0], [80.0, 85.0]])
+    blurred = cv2.GaussianBlur(img, (0, 0), 2.0)
+    assert face_sharpness(img, marks) > 10 * face_sharpness(blurred, marks)
+    assert face_sharpness(img, None) == 0.0

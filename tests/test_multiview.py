@@ -1,0 +1,150 @@
+"""Multi-view pieces of the video build (`recon.multiview`) on cases whose answer is known."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
+from avatarkit.recon.multiview import (REFERENCE_WEIGHT, View, blend_colours, camera_centre, keyframe_cameras,
+                                       pose_matrix, silhouette_outside, view_samples)
+from avatarkit.render.camera import Camera
+
+SIZE = 64
+
+
+def _plane(z: float, x_range, colour, step=0.01):
+    xs = np.arange(x_range[0], x_range[1] + 1e-9, step)
+    ys = np.arange(-0.1, 0.1 + 1e-9, step)
+    X, Y = np.meshgrid(xs, ys)
+    n = X.size
+    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
+    quats = np.tile([1.0, 0, 0, 0], (n, 1))
+    scales = np.tile([0.008, 0.008, 0.001], (n, 1))
+    sh = np.tile(rgb_to_dc(np.asarray(colour, np.float32)), (n, 1))
+    return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
+
+
+@pytest.fixture(scope="module")
+def planes():
+    """A back plane (z = 0, x in [-0.1, 0.1]) and a front plane (z = 0.05) covering its left
+    half; normals +Z; cameras on +Z."""
+    back = _plane(0.0, (-0.1, 0.1), (0.2, 0.4, 0.9))
+    front = _plane(0.05, (-0.1, 0.0), (0.9, 0.3, 0.1))
+    both = GaussianSet.concat([back, front])
+    normals = np.tile([0.0, 0.0, 1.0], (len(both), 1))
+    return back, front, both, normals
+
+
+def _image(colour):
+    return np.tile((np.asarray(colour) * 255).astype(np.uint8), (SIZE, SIZE, 1))
+
+
+def test_occluded_gaussians_are_not_seen_and_weights_follow_the_angle(planes):
+    back, front, both, normals = planes
+    head_on = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    s = view_samples(both, normals, View(_image((0.5, 0.5, 0.5)), head_on, None, 1.0))
+    nb = len(back)
+    bx = back.means[:, 0]
+    # the front plane is seen; the back plane only where the front one does not cover it
+    inner_front = np.abs(front.means[:, 0] + 0.05) < 0.04
+    assert s.seen[nb:][inner_front].all()
+    assert not s.seen[:nb][bx < -0.02].any()
+    assert s.seen[:nb][(bx > 0.02) & (bx < 0.08) & (np.abs(back.means[:, 1]) < 0.08)].all()
+    # weight = cos^2 of the angle to the normal x sharpness
+    c = camera_centre(head_on)
+    d = c[None] - both.means
+    cos = d[:, 2] / np.linalg.norm(d, axis=1)
+    np.testing.assert_allclose(s.weight[s.seen], cos[s.seen] ** 2, rtol=1e-5)
+    np.testing.assert_allclose(s.colour[s.seen], 0.5, atol=0.01)
+    # a camera 60 degrees off the normal: weights ~cos(60)^2 = 0.25; sharpness scales them
+    side = Camera.look_at((0.8 * np.sin(np.radians(60)), 0.0, 0.8 * np.cos(np.radians(60))), (0, 0, 0),
+                          width=SIZE, height=SIZE, fov_deg=40)
+    s2 = view_samples(both, normals, View(_image((0.5, 0.5, 0.5)), side, None, 0.5))
+    assert s2.seen.any()
+    assert np.all(np.abs(s2.weight[s2.seen] - 0.5 * 0.25) < 0.05)
+    # the reference view weighs REFERENCE_WEIGHT times more
+    s3 = view_samples(both, normals, View(_image((0.5, 0.5, 0.5)), head_on, None, 1.0, reference=True))
+    np.testing.assert_allclose(s3.weight, REFERENCE_WEIGHT * s.weight, rtol=1e-6)
+
+
+def test_grazing_views_give_no_sample(planes):
+    _, _, both, normals = planes
+    grazing = Camera.look_at((0.8, 0.0, 0.05), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    s = view_samples(both, normals, View(_image((0.5, 0.5, 0.5)), grazing, None, 1.0))
+    assert not s.seen.any()
+
+
+def test_blend_is_the_weighted_mean_and_keeps_unseen_and_kept():
+    from avatarkit.recon.multiview import Samples
+
+    cur = np.full((4, 3), 0.1, np.float32)
+    a = Samples(np.array([1, 1, 0, 1], bool), np.array([1.0, 3.0, 0, 1.0]), np.full((4, 3), 0.2, np.float32))
+    b = Samples(np.array([1, 0, 0, 1], bool), np.array([3.0, 0, 0, 1.0]), np.full((4, 3), 0.6, np.float32))
+    out, seen = blend_colours(cur, [a, b], keep=np.array([0, 0, 0, 1], bool))
+    np.testing.assert_allclose(out[:, 0], [0.5, 0.2, 0.1, 0.1], atol=1e-6)
+    assert seen.tolist() == [True, True, False, False]
+
+
+def test_keyframe_cameras_register_poses_to_the_build_camera():
+    from avatarkit.recon.fit import view_camera
+
+    build_rot, build_t = np.array([0.02, -0.05, 0.01]), np.array([0.0, -0.03, -0.62])
+    ref_rot, ref_t = np.array([0.03, -0.04, 0.0]), np.array([0.004, -0.03, -0.6])
+    build = view_camera(build_rot, build_t, 320, 240)
+    mb, mr = pose_matrix(build_rot, build_t), pose_matrix(ref_rot, ref_t)
+    turn = pose_matrix(np.array([0.0, 0.5, 0.0]), np.zeros(3)) @ mr      # the head turned 0.5 rad
+    cams = keyframe_cameras(build, mb, mr, [mr, turn])
+    np.testing.assert_allclose(cams[0].world_to_camera, build.world_to_camera, atol=1e-9)
+    # the turned view sees the avatar's point p where the reference saw R_turn-rotated p
+    p = np.array([[0.03, 0.05, 0.08]])
+    q = (np.linalg.inv(mr) @ mb @ np.append(p[0], 1))[:3]                 # p in the joint fit's head frame
+    want = (np.diag([1, -1, -1]) @ (turn @ np.append(q, 1))[:3])
+    got = (cams[1].world_to_camera @ np.append(p[0], 1))[:3]
+    np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def test_silhouette_counts_views_where_a_point_falls_outside_the_person():
+    from avatarkit.recon.segment import BACKGROUND, SKIN
+
+    cam = Camera.look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    labels = np.full((SIZE, SIZE), BACKGROUND, np.int32)
+    labels[16:48, 16:48] = SKIN
+    pts = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [5.0, 0.0, 0.0]])   # centre, outside, off-image
+    img = _image((0.5, 0.5, 0.5))
+    views = [View(img, cam, labels), View(img, cam, labels), View(img, cam, None)]
+    assert silhouette_outside(pts, views).tolist() == [0, 2, 0]
+
+
+def test_hidden_hair_takes_the_colour_of_the_nearest_seen_hair():
+    from avatarkit.recon.multiview import fill_hidden_hair
+
+    means = np.array([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0], [1.01, 0, 0], [0.005, 0.001, 0], [1.004, 0, 0]])
+    colours = np.array([[1, 0, 0], [1, 0, 0], [0, 0, 1], [0, 0, 1], [0, 1, 0], [0, 1, 0]], np.float32)
+    source = np.array([1, 1, 1, 1, 0, 0], bool)
+    target = np.array([0, 0, 0, 0, 1, 1], bool)
+    out, n = fill_hidden_hair(means, colours, source, target, k=2)
+    assert n == 2
+    np.testing.assert_allclose(out[4], [1, 0, 0])
+    np.testing.assert_allclose(out[5], [0, 0, 1])
+    np.testing.assert_allclose(out[:4], colours[:4])
+
+
+def test_refine_over_the_reference_view_alone_is_refine_colours():
+    """The multi-view colour matching with one (reference) view is the single-view one."""
+    from avatarkit.recon.assemble import refine_colours
+    from avatarkit.recon.multiview import refine_colours_views
+    from avatarkit.recon.segment import BACKGROUND, SKIN
+
+    rng = np.random.default_rng(1)
+    gs = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    gs = gs.with_colors(rng.random((len(gs), 3)).astype(np.float32))
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    photo = (rng.random((SIZE, SIZE, 3)) * 255).astype(np.uint8)
+    labels = np.full((SIZE, SIZE), BACKGROUND, np.int32)
+    labels[12:52, 12:52] = SKIN
+    normals = np.tile([0.0, 0.0, 1.0], (len(gs), 1))
+    a, fa = refine_colours(gs, cam, photo, labels == SKIN, iterations=3)
+    b, fb = refine_colours_views(gs, normals, [View(photo, cam, labels, 0.7, reference=True)], iterations=3)
+    np.testing.assert_allclose(b.colors, a.colors, atol=1e-5)
+    assert fb["psnr_after"] == pytest.approx(fa["psnr_after"], abs=1e-3)
+    assert fb["psnr_after"] > fb["psnr_before"]
