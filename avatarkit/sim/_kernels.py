@@ -140,6 +140,28 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
 
 
 @ti.func
+def skull_preimage(skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj, skin_origin,
+                   skin_inv_h):
+    """The rest point of world point p on the skull's piece of the posed head, and the linear
+    part of the transform that places it: q1 (p in the head joint's rest frame) and the head
+    joint's rotation rs where the skinning field at q1 is all head joint, else the inverse of
+    the LBS blend with the weights found at q1 (jaw, neck)."""
+    q = q1
+    lin = rs
+    if nj > 1:
+        wj = skin_lookup(skin, q1, skin_origin, skin_inv_h)
+        if wj[0] < RIGID_WEIGHT:
+            lin = ti.math.mat3(0.0)
+            tb = vec3(0.0)
+            for j in ti.static(range(JMAX)):
+                if j < nj:
+                    lin += wj[j] * joint_rotation(fb, o_rot, s, j)
+                    tb += wj[j] * joint_translation(fb, o_trans, s, j)
+            q = ti.math.inverse(lin) @ (p - tb)
+    return q, lin
+
+
+@ti.func
 def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj,
               origin, inv_h, skin_origin, skin_inv_h, enough):
     """[distance, unit world normal] of world point p to the posed head of substep s; q1: p in
@@ -149,18 +171,7 @@ def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1,
     smallest wins (a point the jaw swung onto is inside the jaw wherever the skull's preimage
     puts it). enough: when the first value is at least this, the other pieces are not tried
     (pass +inf to always try them)."""
-    q = q1
-    lin = rs
-    if nj > 1:
-        wj = skin_lookup(skin, q1, skin_origin, skin_inv_h)
-        if wj[0] < RIGID_WEIGHT:  # jaw, neck: inverse of the LBS blend
-            lin = ti.math.mat3(0.0)
-            tb = vec3(0.0)
-            for j in ti.static(range(JMAX)):
-                if j < nj:
-                    lin += wj[j] * joint_rotation(fb, o_rot, s, j)
-                    tb += wj[j] * joint_translation(fb, o_trans, s, j)
-            q = ti.math.inverse(lin) @ (p - tb)
+    q, lin = skull_preimage(skin, fb, p, q1, rs, o_rot, o_trans, s, nj, skin_origin, skin_inv_h)
     hit = sdf_lookup(sdf, q, origin, inv_h)
     n = ti.math.inverse(lin).transpose() @ vec3(hit[1], hit[2], hit[3])
     for j in ti.static(range(1, JMAX)):
@@ -174,6 +185,41 @@ def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1,
                     n = rj @ vec3(hj[1], hj[2], hj[3])
     n = n / ti.max(n.norm(), 1e-12)
     return vec4(hit[0], n[0], n[1], n[2])
+
+
+@ti.func
+def grid_cell(cells: ti.template(), q, origin, inv_h):
+    """The cell of a per-cell grid (one less per axis than its node grid at origin, spacing
+    1 / inv_h) that a trilinear lookup at rest point q reads: clamped like `trilinear`."""
+    top = ti.math.ivec3(cells.shape[0], cells.shape[1], cells.shape[2])
+    uc = ti.math.clamp((q - origin) * inv_h, 0.0, ti.cast(top, ti.f32))
+    return ti.min(ti.cast(ti.floor(uc), ti.i32), top - 1)
+
+
+@ti.func
+def may_touch(floors: ti.template(), q, origin, inv_h, limit):
+    """False when the SDF at rest point q is provably at least limit * CELL_STEP (the cell's
+    `HeadSDF.cell_floor` code is at least limit)."""
+    c = grid_cell(floors, q, origin, inv_h)
+    return ti.cast(floors[c[0], c[1], c[2]], ti.i32) < limit
+
+
+@ti.func
+def near_posed_head(floors: ti.template(), regions: ti.template(), skin: ti.template(), fb: ti.template(), p,
+                    q1, rs, o_rot, o_trans, s, nj, origin, inv_h, skin_origin, skin_inv_h, limit):
+    """False when no piece `posed_sdf` can try gives p a distance below limit * CELL_STEP:
+    the skull's preimage lies in a cell whose floor is at least that, and every other joint's
+    T_j^-1 p lies in a cell outside that joint's region (`HeadSkin.region_cells`) or in such a
+    cell. One byte read per piece instead of 8 corners of the 32 MB grid."""
+    q, _lin = skull_preimage(skin, fb, p, q1, rs, o_rot, o_trans, s, nj, skin_origin, skin_inv_h)
+    near = may_touch(floors, q, origin, inv_h, limit)
+    for j in ti.static(range(1, JMAX)):
+        if j < nj and not near:
+            qj = joint_rotation(fb, o_rot, s, j).transpose() @ (p - joint_translation(fb, o_trans, s, j))
+            c = grid_cell(regions, qj, skin_origin, skin_inv_h)
+            if (ti.cast(regions[c[0], c[1], c[2]], ti.i32) >> j) & 1:
+                near = may_touch(floors, qj, origin, inv_h, limit)
+    return near
 
 
 @ti.kernel
@@ -357,11 +403,15 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
 @ti.kernel
 def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.ndarray(dtype=ti.f32, ndim=1),
                     sdf: ti.types.ndarray(dtype=vec4, ndim=3), skin: ti.types.ndarray(dtype=vec4, ndim=3),
-                    nj: ti.i32, clearance: ti.f32, rounds: ti.i32):
+                    floors: ti.types.ndarray(dtype=ti.u8, ndim=3), regions: ti.types.ndarray(dtype=ti.u8, ndim=3),
+                    nj: ti.i32, clearance: ti.f32, rounds: ti.i32, limit: ti.i32):
     """Move every point (N,) closer than `clearance` to the posed head out along the head's
     normal to `clearance` (`rounds` Newton steps on the SDF). fb: [sdf origin (3), 1 / spacing,
     skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX), deviation bound
-    (`solver.skin_deviation`)] of one pose."""
+    (`solver.skin_deviation`)] of one pose. floors, regions: `HeadSDF.cell_floor`,
+    `HeadSkin.region_cells`; a point that `near_posed_head` clears at `limit` (codes; a value
+    of at least limit * CELL_STEP must be >= clearance with room for rounding) is left as it
+    is without the full lookup, which would leave it too; limit <= 0 turns that screen off."""
     origin = vec3(fb[0], fb[1], fb[2])
     inv_h = fb[3]
     skin_origin = vec3(fb[4], fb[5], fb[6])
@@ -370,13 +420,16 @@ def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.n
     t0 = joint_translation(fb, 8 + 9 * JMAX, 0, 0)
     for i in range(points.shape[0]):
         p = points[i]
-        for _r in range(rounds):
-            q1 = r0.transpose() @ (p - t0)
-            # another piece can only be nearer than the first value by twice the bound on how
-            # far the pieces move against the skull (fb[8 + 12 JMAX])
-            hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
-                            skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
-            if hit[0] >= clearance:
-                break
-            p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
-        points[i] = p
+        q1 = r0.transpose() @ (p - t0)
+        if limit <= 0 or near_posed_head(floors, regions, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin,
+                                         inv_h, skin_origin, skin_inv_h, limit):
+            for _r in range(rounds):
+                q1 = r0.transpose() @ (p - t0)
+                # another piece can only be nearer than the first value by twice the bound on
+                # how far the pieces move against the skull (fb[8 + 12 JMAX])
+                hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
+                                skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
+                if hit[0] >= clearance:
+                    break
+                p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
+            points[i] = p
