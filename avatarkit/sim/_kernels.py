@@ -48,10 +48,10 @@ vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
 # ibuf header slots
-(H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_BENDS, H_FACES,
- H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_BEND_DATA, H_TETHER_LEN, H_PROXY_W,
- H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(27)
-H_COUNT = 27
+(H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_FACES,
+ H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_TETHER_LEN, H_PROXY_W,
+ H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(25)
+H_COUNT = 25
 #: a bound on |grad| of the trilinear grid SDF (sqrt(3) for samples of a 1-Lipschitz field, plus
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
@@ -222,10 +222,33 @@ def near_posed_head(floors: ti.template(), regions: ti.template(), skin: ti.temp
     return near
 
 
+@ti.func
+def proxy_point(xb: ti.template(), ib: ti.template(), fb: ti.template(), oi, ow, nk):
+    """sum_k w_k x_k over a proxy's nk cage vertices (indices at ib[oi:], weights at fb[ow:]).
+    Four running sums, not one: a single sum is a chain of nk dependent multiply-adds, and
+    this runs for every free vertex in every sweep (the sums differ from one chain only in
+    float32 rounding)."""
+    a0 = vec3(0.0)
+    a1 = vec3(0.0)
+    a2 = vec3(0.0)
+    a3 = vec3(0.0)
+    n4 = nk - nk % 4
+    for k4 in range(nk // 4):
+        k = 4 * k4
+        a0 += fb[ow + k] * xb[ib[oi + k]]
+        a1 += fb[ow + k + 1] * xb[ib[oi + k + 1]]
+        a2 += fb[ow + k + 2] * xb[ib[oi + k + 2]]
+        a3 += fb[ow + k + 3] * xb[ib[oi + k + 3]]
+    for k in range(n4, nk):
+        a0 += fb[ow + k] * xb[ib[oi + k]]
+    return (a0 + a1) + (a2 + a3)
+
+
 @ti.kernel
 def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarray(dtype=ti.i32, ndim=1),
                    fb: ti.types.ndarray(dtype=ti.f32, ndim=1), sdf: ti.types.ndarray(dtype=vec4, ndim=3),
                    skin: ti.types.ndarray(dtype=vec4, ndim=3)):
+    ti.loop_config(serialize=True)
     for _ in range(1):  # one serial task: Gauss-Seidel, deterministic
         n_sub = ib[H_SUBSTEPS]
         n_iter = ib[H_ITERATIONS]
@@ -354,13 +377,12 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                 if mode > 0:
                     for i in range(nc):
                         den = fb[o_w + i]
-                        p = xb[i]
-                        if mode == 2:  # the proxy, live from the current cage
+                        if mode == 2:
                             den = fb[o_pden + i]
-                            p = vec3(0.0)
-                            for k in range(nk):
-                                p += fb[o_pw + i * nk + k] * xb[ib[o_pidx + i * nk + k]]
                         if den > 0.0:
+                            p = xb[i]
+                            if mode == 2:  # the proxy, live from the current cage
+                                p = proxy_point(xb, ib, fb, o_pidx + i * nk, o_pw + i * nk, nk)
                             q1 = rs.transpose() @ (p - ts)
                             li = l_coll + i
                             cq = vec3(fb[o_cache + 3 * i], fb[o_cache + 3 * i + 1], fb[o_cache + 3 * i + 2])
