@@ -242,6 +242,27 @@ def test_substep_transforms_match_scipy_slerp(angle):
         slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))
         np.testing.assert_allclose(rot, slerp(np.arange(1, 6) / 5).as_matrix(), atol=1e-9)
 
+def test_joint_substep_transforms_match_substep_transforms_per_joint():
+    """The per-frame batched form (every joint at once) against `substep_transforms` joint by
+    joint: turning joints, a still one, a half turn (the batched form hands those two back)."""
+    from avatarkit.sim.solver import joint_substep_transforms
+
+    rng = np.random.default_rng(3)
+    a = np.stack([rigid(rng.normal(size=3), rng.normal(size=3)) for _ in range(4)])
+    b = np.stack([rigid(rng.normal(size=3) * 0.1, rng.normal(size=3)) for _ in range(4)])
+    b[:, :3, :3] = np.einsum("jab,jbc->jac", b[:, :3, :3], a[:, :3, :3])  # small turns from a
+    b[2, :3, :3] = a[2, :3, :3]                                              # a still joint
+    b[3, :3, :3] = axis_angle_to_matrix(np.array([0.0, np.pi - 1e-5, 0.0])) @ a[3, :3, :3]
+    f_in = HeadFrame(np.zeros((1, 3)), a[0], a)
+    f_out = HeadFrame(np.zeros((1, 3)), b[0], b)
+    rot, trans = joint_substep_transforms(f_in, f_out, 7, 4)
+    assert rot.shape == (7, 4, 3, 3) and trans.shape == (7, 4, 3)
+    for j in range(4):
+        r_ref, t_ref = substep_transforms(a[j], b[j], 7)
+        np.testing.assert_allclose(rot[:, j], r_ref, atol=1e-12)
+        np.testing.assert_allclose(trans[:, j], t_ref, atol=1e-12)
+
+
 # --- behaviour ---------------------------------------------------------------------------------
 def test_deterministic(scene):
     model, head, _ = scene
