@@ -198,28 +198,10 @@ def grid_cell(cells: ti.template(), q, origin, inv_h):
 
 @ti.func
 def may_touch(floors: ti.template(), q, origin, inv_h, limit):
-    """False when the SDF at rest point q is provably at least limit * CELL_STEP (the cell's
-    `HeadSDF.cell_floor` code is at least limit)."""
+    """False when the SDF in rest point q's grid cell is provably at least limit * CELL_STEP
+    (the cell's `HeadSDF.cell_floor` code is at least limit)."""
     c = grid_cell(floors, q, origin, inv_h)
     return ti.cast(floors[c[0], c[1], c[2]], ti.i32) < limit
-
-
-@ti.func
-def near_posed_head(floors: ti.template(), regions: ti.template(), skin: ti.template(), fb: ti.template(), p,
-                    q1, rs, o_rot, o_trans, s, nj, origin, inv_h, skin_origin, skin_inv_h, limit):
-    """False when no piece `posed_sdf` can try gives p a distance below limit * CELL_STEP:
-    the skull's preimage lies in a cell whose floor is at least that, and every other joint's
-    T_j^-1 p lies in a cell outside that joint's region (`HeadSkin.region_cells`) or in such a
-    cell. One byte read per piece instead of 8 corners of the 32 MB grid."""
-    q, _lin = skull_preimage(skin, fb, p, q1, rs, o_rot, o_trans, s, nj, skin_origin, skin_inv_h)
-    near = may_touch(floors, q, origin, inv_h, limit)
-    for j in ti.static(range(1, JMAX)):
-        if j < nj and not near:
-            qj = joint_rotation(fb, o_rot, s, j).transpose() @ (p - joint_translation(fb, o_trans, s, j))
-            c = grid_cell(regions, qj, skin_origin, skin_inv_h)
-            if (ti.cast(regions[c[0], c[1], c[2]], ti.i32) >> j) & 1:
-                near = may_touch(floors, qj, origin, inv_h, limit)
-    return near
 
 
 @ti.func
@@ -425,26 +407,36 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
 @ti.kernel
 def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.ndarray(dtype=ti.f32, ndim=1),
                     sdf: ti.types.ndarray(dtype=vec4, ndim=3), skin: ti.types.ndarray(dtype=vec4, ndim=3),
-                    floors: ti.types.ndarray(dtype=ti.u8, ndim=3), regions: ti.types.ndarray(dtype=ti.u8, ndim=3),
-                    nj: ti.i32, clearance: ti.f32, rounds: ti.i32, limit: ti.i32):
+                    floors: ti.types.ndarray(dtype=ti.u8, ndim=3), nj: ti.i32, clearance: ti.f32, rounds: ti.i32,
+                    limit: ti.i32):
     """Move every point (N,) closer than `clearance` to the posed head out along the head's
     normal to `clearance` (`rounds` Newton steps on the SDF). fb: [sdf origin (3), 1 / spacing,
     skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX), deviation bound
-    (`solver.skin_deviation`)] of one pose. floors, regions: `HeadSDF.cell_floor`,
-    `HeadSkin.region_cells`; a point that `near_posed_head` clears at `limit` (codes; a value
-    of at least limit * CELL_STEP must be >= clearance with room for rounding) is left as it
-    is without the full lookup, which would leave it too; limit <= 0 turns that screen off."""
+    (`solver.skin_deviation`), the box that bound holds in (lo (3), hi (3))] of one pose.
+
+    The screen: every skinned piece's rest point lies within the deviation bound of q1 (the
+    point in the head joint's frame) when q1 is in the box, so where q1's cell of `floors`
+    (`HeadSDF.cell_floor`) has a code of at least `limit` (worked out by `pushout` from the
+    clearance plus LIPSCHITZ times the bound) no piece comes within the clearance and the point
+    is left as the full lookup would leave it, for one byte read instead of a skin lookup and
+    8 corners of the 32 MB grid. limit <= 0: no screen."""
     origin = vec3(fb[0], fb[1], fb[2])
     inv_h = fb[3]
     skin_origin = vec3(fb[4], fb[5], fb[6])
     skin_inv_h = fb[7]
     r0 = joint_rotation(fb, 8, 0, 0)
     t0 = joint_translation(fb, 8 + 9 * JMAX, 0, 0)
+    o_box = 8 + 12 * JMAX + 1
+    lo = vec3(fb[o_box], fb[o_box + 1], fb[o_box + 2])
+    hi = vec3(fb[o_box + 3], fb[o_box + 4], fb[o_box + 5])
     for i in range(points.shape[0]):
         p = points[i]
-        q1 = r0.transpose() @ (p - t0)
-        if limit <= 0 or near_posed_head(floors, regions, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin,
-                                         inv_h, skin_origin, skin_inv_h, limit):
+        near = True
+        if limit > 0:  # (nested ifs: Taichi's `and` / `or` evaluate both sides)
+            q1 = r0.transpose() @ (p - t0)
+            if (q1 >= lo).all() and (q1 <= hi).all():
+                near = may_touch(floors, q1, origin, inv_h, limit)
+        if near:
             for _r in range(rounds):
                 q1 = r0.transpose() @ (p - t0)
                 # another piece can only be nearer than the first value by twice the bound on

@@ -30,8 +30,8 @@ CELL_STEP = 0.0001
 
 
 def _cell_corners(grid: np.ndarray) -> list[np.ndarray]:
-    """The 8 corner values of every cell of a node grid (nx, ny, nz[, C]): views of shape
-    (nx - 1, ny - 1, nz - 1[, C])."""
+    """The 8 corner values of every cell of a node grid (nx, ny, nz): views of shape
+    (nx - 1, ny - 1, nz - 1)."""
     return [grid[dx:grid.shape[0] - 1 + dx, dy:grid.shape[1] - 1 + dy, dz:grid.shape[2] - 1 + dz]
             for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)]
 
@@ -240,18 +240,6 @@ class HeadSkin:
         out[:, :len(joints)] = w[nearest][:, joints]
         out[:, 0] += 1.0 - out.sum(axis=1)  # joints not followed ride the head joint
         return cls(out.reshape(*dims, cls.JMAX), joints, lo, spacing)
-
-    @functools.cached_property
-    def region_cells(self) -> np.ndarray:
-        """(nx - 1, ny - 1, nz - 1) uint8: bit j set where a cell of the grid may hold a point of
-        joint j's region (weight > 1/2: some corner above 1/2 less a margin for rounding; a
-        trilinear blend cannot exceed its largest corner). Clear bit: `query_posed` never tries
-        that joint's piece for a rest point in the cell."""
-        out = np.zeros([n - 1 for n in self.weights.shape[:3]], np.uint8)
-        high = np.max(np.stack(_cell_corners(self.weights)), axis=0)          # (..., JMAX)
-        for j in range(1, self.JMAX):
-            out |= ((high[..., j] > 0.5 - 1e-3).astype(np.uint8) << j)
-        return out
 
     def weights_at(self, points: np.ndarray) -> np.ndarray:
         """Trilinear weights (P, JMAX) at rest-frame points (P, 3), clamped to the grid."""
