@@ -242,6 +242,27 @@ def test_substep_transforms_match_scipy_slerp(angle):
         slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]])))
         np.testing.assert_allclose(rot, slerp(np.arange(1, 6) / 5).as_matrix(), atol=1e-9)
 
+def test_joint_substep_transforms_match_substep_transforms_per_joint():
+    """The per-frame batched form (every joint at once) against `substep_transforms` joint by
+    joint: turning joints, a still one, a half turn (the batched form hands those two back)."""
+    from avatarkit.sim.solver import joint_substep_transforms
+
+    rng = np.random.default_rng(3)
+    a = np.stack([rigid(rng.normal(size=3), rng.normal(size=3)) for _ in range(4)])
+    b = np.stack([rigid(rng.normal(size=3) * 0.1, rng.normal(size=3)) for _ in range(4)])
+    b[:, :3, :3] = np.einsum("jab,jbc->jac", b[:, :3, :3], a[:, :3, :3])  # small turns from a
+    b[2, :3, :3] = a[2, :3, :3]                                              # a still joint
+    b[3, :3, :3] = axis_angle_to_matrix(np.array([0.0, np.pi - 1e-5, 0.0])) @ a[3, :3, :3]
+    f_in = HeadFrame(np.zeros((1, 3)), a[0], a)
+    f_out = HeadFrame(np.zeros((1, 3)), b[0], b)
+    rot, trans = joint_substep_transforms(f_in, f_out, 7, 4)
+    assert rot.shape == (7, 4, 3, 3) and trans.shape == (7, 4, 3)
+    for j in range(4):
+        r_ref, t_ref = substep_transforms(a[j], b[j], 7)
+        np.testing.assert_allclose(rot[:, j], r_ref, atol=1e-12)
+        np.testing.assert_allclose(trans[:, j], t_ref, atol=1e-12)
+
+
 # --- behaviour ---------------------------------------------------------------------------------
 def test_deterministic(scene):
     model, head, _ = scene
@@ -479,7 +500,38 @@ def test_push_out_matches_reference_and_clears_the_posed_head(scene, jaw_skin):
     fast = push_out(pts, model.sdf, skin, t)
     ref = push_out_reference(pts, model.sdf, skin, t)
     np.testing.assert_allclose(fast, ref, atol=2e-5)
+    # the screen (one byte per piece rules out far points) changes nothing, bit for bit
+    np.testing.assert_array_equal(fast, push_out(pts, model.sdf, skin, t, screen=False))
     d1, _ = skin.query_posed(model.sdf, fast, t)
     assert d1.min() > CLEARANCE - 2e-4
     outside = d0 > CLEARANCE
     np.testing.assert_array_equal(fast[outside], pts[outside].astype(np.float32))
+
+
+def test_push_out_screen_is_exact_near_the_clearance(scene, jaw_skin):
+    """Points in a thin shell just outside the clearance, where the screen's bound is tightest,
+    and across the jaw's region: the screened and the full kernel agree bit for bit, and the
+    screen does rule most far points out (else it would be no faster)."""
+    from avatarkit.sim import pushout
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.45, rigid((0.1, 0.2, 0.0))).joint_transforms
+    rng = np.random.default_rng(9)
+    dirs = rng.normal(size=(20000, 3))
+    radius = np.r_[RADIUS + rng.uniform(-0.001, 0.003, 10000), RADIUS + rng.uniform(0.003, 0.05, 10000)]
+    pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * radius[:, None]
+    pts = pts @ t[0, :3, :3].T + t[0, :3, 3]
+    screened = pushout.push_out(pts, model.sdf, skin, t)
+    full = pushout.push_out(pts, model.sdf, skin, t, screen=False)
+    np.testing.assert_array_equal(screened, full)
+    assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 500
+    # the bound itself: a cell's floor (code 0: no bound) never exceeds the SDF in the cell
+    q = (pts - t[0, :3, 3]) @ t[0, :3, :3]
+    d, _ = model.sdf.query(q)
+    u = np.clip((q - model.sdf.origin) / model.sdf.spacing, 0, np.asarray(model.sdf.shape) - 1)
+    c = np.minimum(np.floor(u).astype(int), np.asarray(model.sdf.shape) - 2)
+    code = model.sdf.cell_floor[c[:, 0], c[:, 1], c[:, 2]]
+    assert (code[d < 0] == 0).all()
+    assert (code * pushout.CELL_STEP <= np.maximum(d, 0) + 1e-7).all()
+    assert (code * pushout.CELL_STEP > 0.01).mean() > 0.2

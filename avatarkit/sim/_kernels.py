@@ -3,11 +3,13 @@
 All loops run serially inside one outer iteration: Gauss-Seidel over the constraints in a fixed
 order is deterministic, converges faster than Jacobi, and for a ~500-vertex cage a launch per
 frame beats any parallel split (a parallel loop costs a thread sync per constraint colour).
+The outer loop is serialized, so the kernel runs on the calling thread: handing one task to
+Taichi's thread pool and waiting for it cost ~0.15 ms a launch under load, for nothing.
 `reference.py` is the obvious numpy twin of this file; keep the two in the same order.
 
-Updates of the buffers are written `x[i] = x[i] + ...`, never `x[i] += ...`: inside the
-kernel's (one-iteration) parallel loop Taichi compiles `+=` on an ndarray to an atomic
-compare-and-swap loop, which cost more than the arithmetic of a constraint.
+Updates of the buffers are written `x[i] = x[i] + ...`, never `x[i] += ...`: inside a
+parallel loop (which the outer loop was until session 4) Taichi compiles `+=` on an ndarray to
+an atomic compare-and-swap loop, which cost more than the arithmetic of a constraint.
 
 Inputs are packed into four buffers because Taichi's Python side spends ~15 us per kernel
 argument: the launch costs about as much as 10 constraint sweeps otherwise. Layout (offsets in
@@ -48,10 +50,10 @@ vec3 = ti.math.vec3
 vec4 = ti.math.vec4
 
 # ibuf header slots
-(H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_BENDS, H_FACES,
- H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_BEND_DATA, H_TETHER_LEN, H_PROXY_W,
- H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(27)
-H_COUNT = 27
+(H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_FACES,
+ H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_TETHER_LEN, H_PROXY_W,
+ H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(25)
+H_COUNT = 25
 #: a bound on |grad| of the trilinear grid SDF (sqrt(3) for samples of a 1-Lipschitz field, plus
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
@@ -140,6 +142,28 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
 
 
 @ti.func
+def skull_preimage(skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj, skin_origin,
+                   skin_inv_h):
+    """The rest point of world point p on the skull's piece of the posed head, and the linear
+    part of the transform that places it: q1 (p in the head joint's rest frame) and the head
+    joint's rotation rs where the skinning field at q1 is all head joint, else the inverse of
+    the LBS blend with the weights found at q1 (jaw, neck)."""
+    q = q1
+    lin = rs
+    if nj > 1:
+        wj = skin_lookup(skin, q1, skin_origin, skin_inv_h)
+        if wj[0] < RIGID_WEIGHT:
+            lin = ti.math.mat3(0.0)
+            tb = vec3(0.0)
+            for j in ti.static(range(JMAX)):
+                if j < nj:
+                    lin += wj[j] * joint_rotation(fb, o_rot, s, j)
+                    tb += wj[j] * joint_translation(fb, o_trans, s, j)
+            q = ti.math.inverse(lin) @ (p - tb)
+    return q, lin
+
+
+@ti.func
 def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1, rs, o_rot, o_trans, s, nj,
               origin, inv_h, skin_origin, skin_inv_h, enough):
     """[distance, unit world normal] of world point p to the posed head of substep s; q1: p in
@@ -149,18 +173,7 @@ def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1,
     smallest wins (a point the jaw swung onto is inside the jaw wherever the skull's preimage
     puts it). enough: when the first value is at least this, the other pieces are not tried
     (pass +inf to always try them)."""
-    q = q1
-    lin = rs
-    if nj > 1:
-        wj = skin_lookup(skin, q1, skin_origin, skin_inv_h)
-        if wj[0] < RIGID_WEIGHT:  # jaw, neck: inverse of the LBS blend
-            lin = ti.math.mat3(0.0)
-            tb = vec3(0.0)
-            for j in ti.static(range(JMAX)):
-                if j < nj:
-                    lin += wj[j] * joint_rotation(fb, o_rot, s, j)
-                    tb += wj[j] * joint_translation(fb, o_trans, s, j)
-            q = ti.math.inverse(lin) @ (p - tb)
+    q, lin = skull_preimage(skin, fb, p, q1, rs, o_rot, o_trans, s, nj, skin_origin, skin_inv_h)
     hit = sdf_lookup(sdf, q, origin, inv_h)
     n = ti.math.inverse(lin).transpose() @ vec3(hit[1], hit[2], hit[3])
     for j in ti.static(range(1, JMAX)):
@@ -176,10 +189,38 @@ def posed_sdf(sdf: ti.template(), skin: ti.template(), fb: ti.template(), p, q1,
     return vec4(hit[0], n[0], n[1], n[2])
 
 
+@ti.func
+def grid_cell(cells: ti.template(), q, origin, inv_h):
+    """The cell of a per-cell grid (one less per axis than its node grid at origin, spacing
+    1 / inv_h) that a trilinear lookup at rest point q reads: clamped like `trilinear`."""
+    top = ti.math.ivec3(cells.shape[0], cells.shape[1], cells.shape[2])
+    uc = ti.math.clamp((q - origin) * inv_h, 0.0, ti.cast(top, ti.f32))
+    return ti.min(ti.cast(ti.floor(uc), ti.i32), top - 1)
+
+
+@ti.func
+def may_touch(floors: ti.template(), q, origin, inv_h, limit):
+    """False when the SDF in rest point q's grid cell is provably at least limit * CELL_STEP
+    (the cell's `HeadSDF.cell_floor` code is at least limit)."""
+    c = grid_cell(floors, q, origin, inv_h)
+    return ti.cast(floors[c[0], c[1], c[2]], ti.i32) < limit
+
+
+@ti.func
+def proxy_point(xb: ti.template(), ib: ti.template(), fb: ti.template(), oi, ow, nk):
+    """sum_k w_k x_k over a proxy's nk cage vertices (indices at ib[oi:], weights at fb[ow:]),
+    one running sum in k order (as `reference.py`; four interleaved sums measured no faster)."""
+    p = vec3(0.0)
+    for k in range(nk):
+        p += fb[ow + k] * xb[ib[oi + k]]
+    return p
+
+
 @ti.kernel
 def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarray(dtype=ti.i32, ndim=1),
                    fb: ti.types.ndarray(dtype=ti.f32, ndim=1), sdf: ti.types.ndarray(dtype=vec4, ndim=3),
                    skin: ti.types.ndarray(dtype=vec4, ndim=3)):
+    ti.loop_config(serialize=True)  # on the calling thread (module docstring)
     for _ in range(1):  # one serial task: Gauss-Seidel, deterministic
         n_sub = ib[H_SUBSTEPS]
         n_iter = ib[H_ITERATIONS]
@@ -308,13 +349,12 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                 if mode > 0:
                     for i in range(nc):
                         den = fb[o_w + i]
-                        p = xb[i]
-                        if mode == 2:  # the proxy, live from the current cage
+                        if mode == 2:
                             den = fb[o_pden + i]
-                            p = vec3(0.0)
-                            for k in range(nk):
-                                p += fb[o_pw + i * nk + k] * xb[ib[o_pidx + i * nk + k]]
                         if den > 0.0:
+                            p = xb[i]
+                            if mode == 2:  # the proxy, live from the current cage
+                                p = proxy_point(xb, ib, fb, o_pidx + i * nk, o_pw + i * nk, nk)
                             q1 = rs.transpose() @ (p - ts)
                             li = l_coll + i
                             cq = vec3(fb[o_cache + 3 * i], fb[o_cache + 3 * i + 1], fb[o_cache + 3 * i + 2])
@@ -357,26 +397,43 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
 @ti.kernel
 def push_out_points(points: ti.types.ndarray(dtype=vec3, ndim=1), fb: ti.types.ndarray(dtype=ti.f32, ndim=1),
                     sdf: ti.types.ndarray(dtype=vec4, ndim=3), skin: ti.types.ndarray(dtype=vec4, ndim=3),
-                    nj: ti.i32, clearance: ti.f32, rounds: ti.i32):
+                    floors: ti.types.ndarray(dtype=ti.u8, ndim=3), nj: ti.i32, clearance: ti.f32, rounds: ti.i32,
+                    limit: ti.i32):
     """Move every point (N,) closer than `clearance` to the posed head out along the head's
     normal to `clearance` (`rounds` Newton steps on the SDF). fb: [sdf origin (3), 1 / spacing,
     skin origin (3), 1 / spacing, rotations (9 JMAX), translations (3 JMAX), deviation bound
-    (`solver.skin_deviation`)] of one pose."""
+    (`solver.skin_deviation`), the box that bound holds in (lo (3), hi (3))] of one pose.
+
+    The screen: every skinned piece's rest point lies within the deviation bound of q1 (the
+    point in the head joint's frame) when q1 is in the box, so where q1's cell of `floors`
+    (`HeadSDF.cell_floor`) has a code of at least `limit` (worked out by `pushout` from the
+    clearance plus LIPSCHITZ times the bound) no piece comes within the clearance and the point
+    is left as the full lookup would leave it, for one byte read instead of a skin lookup and
+    8 corners of the 32 MB grid. limit <= 0: no screen."""
     origin = vec3(fb[0], fb[1], fb[2])
     inv_h = fb[3]
     skin_origin = vec3(fb[4], fb[5], fb[6])
     skin_inv_h = fb[7]
     r0 = joint_rotation(fb, 8, 0, 0)
     t0 = joint_translation(fb, 8 + 9 * JMAX, 0, 0)
+    o_box = 8 + 12 * JMAX + 1
+    lo = vec3(fb[o_box], fb[o_box + 1], fb[o_box + 2])
+    hi = vec3(fb[o_box + 3], fb[o_box + 4], fb[o_box + 5])
     for i in range(points.shape[0]):
         p = points[i]
-        for _r in range(rounds):
+        near = True
+        if limit > 0:  # (nested ifs: Taichi's `and` / `or` evaluate both sides)
             q1 = r0.transpose() @ (p - t0)
-            # another piece can only be nearer than the first value by twice the bound on how
-            # far the pieces move against the skull (fb[8 + 12 JMAX])
-            hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
-                            skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
-            if hit[0] >= clearance:
-                break
-            p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
-        points[i] = p
+            if (q1 >= lo).all() and (q1 <= hi).all():
+                near = may_touch(floors, q1, origin, inv_h, limit)
+        if near:
+            for _r in range(rounds):
+                q1 = r0.transpose() @ (p - t0)
+                # another piece can only be nearer than the first value by twice the bound on
+                # how far the pieces move against the skull (fb[8 + 12 JMAX])
+                hit = posed_sdf(sdf, skin, fb, p, q1, r0, 8, 8 + 9 * JMAX, 0, nj, origin, inv_h,
+                                skin_origin, skin_inv_h, clearance + 2.0 * LIPSCHITZ * fb[8 + 12 * JMAX])
+                if hit[0] >= clearance:
+                    break
+                p = p + (clearance - hit[0]) * vec3(hit[1], hit[2], hit[3])
+            points[i] = p

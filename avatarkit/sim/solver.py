@@ -86,15 +86,38 @@ def joint_substep_transforms(frame_in: HeadFrame, frame_out: HeadFrame, substeps
                              joints: int) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (S, JMAX, 3, 3) and translations (S, JMAX, 3) of the first `joints` joints at
     the end of each substep (the rest zero); joint 0 is the head joint. Frames without joint
-    transforms have the head joint only (joints must then be 1)."""
+    transforms have the head joint only (joints must then be 1).
+
+    `substep_transforms` of every joint at once, with the per-substep rotation expanded as
+    R_s = R_in + sin(a_s) (K R_in) + (1 - cos(a_s)) (K^2 R_in): elementwise arrays, no stack
+    of 3x3 matrix products (numpy hands each of those to BLAS on its own, ~2 us apiece: this
+    runs every frame). A joint whose turn Rodrigues cannot take from the skew part (a still
+    joint, a half turn) goes through `substep_transforms` itself."""
+    a = np.stack([frame_in.transform] + [frame_in.joint_transforms[j] for j in range(1, joints)])
+    b = np.stack([frame_out.transform] + [frame_out.joint_transforms[j] for j in range(1, joints)])
     rot = np.zeros((substeps, JMAX, 3, 3))
     trans = np.zeros((substeps, JMAX, 3))
-    for j in range(joints):
-        if j == 0:
-            a, b = frame_in.transform, frame_out.transform
-        else:
-            a, b = frame_in.joint_transforms[j], frame_out.joint_transforms[j]
-        rot[:, j], trans[:, j] = substep_transforms(a, b, substeps)
+    frac = np.arange(1, substeps + 1, dtype=np.float64) / substeps
+    r_in, r_out = a[:, :3, :3], b[:, :3, :3]
+    rel = np.einsum("jab,jcb->jac", r_out, r_in)                               # R_out R_in^T
+    two_sin = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0],
+                        rel[:, 1, 0] - rel[:, 0, 1]], axis=1)
+    two_cos = rel[:, 0, 0] + rel[:, 1, 1] + rel[:, 2, 2] - 1.0
+    sin_norm = np.sqrt(np.einsum("ja,ja->j", two_sin, two_sin))
+    fast = (two_cos > 0.0) & (sin_norm > 0.0) & ~(r_in == r_out).all(axis=(1, 2))
+    if fast.any():
+        axis = two_sin[fast] / sin_norm[fast, None]
+        angles = frac[:, None] * np.arctan2(sin_norm[fast], two_cos[fast])     # (S, Jf)
+        k = np.zeros((len(axis), 3, 3))
+        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+        k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
+        kr = np.einsum("jab,jbc->jac", k, r_in[fast])
+        kkr = np.einsum("jab,jbc->jac", k, kr)
+        rot[:, np.flatnonzero(fast)] = (r_in[fast] + np.sin(angles)[..., None, None] * kr
+                        + (1.0 - np.cos(angles))[..., None, None] * kkr)
+    for j in np.flatnonzero(~fast):
+        rot[:, j] = substep_transforms(a[j], b[j], substeps)[0]
+    trans[:, :joints] = a[None, :, :3, 3] + frac[:, None, None] * (b[:, :3, 3] - a[:, :3, 3])[None]
     return rot, trans
 
 
@@ -122,19 +145,16 @@ def skin_deviation(skin: HeadSkin, sdf, rotations: np.ndarray, translations: np.
     affine function's norm, so its maximum over a box (the SDF grid, grown by
     DEVIATION_REACH) is at a corner. 0 with the head joint alone. Lets the solver skip the
     skinning and SDF lookups of points provably far from the head."""
-    out = np.zeros(len(rotations))
     if joints <= 1:
-        return out
+        return np.zeros(len(rotations))
     lo = sdf.origin - DEVIATION_REACH
     hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
     corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
     r0, t0 = rotations[:, 0], translations[:, 0]
-    for j in range(1, joints):
-        rel_r = np.einsum("sba,sbc->sac", r0, rotations[:, j])                # R0^T Rj
-        rel_t = np.einsum("sba,sb->sa", r0, translations[:, j] - t0)           # R0^T (tj - t0)
-        moved = np.einsum("sac,kc->ska", rel_r, corners) + rel_t[:, None] - corners
-        out = np.maximum(out, np.linalg.norm(moved, axis=2).max(axis=1))
-    return out
+    rel_r = np.einsum("sba,sjbc->sjac", r0, rotations[:, 1:joints])             # R0^T Rj
+    rel_t = np.einsum("sba,sjb->sja", r0, translations[:, 1:joints] - t0[:, None])  # R0^T (tj - t0)
+    moved = np.einsum("sjac,kc->sjka", rel_r, corners) + (rel_t[:, :, None] - corners)
+    return np.sqrt(np.einsum("sjka,sjka->sjk", moved, moved)).max(axis=(1, 2))
 
 
 class PackedModel:
@@ -160,9 +180,10 @@ class PackedModel:
         foff = np.cumsum([K.FP_COUNT] + [len(a) for a in floats])
         header = np.zeros(K.H_COUNT, np.int64)
         header[[K.H_NC, K.H_NE, K.H_NB, K.H_NF, K.H_NR, K.H_NK]] = [c, e, b, f, r, k]
-        header[[K.H_EDGES, K.H_BENDS, K.H_FACES, K.H_TETHER, K.H_PROXY_IDX, K.H_ROOTS]] = ioff[:6]
-        header[[K.H_INV_MASS, K.H_EDGE_DATA, K.H_BEND_DATA, K.H_TETHER_LEN, K.H_PROXY_W,
-                K.H_LAMBDA, K.H_ROT, K.H_TRANS, K.H_CACHE, K.H_PROXY_DEN, K.H_DEVIATION]] = foff[:11]
+        # bend pairs and their records follow the edges' (one loop sweeps both): no slots of their own
+        header[[K.H_EDGES, K.H_FACES, K.H_TETHER, K.H_PROXY_IDX, K.H_ROOTS]] = ioff[[0, 2, 3, 4, 5]]
+        header[[K.H_INV_MASS, K.H_EDGE_DATA, K.H_TETHER_LEN, K.H_PROXY_W, K.H_LAMBDA, K.H_ROT,
+                K.H_TRANS, K.H_CACHE, K.H_PROXY_DEN, K.H_DEVIATION]] = foff[[0, 1, 3, 4, 5, 6, 7, 8, 9, 10]]
         header[K.H_SUBSTEPS] = substeps
         header[K.H_NJ] = len(skin.joints)
         self.ibuf = np.concatenate([header] + ints).astype(np.int32)
