@@ -147,7 +147,7 @@ def stored_sdf(data: dict[str, np.ndarray]):
 def sdf_from_values(values: np.ndarray, origin, spacing: float):
     """A `HeadSDF` from its grid of distances (nx, ny, nz): unit gradients by central differences
     (as `HeadSDF.build` makes them, but from the float32 values)."""
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     v = np.asarray(values, np.float32)
     if v.ndim != 3 or min(v.shape) < 2:

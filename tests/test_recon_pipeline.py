@@ -45,7 +45,7 @@ def test_signed_distance_against_winding_numbers_and_brute_force(view):
 
 
 def test_signed_distance_screen_keeps_far_points_positive(view):
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     v, f = view.truth.rest_vertices, view.truth.model.faces
     screen = HeadSDF.build(v, f, spacing=0.004)
@@ -174,7 +174,7 @@ def test_detect_hair_mode_short_and_long():
 def test_rig_hair_modes(view):
     from avatarkit.synthetic.head_hair import make_test_avatar
 
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     fit = view.truth
     hair = make_test_avatar("short", 1500, 0, 200, head_model=fit.model).hair
@@ -286,7 +286,7 @@ def test_clean_hair_drops_face_splats_posing_as_hair(view):
     # face splats in front of the face (seen by the camera) posing as hair
     front = np.flatnonzero((bald.means[:, 2] > np.percentile(bald.means[:, 2], 85)))[:300]
     candidates = GaussianSet.concat([hair, bald.subset(front)])
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     sdf = HeadSDF.build(fit.rest_vertices, fit.model.faces, spacing=0.004)
     kept, summary = clean_hair(bald, candidates, fit.camera, labels, lambda p: sdf.query(p)[0])

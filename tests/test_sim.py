@@ -12,7 +12,8 @@ from scipy.spatial import cKDTree
 
 from avatarkit.errors import InputError
 from avatarkit.rotations import axis_angle_to_matrix
-from avatarkit.sim import CageModel, CageState, HeadFrame, HeadSDF, SimConfig, XPBDSolver
+from avatarkit.head.sdf_grid import HeadSDF
+from avatarkit.sim import CageModel, CageState, HeadFrame, SimConfig, XPBDSolver
 from avatarkit.sim.reference import reference_step
 from avatarkit.sim.solver import substep_transforms
 

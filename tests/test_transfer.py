@@ -36,7 +36,7 @@ def target_avatar(scale: float, width: float, seed: int) -> Avatar:
     `head_width` in standard deviations), its own bald discs and a little hair so it is a
     complete avatar (its rig's SDF is coarse, to keep the fixture cheap)."""
     from avatarkit.cage.build import build_cage
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
     from avatarkit.synthetic.sample_avatar import make_bald
 
     src = small_avatar()

@@ -149,7 +149,7 @@ def assemble(fit: HeadFit, binding: TriangleBinding, hair: GaussianSet, analysis
         return AssemblyResult(hair, shape0.astype(np.float32), fit, bald, binding,
                               {**report, "inside_before": 0, "inside_after": 0})
     if screen is None:
-        from avatarkit.sim.sdf import HeadSDF
+        from avatarkit.head.sdf_grid import HeadSDF
 
         screen = HeadSDF.build(fit.rest_vertices, faces, spacing=0.004)
 

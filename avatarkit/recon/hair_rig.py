@@ -87,7 +87,7 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
     already built. progress(done, total): follows the cage weights."""
     from avatarkit.hair_rig import HairRig
     from avatarkit.cage.build import build_cage
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     if mode not in HAIR_MODES:
         raise InputError(f"hair mode must be one of {', '.join(HAIR_MODES)}, got {mode!r}")

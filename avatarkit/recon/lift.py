@@ -38,7 +38,7 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
               ) -> tuple[GaussianSet, dict]:
     """The built-in hair lifting (module docstring) -> (GaussianSet with `strand` and `seen`
     extras, info). An empty set when the portrait has no hair."""
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     model = fit.model
     hair_mask = segmentation.hair

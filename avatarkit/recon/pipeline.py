@@ -257,7 +257,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.recon.lift import BuiltinLifter
     from avatarkit.recon.portrait import analyze_portrait
     from avatarkit.recon.segment import segment_portrait
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
 
     options = options or BuildOptions()
     options.check()

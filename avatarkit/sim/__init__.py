@@ -7,8 +7,7 @@ Taichi is imported only when a solver first steps.
 """
 from avatarkit.sim.config import COLLISION_MODES, SimConfig
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
-from avatarkit.sim.sdf import HeadSDF
 from avatarkit.sim.solver import XPBDSolver
 
-__all__ = ["COLLISION_MODES", "CageModel", "CageState", "HeadFrame", "HeadSDF", "SimConfig",
+__all__ = ["COLLISION_MODES", "CageModel", "CageState", "HeadFrame", "SimConfig",
            "XPBDSolver"]

@@ -69,7 +69,7 @@ FP_COUNT = 21
 @ti.func
 def trilinear(grid: ti.template(), uc):
     """Trilinear vec4 of grid (a 3-D field of vec4) at grid coordinates uc, already clamped to
-    [0, n - 1] (the Taichi twin of `sdf.trilinear`)."""
+    [0, n - 1] (the Taichi twin of `head.sdf_grid.trilinear`)."""
     i0 = ti.min(ti.cast(ti.floor(uc), ti.i32),
                 ti.math.ivec3(grid.shape[0] - 2, grid.shape[1] - 2, grid.shape[2] - 2))
     t = uc - ti.cast(i0, ti.f32)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from avatarkit.sim.config import SimConfig
-from avatarkit.sim.sdf import HeadSDF
+from avatarkit.head.sdf_grid import HeadSDF
 
 MODES = ("static", "none", "vertex", "proxy")
 

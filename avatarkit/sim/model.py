@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from avatarkit.errors import InputError
-from avatarkit.sim.sdf import HeadSDF
+from avatarkit.head.sdf_grid import HeadSDF
 
 
 @dataclass(eq=False)

@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from avatarkit.sim._skin_math import JMAX
-from avatarkit.sim.sdf import CELL_STEP, HeadSDF, HeadSkin
+from avatarkit.head.sdf_grid import CELL_STEP, HeadSDF
+from avatarkit.sim.sdf import HeadSkin
 
 #: where a pushed centre ends up: this far outside the head (metres); half a millimetre keeps a
 #: float32 centre outside after rounding and costs nothing visible

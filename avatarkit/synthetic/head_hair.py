@@ -55,7 +55,7 @@ def make_test_avatar(style: str = "long_straight", n_hair: int = 20000, seed: in
     the scalp region are dropped) and a cage of about `cage_vertices` vertices around it."""
     from avatarkit.cage.build import build_cage
     from avatarkit.head.model import HeadModel
-    from avatarkit.sim.sdf import HeadSDF
+    from avatarkit.head.sdf_grid import HeadSDF
     from avatarkit.synthetic.hair import HeadEllipsoid, make_hair
 
     head = head_model or HeadModel.template()
