@@ -1,6 +1,7 @@
 """Timing helpers shared by the benchmark scripts (run as `python benchmarks/NAME.py`)."""
 from __future__ import annotations
 
+import platform
 import time
 
 import numpy as np
@@ -16,3 +17,14 @@ def median_time(fn, repeats: int = 7, warmup: int = 1) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times))
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), for the figures' header: this machine kind varies."""
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"

@@ -37,14 +37,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 
 
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown"
+from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
 def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str) -> None:

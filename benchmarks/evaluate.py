@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -34,14 +33,7 @@ TARGET_S = 120.0
 STAGES = ("choose_frame", "build", "track", "bake", "render", "metrics", "landmarks", "write")
 
 
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
 def metrics_baseline(mask_fraction: float, size: int, repeats: int = 5) -> tuple[float, float]:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import glob
 import os
-import platform
 import time
 
 os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
@@ -35,14 +34,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 
 
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
 def mixed_clip(T: int, fps: float):

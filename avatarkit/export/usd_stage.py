@@ -58,13 +58,12 @@ import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
-from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
+from avatarkit.errors import AvatarKitError, InputError, OutputError, last_line
 from avatarkit.fileio import make_temp_folder, write_failed
-from avatarkit.native_output import native_stderr_as_warnings
 from avatarkit.gaussians.usd import USD_EXTENSIONS, validate_stage
 from avatarkit.gaussians.usd_prims import (PointsPrimWriter, SplatPrimWriter, bounding_box, check_frame_arrays,
                                            declare_attributes)
-from avatarkit.gaussians.usd_read import find_splat_prims
+from avatarkit.gaussians.usd_read import find_splat_prims, open_usd_stage
 
 ROOT_PATH = "/Avatar"
 HEAD_PATH, FACE_PATH, HAIR_PATH, CAGE_PATH = (f"{ROOT_PATH}/{n}" for n in ("Head", "Face", "Hair", "Cage"))
@@ -598,13 +597,7 @@ def inspect_usd(path: Path):
     from avatarkit.inspect import ByteCount, Summary
 
     path = Path(path)
-    try:
-        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
-            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Tf.ErrorException as e:
-        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
-    if stage is None:
-        raise FormatError("not a readable USD file", path)
+    stage = open_usd_stage(path)
     s = Summary("USD stage", str(path))
     s.add("format", _describe_format(path)).add("file size", ByteCount(path.stat().st_size))
     s.add("up axis", str(UsdGeom.GetStageUpAxis(stage))).add("meters per unit", UsdGeom.GetStageMetersPerUnit(stage))
