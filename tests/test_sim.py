@@ -536,3 +536,43 @@ def test_push_out_screen_is_exact_near_the_clearance(scene, jaw_skin):
     assert (code[d < 0] == 0).all()
     assert (code * pushout.CELL_STEP <= np.maximum(d, 0) + 1e-7).all()
     assert (code * pushout.CELL_STEP > 0.01).mean() > 0.2
+
+
+def test_push_out_second_screen_is_exact_on_the_scalp_layer(scene, jaw_skin):
+    """With the jaw shut (deviation bound 0) hair lying 0-3 mm off the head sits in cells whose
+    floor cannot rule it out; the second screen (the rest SDF at the head-joint point) does, for
+    most of it, and the result is still the full lookup's bit for bit, in and just past the
+    clearance (where the screen's slack decides)."""
+    from avatarkit.sim import pushout
+    from avatarkit.sim.pushout import CLEARANCE, SCREEN_SLACK
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.0, rigid((0.1, 0.2, 0.0))).joint_transforms
+    rng = np.random.default_rng(10)
+    dirs = rng.normal(size=(20000, 3))
+    radius = RADIUS + np.r_[rng.uniform(0.0, 0.003, 14000),
+                            CLEARANCE + rng.uniform(-2, 2, 6000) * SCREEN_SLACK]
+    pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * radius[:, None]
+    pts = pts @ t[0, :3, :3].T + t[0, :3, 3]
+    screened = pushout.push_out(pts, model.sdf, skin, t)
+    np.testing.assert_array_equal(screened, pushout.push_out(pts, model.sdf, skin, t, screen=False))
+    assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 1000
+    # what the test exercises: points the floors pass but the second screen rules out
+    q = (pts - t[0, :3, 3]) @ t[0, :3, :3]
+    d, _ = model.sdf.query(q)
+    u = np.clip((q - model.sdf.origin) / model.sdf.spacing, 0, np.asarray(model.sdf.shape) - 1)
+    c = np.minimum(np.floor(u).astype(int), np.asarray(model.sdf.shape) - 2)
+    floor_pass = model.sdf.cell_floor[c[:, 0], c[:, 1], c[:, 2]] < pushout.screen_limit(CLEARANCE)
+    assert (floor_pass & (d >= CLEARANCE + SCREEN_SLACK)).sum() > 5000
+    # a slightly open jaw (a wide one bounds the deviation beyond what the screens can use):
+    # points on and around the posed lower cap, which the head joint's rest frame puts off the
+    # rest head (the bound on the jaw's deviation must keep them in)
+    t = jaw_frame(model, head, lower, 0.01, rigid((0.1, 0.2, 0.0))).joint_transforms
+    dev = float(pushout._pose_buffer(model.sdf, skin, t)[-7])
+    assert 0.001 < dev and pushout.screen_limit(CLEARANCE + 2.0 * dev) > 0
+    cap = head[lower] @ t[1, :3, :3].T + t[1, :3, 3]
+    pts = cap[rng.integers(0, len(cap), 20000)] + rng.normal(scale=0.003, size=(20000, 3))
+    screened = pushout.push_out(pts, model.sdf, skin, t)
+    np.testing.assert_array_equal(screened, pushout.push_out(pts, model.sdf, skin, t, screen=False))
+    assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 1000

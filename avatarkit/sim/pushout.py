@@ -55,8 +55,9 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
 
     screen: first rule out, from one byte read (`HeadSDF.cell_floor` at the point in the head
     joint's frame, less LIPSCHITZ times the pose's bound on how far the skinned pieces move
-    against the skull), the points that no piece of the posed head comes within the clearance
-    of, and leave them as they are: the full lookup would too, so the result is the same bit
+    against the skull), then for the rest from one trilinear lookup of the rest SDF there, the
+    points that no piece of the posed head comes within the clearance of, and leave them as
+    they are: the full lookup would too, so the result is the same bit
     for bit (most hair centres lie millimetres to centimetres off the scalp); False: the full
     lookup for every point (the reference the tests compare with)."""
     from avatarkit.sim import _kernels
@@ -67,9 +68,10 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
     if len(out):
         pose = _pose_buffer(sdf, skin, t[:nj])
         dev = float(pose[8 + 12 * JMAX])
-        limit = screen_limit(float(clearance) + _kernels.LIPSCHITZ * dev) if screen else 0
+        reach = float(clearance) + _kernels.LIPSCHITZ * dev
+        limit = screen_limit(reach) if screen else 0
         _kernels.push_out_points(out, pose, sdf.values_grad, skin.weights, sdf.cell_floor, nj,
-                                 float(clearance), int(rounds), limit)
+                                 float(clearance), int(rounds), limit, reach + SCREEN_SLACK)
     return out
 
 
