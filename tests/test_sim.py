@@ -576,3 +576,21 @@ def test_push_out_second_screen_is_exact_on_the_scalp_layer(scene, jaw_skin):
     screened = pushout.push_out(pts, model.sdf, skin, t)
     np.testing.assert_array_equal(screened, pushout.push_out(pts, model.sdf, skin, t, screen=False))
     assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 1000
+
+
+def test_root_targets_match_the_triangle_frames_reference(scene):
+    """The written-out face frames of `root_targets` give what `triangle_frames` gives, bit for
+    bit, on randomly moved heads and on a root face collapsed to a point (identity frame)."""
+    model, head, _ = scene
+    rng = np.random.default_rng(11)
+    for scale in (0.0, 0.002, 0.02):
+        v = (head @ axis_angle_to_matrix(rng.normal(size=3)).T + rng.normal(scale=scale, size=head.shape))
+        np.testing.assert_array_equal(model.root_targets(v), model.root_targets_reference(v))
+    v = head.copy()
+    v[model.head_faces[model.root_faces[0]]] = v[model.head_faces[model.root_faces[0], 0]]
+    got = model.root_targets(v)
+    np.testing.assert_array_equal(got, model.root_targets_reference(v))
+    np.testing.assert_allclose(got[0], v[model.head_faces[model.root_faces[0], 0]] + model.root_offsets[0],
+                               atol=1e-6)
+    with pytest.raises(InputError):
+        model.root_targets(head[:10])
