@@ -594,3 +594,29 @@ def test_root_targets_match_the_triangle_frames_reference(scene):
                                atol=1e-6)
     with pytest.raises(InputError):
         model.root_targets(head[:10])
+
+
+def test_kernel_deviation_bound_matches_skin_deviation(scene, jaw_skin):
+    """The frame kernel works out the per-substep bound on how far the jaw's and neck's inverse
+    LBS moves a point against the skull itself; `solver.skin_deviation` is its reference."""
+    from avatarkit.sim.solver import joint_substep_transforms, skin_deviation
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    f0 = jaw_frame(model, head, lower, 0.1, rigid((0.1, 0.0, 0.0)))
+    f1 = jaw_frame(model, head, lower, 0.3, rigid((0.2, 0.1, 0.0), (0.0, 0.01, 0.0)))
+    cfg = SimConfig(substeps=5)
+    n_sub = cfg.substeps_for(1 / 30)
+    for frames, joints in (((f0, f1), 2), ((frame(model, head, np.eye(4)), frame(model, head, rigid((0.2, 0, 0)))), 1)):
+        solver = XPBDSolver(model, cfg, skin=skin)
+        state = model.rest_state()
+        solver.step(state, state, *frames, 1 / 30)
+        p = solver._packed
+        got = p.fbuf[p.dev_slice][:n_sub]
+        rot, tr = joint_substep_transforms(*frames, n_sub, joints)
+        want = skin_deviation(skin, model.sdf, rot, tr, joints)
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+        if joints > 1:
+            assert want.min() > 0.01 and np.ptp(want) > 0.001  # a jaw moving against the skull
+        else:
+            assert (got == 0).all()
