@@ -39,11 +39,10 @@ def _pose_buffer(sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray) -> np.nda
     trans = np.zeros((JMAX, 3))
     rot[:len(t)] = t[:, :3, :3]
     trans[:len(t)] = t[:, :3, 3]
-    from avatarkit.sim.solver import DEVIATION_REACH, skin_deviation
+    from avatarkit.sim.solver import deviation_box, skin_deviation
 
     dev = skin_deviation(skin, sdf, rot[None], trans[None], len(t))[0]
-    lo = sdf.origin - DEVIATION_REACH  # the box skin_deviation's bound holds in
-    hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
+    lo, hi = deviation_box(sdf)  # the box skin_deviation's bound holds in
     return np.concatenate([sdf.origin, [1.0 / sdf.spacing], skin.origin, [1.0 / skin.spacing],
                            rot.ravel(), trans.ravel(), [dev], lo, hi]).astype(np.float32)
 
