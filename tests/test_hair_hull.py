@@ -67,21 +67,23 @@ def _uncovered(bald, hair, view):
 def test_the_shell_grows_where_other_views_show_hair(scene):
     sdf, bald, truth, current, views = scene
     grown, info = grow_hull(bald, current, views, sdf, budget=3000)
-    # measured: missing hair pixels (beyond the edge margins) 164 / 169 / 225 -> 31 / 30 / 118
-    # after three rounds; 313 Gaussians grown
+    # measured: missing hair pixels (beyond the edge margins) 164 / 169 / 225 -> 33 / 33 / 130
+    # after three rounds; 290 Gaussians grown
     assert len(grown) > 150 and info["grown"] == len(grown)
     assert sum(info["missing_px_after"]) < 0.45 * sum(info["missing_px_before"])
-    # on the true cap: radius 95 mm plus the splats' footprint (measured 5-95 %: 96-112 mm)
+    # on the true cap: radius 95 mm plus the splats' footprint (measured 5-95 %: 96-110 mm)
     r = np.linalg.norm(grown.means, axis=1)
     assert np.percentile(r, 5) > 0.090 and np.percentile(r, 95) < 0.118
     # never over the face, where every view sees skin (measured: none below 1 cm under the
     # cap's edge at the front)
     assert not ((grown.means[:, 1] < -0.01) & (grown.means[:, 2] > 0.03)).any()
-    # the side views see less bare background where the truth has hair (measured 621 -> 352,
-    # 627 -> 288, 756 -> 548 pixels)
+    # the side views see less bare background where the truth has hair (measured 621 -> 359,
+    # 627 -> 287, 756 -> 583 pixels: 0.61 of it in all)
     after = GaussianSet.concat([current, grown])
-    for v in views[1:]:
-        assert _uncovered(bald, after, v) < 0.8 * _uncovered(bald, current, v)
+    before_px = [_uncovered(bald, current, v) for v in views[1:]]
+    after_px = [_uncovered(bald, after, v) for v in views[1:]]
+    assert all(a < 0.85 * b for a, b in zip(after_px, before_px))
+    assert sum(after_px) < 0.7 * sum(before_px)
     # the lifter's extras carry over: fill-like strand -1, not seen by the reference camera
     assert set(grown.extras) == {"strand", "seen"}
     assert (grown.extras["strand"] == -1).all() and (grown.extras["seen"] == 0).all()

@@ -10,11 +10,13 @@ silhouette around the head; the keyframes then only remove hair outside their si
    avatar (bald + hair) leaves uncovered (rendered alpha < `multiview.ALPHA_MIN`, and at least
    that margin from any covered pixel: a pose a few pixels off must not grow a rim);
 2. candidates along each missing pixel's ray, every `STEP` metres across the head's depth range,
-   kept when they lie in the visual hull of the keyframes (inside every labelled keyframe's
-   person silhouette they project into, the same dilated test that removes hair), within the
-   hair region (between `MIN_GAP` and `hair_strands.MAX_SHELL` above the scalp, and within
-   `REACH` of the existing hair), and do not cover skin that another keyframe sees (a point
-   projecting onto a skin pixel in front of that view's rendered surface would hide it);
+   kept when they lie in the hair region (between `MIN_GAP` and `hair_strands.MAX_SHELL` above
+   the scalp, within `REACH` of the existing hair) and inside the visual hull of the keyframes'
+   hair: every labelled keyframe (the reference included) that would see the point (the
+   image holds it and the avatar's rendered surface there is not in front of it) labels its
+   pixel hair. Undilated masks, unlike the silhouette bound that removes hair: growing is
+   held to what every view agrees on, so a pose a few pixels off leaves hair out rather than
+   putting a rim of it around the head;
 3. per ray, the shell is extended: the layer there is the median height above the scalp of the
    `NEIGHBOURS` nearest existing hair Gaussians, and the ray's first admissible sample within
    `LAYER_TOL` of it wins (the first crossing is what the pixel shows), else the admissible
@@ -35,7 +37,7 @@ import numpy as np
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_strands import HAIR_THICKNESS, MAX_SHELL, unit_vectors
 from avatarkit.recon.image_sampling import lookup, sample_image
-from avatarkit.recon.multiview import ALPHA_MIN, EDGE_MARGIN, View, silhouette_outside
+from avatarkit.recon.multiview import ALPHA_MIN, EDGE_MARGIN, View
 from avatarkit.recon.visibility import DEPTH_TOL
 from avatarkit.rotations import matrix_to_quat, quat_to_matrix
 
@@ -87,19 +89,21 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> 
     return (hair > 0) & (covered == 0)
 
 
-def _occludes_skin(points: np.ndarray, labels: list[np.ndarray], depths: list[np.ndarray], cams) -> np.ndarray:
-    """(P,) bool: the point projects onto a skin pixel of some view (labels (H, W), rendered
-    depth (H, W), camera) in front of (or without) that view's rendered surface."""
-    from avatarkit.recon.segment import SKIN
+def _contradicted(points: np.ndarray, labels: list[np.ndarray], depths: list[np.ndarray],
+                  alphas: list[np.ndarray], cams) -> np.ndarray:
+    """(P,) bool: some view (labels (H, W), the avatar's rendered depth and alpha (H, W),
+    camera) would see the point (nothing rendered in front of it there) on a pixel it does not
+    label hair."""
+    from avatarkit.recon.segment import HAIR
 
     bad = np.zeros(len(points), bool)
-    for lab_image, depth, cam in zip(labels, depths, cams):
+    for lab_image, depth, alpha, cam in zip(labels, depths, alphas, cams):
         px, z = cam.project(points)
-        px = np.where(np.isfinite(px), px, -1.0)
-        lab = lookup(lab_image, px)
-        d = lookup(depth, px)
-        hidden = (d > 0) & (z > d + DEPTH_TOL)
-        bad |= (lab == SKIN) & ~hidden
+        inside = np.isfinite(px).all(axis=1) & (z > 0)
+        px = np.where(inside[:, None], px, -1.0)
+        inside &= (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        hidden = (lookup(alpha, px) > ALPHA_MIN) & (z > lookup(depth, px) + DEPTH_TOL)
+        bad |= inside & ~hidden & (lookup(lab_image, px) != HAIR)
     return bad
 
 
@@ -190,9 +194,7 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
         sd, _ = sdf.query(flat)
         ok = (sd >= MIN_GAP) & (sd <= MAX_SHELL)
         idx = np.flatnonzero(ok)
-        ok[idx[silhouette_outside(flat[idx], labelled) > 0]] = False
-        idx = np.flatnonzero(ok)
-        ok[idx[_occludes_skin(flat[idx], labels, depths, cams)]] = False
+        ok[idx[_contradicted(flat[idx], labels, depths, alphas, cams)]] = False
         idx = np.flatnonzero(ok)
         near, nb = tree.query(flat[idx], k=NEIGHBOURS, distance_upper_bound=REACH)
         found = np.isfinite(near)
