@@ -21,9 +21,10 @@ sign-free). The slow reference `solve_directions_reference` minimises the same o
 brute force over a dense set of directions on the sphere, one Gaussian at a time.
 
 Weights (`strand_directions`): a view counts for a hair Gaussian when it sees it (the colour
-blend's visibility, `multiview.view_samples`, restricted to the view's hair pixels) with the
-same weight as its colour sample (cos^2 x sharpness, the reference x `REFERENCE_WEIGHT`) times
-the flow's coherence there; views with coherence below `MIN_COHERENCE` give nothing (no visible
+blend's visibility, `multiview.view_samples`, restricted to the view's hair pixels, without its
+facing cut: hair seen at a grazing angle, such as the top of the head from the front, still
+shows its orientation) with weight sharpness x the flow's coherence there (the reference x
+`REFERENCE_WEIGHT`); views with coherence below `MIN_COHERENCE` give nothing (no visible
 strand structure). Only Gaussians at least `MIN_VIEWS` views constrain change: where one view
 alone sees a Gaussian the single-view estimate is kept (`orient_hair` rotates the rest).
 """
@@ -34,7 +35,7 @@ import numpy as np
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_strands import hair_flow, unit_vectors
 from avatarkit.recon.image_sampling import lookup
-from avatarkit.recon.multiview import View, view_samples
+from avatarkit.recon.multiview import REFERENCE_WEIGHT, View, view_samples
 from avatarkit.rotations import matrix_to_quat, quat_to_matrix
 
 #: the prior toward today's single-view direction, relative to the views' summed weight
@@ -128,11 +129,14 @@ def strand_directions(union: GaussianSet, normals: np.ndarray, hair_rows: np.nda
         if fc is None:
             continue
         flow, coherence = fc
-        s = view_samples(union, normals, v, sample_labels=(HAIR,))
+        # no facing cut: hair seen at a grazing angle (the top of the head from the front) still
+        # shows its strands' orientation; the flow's coherence says how clearly
+        s = view_samples(union, normals, v, sample_labels=(HAIR,), min_cos=-1.0)
         px, _ = v.camera.project(means)
         px = np.where(np.isfinite(px), px, -1.0)
         coh = lookup(coherence, px)
-        w = np.where(s.seen[hair_rows] & (coh >= MIN_COHERENCE), s.weight[hair_rows] * coh, 0.0)
+        w = float(v.sharpness) * (REFERENCE_WEIGHT if v.reference else 1.0) * coh
+        w = np.where(s.seen[hair_rows] & (coh >= MIN_COHERENCE), w, 0.0)
         f2 = np.stack([lookup(flow[..., 0], px), lookup(flow[..., 1], px)], axis=1)
         planes.append(direction_planes(means, f2, v.camera))
         weights.append(w)
