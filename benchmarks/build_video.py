@@ -9,8 +9,8 @@ Prints
     whole video and from the video build's reference frame alone; PSNR of each build's rest
     render against the known avatar's at front, three-quarter and profile views, and the
     video build's gain (target: profile >= +3 dB); how much hair shell the keyframes grew and how
-    many strand directions they set (`--no-multiview-hair` turns both off: run it in a separate
-    process for the before figures);
+    many strand directions they set (`--no-multiview-hair` turns both off). Each build runs in its
+    own process (`_in_own_process`): a second build in one process measured differently;
   - real clips (../shared/data/videos/*.mp4 beside the checkout, skipped when absent):
     `evaluate --compare-single` (self-reenactment on the held-out frames: keyframes +-5
     excluded for both builds): PSNR / SSIM of the video build and the single-frame build and
@@ -43,35 +43,54 @@ VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
-def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str, style: str = "short") -> None:
-    from avatarkit.export.images import write_png
+def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
+           multiview_hair: bool) -> tuple[dict, dict, float]:
+    """One build of the synthetic video (kind "video") or of its reference frame ("single") and
+    its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
+    fresh process: a build made after another one in the same process measured differently
+    (the single-frame build 0.9-1.5 dB lower at front and profile), so each gets its own."""
+    from avatarkit.recon import pipeline
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.synthetic.sample_avatar import make_sample_avatar
-    from avatarkit.synthetic.turning_video import novel_view_psnr, write_turning_video
+    from avatarkit.synthetic.turning_video import novel_view_psnr
     from avatarkit.track.video_build import build_video_avatar
+
+    pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
+    opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
+    t0 = time.perf_counter()
+    avatar = build_video_avatar(path, opts) if kind == "video" else build_avatar(png, opts)
+    wall = time.perf_counter() - t0
+    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
+    return novel_view_psnr(avatar, truth, size), avatar.provenance, wall
+
+
+def _in_own_process(*args):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_score, *args).result()
+
+
+def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str, style: str = "short",
+              multiview_hair: bool = True) -> None:
+    from avatarkit.export.images import write_png
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.synthetic.turning_video import write_turning_video
     from avatarkit.video import read_frame
 
     truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
     path = os.path.join(tmp, "turn.mp4")
     write_turning_video(truth, path, size=size, frames=frames)
-
-    def opts():
-        return BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
-
-    t0 = time.perf_counter()
-    video = build_video_avatar(path, opts())
-    tv = time.perf_counter() - t0
-    ref = video.provenance["source_video"]["frame"]
+    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair)
+    ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    t0 = time.perf_counter()
-    single = build_avatar(png, opts())
-    ts = time.perf_counter() - t0
-    pv, ps = novel_view_psnr(video, truth, size), novel_view_psnr(single, truth, size)
-    keys = [k["frame"] for k in video.provenance["source_video"]["keyframes"]]
+    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair)
+    keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
     print(f"synthetic turning video ({frames} frames {size}x{size}, sample avatar with {style} hair; keyframes "
-          f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair")
-    b = video.provenance["build"]
+          f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair, each in its own process")
+    b = prov["build"]
     hull, dirs = b.get("segment3d", {}).get("hull"), b.get("hair_directions")
     if hull is not None:
         print(f"  hair shell grown from the keyframes: {hull['grown']} Gaussians; uncovered hair pixels per "
@@ -142,23 +161,20 @@ def main() -> None:
     ap.add_argument("--style", default="short", help="the synthetic subject's hair style (synthetic.HAIR_STYLES)")
     ap.add_argument("--no-multiview-hair", action="store_true",
                     help="video builds without the multi-view hair directions and shell growth (the 'before' "
-                         "figures; run in its own process: compare with a run without this flag)")
+                         "figures)")
     ap.add_argument("--time-synthetic", action="store_true",
                     help="also time the build of a 250-frame 480x480 synthetic turning video")
     a = ap.parse_args()
     print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
     if a.no_multiview_hair:
-        from avatarkit.recon import pipeline
-
-        pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = False
         print("multi-view hair directions and shell growth: off")
     counts = (40_000, 40_000)
     with tempfile.TemporaryDirectory(prefix="bench-video-") as tmp:
         if a.quick:
-            synthetic(128, 24, (3000, 1500), tmp)
+            synthetic(128, 24, (3000, 1500), tmp, a.style, not a.no_multiview_hair)
             return
         if not a.skip_synthetic:
-            synthetic(a.size, a.frames, (8000, 4000), tmp, a.style)
+            synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair)
         if a.time_synthetic:
             from avatarkit.synthetic.sample_avatar import make_sample_avatar
             from avatarkit.synthetic.turning_video import write_turning_video
