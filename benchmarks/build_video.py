@@ -10,7 +10,7 @@ Prints
     render against the known avatar's at front, three-quarter and profile views, and the
     video build's gain (target: profile >= +3 dB); how much hair shell the keyframes grew and how
     many strand directions they set (`--no-multiview-hair` turns both off). Each build runs in its
-    own process (`_in_own_process`): a second build in one process measured differently;
+    own process (`_in_own_process`);
   - real clips (../shared/data/videos/*.mp4 beside the checkout, skipped when absent):
     `evaluate --compare-single` (self-reenactment on the held-out frames: keyframes +-5
     excluded for both builds): PSNR / SSIM of the video build and the single-frame build and
@@ -47,8 +47,9 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
            multiview_hair: bool) -> tuple[dict, dict, float]:
     """One build of the synthetic video (kind "video") or of its reference frame ("single") and
     its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
-    fresh process: a build made after another one in the same process measured differently
-    (the single-frame build 0.9-1.5 dB lower at front and profile), so each gets its own."""
+    fresh process: a build made after another one in the same process used to measure
+    differently (GrabCut drew from OpenCV's global RNG; `recon.segment` now resets it), and a
+    process of its own keeps any other state from leaking between the two builds."""
     from avatarkit.recon import pipeline
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.synthetic.sample_avatar import make_sample_avatar
