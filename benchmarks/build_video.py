@@ -1,13 +1,16 @@
 """Video build benchmark: the whole-video build against the single-frame build (its baseline,
 run in the same process).
 
-Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--frames 32] [--skip-real] [--quick]`
+Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--frames 32] [--skip-real] [--quick]
+[--style short|bob|...] [--no-multiview-hair]`
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`), built from the
     whole video and from the video build's reference frame alone; PSNR of each build's rest
     render against the known avatar's at front, three-quarter and profile views, and the
-    video build's gain (target: profile >= +3 dB);
+    video build's gain (target: profile >= +3 dB); how much hair shell the keyframes grew and how
+    many strand directions they set (`--no-multiview-hair` turns both off). Each build runs in its
+    own process (`_in_own_process`);
   - real clips (../shared/data/videos/*.mp4 beside the checkout, skipped when absent):
     `evaluate --compare-single` (self-reenactment on the held-out frames: keyframes +-5
     excluded for both builds): PSNR / SSIM of the video build and the single-frame build and
@@ -40,34 +43,62 @@ VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
-def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str) -> None:
-    from avatarkit.export.images import write_png
+def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
+           multiview_hair: bool) -> tuple[dict, dict, float]:
+    """One build of the synthetic video (kind "video") or of its reference frame ("single") and
+    its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
+    fresh process: a build made after another one in the same process used to measure
+    differently (GrabCut drew from OpenCV's global RNG; `recon.segment` now resets it), and a
+    process of its own keeps any other state from leaking between the two builds."""
+    from avatarkit.recon import pipeline
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.synthetic.sample_avatar import make_sample_avatar
-    from avatarkit.synthetic.turning_video import novel_view_psnr, write_turning_video
+    from avatarkit.synthetic.turning_video import novel_view_psnr
     from avatarkit.track.video_build import build_video_avatar
+
+    pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
+    opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
+    t0 = time.perf_counter()
+    avatar = build_video_avatar(path, opts) if kind == "video" else build_avatar(png, opts)
+    wall = time.perf_counter() - t0
+    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
+    return novel_view_psnr(avatar, truth, size), avatar.provenance, wall
+
+
+def _in_own_process(*args):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_score, *args).result()
+
+
+def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str, style: str = "short",
+              multiview_hair: bool = True) -> None:
+    from avatarkit.export.images import write_png
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.synthetic.turning_video import write_turning_video
     from avatarkit.video import read_frame
 
-    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style="short", cage_vertices=200)
+    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
     path = os.path.join(tmp, "turn.mp4")
     write_turning_video(truth, path, size=size, frames=frames)
-
-    def opts():
-        return BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
-
-    t0 = time.perf_counter()
-    video = build_video_avatar(path, opts())
-    tv = time.perf_counter() - t0
-    ref = video.provenance["source_video"]["frame"]
+    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair)
+    ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    t0 = time.perf_counter()
-    single = build_avatar(png, opts())
-    ts = time.perf_counter() - t0
-    pv, ps = novel_view_psnr(video, truth, size), novel_view_psnr(single, truth, size)
-    keys = [k["frame"] for k in video.provenance["source_video"]["keyframes"]]
-    print(f"synthetic turning video ({frames} frames {size}x{size}, sample avatar; keyframes {keys}, "
-          f"reference {ref}); builds {counts[0]} bald + {counts[1]} hair")
+    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair)
+    keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
+    print(f"synthetic turning video ({frames} frames {size}x{size}, sample avatar with {style} hair; keyframes "
+          f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair, each in its own process")
+    b = prov["build"]
+    hull, dirs = b.get("segment3d", {}).get("hull"), b.get("hair_directions")
+    if hull is not None:
+        print(f"  hair shell grown from the keyframes: {hull['grown']} Gaussians; uncovered hair pixels per "
+              f"keyframe {hull['missing_px_before']} -> {hull['missing_px_after']}")
+    if dirs is not None:
+        print(f"  strand directions from >= 2 keyframes: {dirs['from_views']} of {dirs['of']} hair Gaussians "
+              f"(median turn {dirs.get('median_turn_deg', 0.0)} degrees)")
     print(f"  {'azimuth':>8s} {'single dB':>10s} {'video dB':>10s} {'gain':>7s}")
     for az in pv:
         print(f"  {az:8.0f} {ps[az]:10.2f} {pv[az]:10.2f} {pv[az] - ps[az]:+7.2f}")
@@ -128,17 +159,23 @@ def main() -> None:
     ap.add_argument("--skip-real", action="store_true", help="only the synthetic video")
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="tiny sizes, synthetic only (CI)")
+    ap.add_argument("--style", default="short", help="the synthetic subject's hair style (synthetic.HAIR_STYLES)")
+    ap.add_argument("--no-multiview-hair", action="store_true",
+                    help="video builds without the multi-view hair directions and shell growth (the 'before' "
+                         "figures)")
     ap.add_argument("--time-synthetic", action="store_true",
                     help="also time the build of a 250-frame 480x480 synthetic turning video")
     a = ap.parse_args()
     print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
+    if a.no_multiview_hair:
+        print("multi-view hair directions and shell growth: off")
     counts = (40_000, 40_000)
     with tempfile.TemporaryDirectory(prefix="bench-video-") as tmp:
         if a.quick:
-            synthetic(128, 24, (3000, 1500), tmp)
+            synthetic(128, 24, (3000, 1500), tmp, a.style, not a.no_multiview_hair)
             return
         if not a.skip_synthetic:
-            synthetic(a.size, a.frames, (8000, 4000), tmp)
+            synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair)
         if a.time_synthetic:
             from avatarkit.synthetic.sample_avatar import make_sample_avatar
             from avatarkit.synthetic.turning_video import write_turning_video

@@ -118,10 +118,11 @@ class Samples:
 
 
 def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
-                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None) -> Samples:
+                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None, min_cos: float = MIN_COS) -> Samples:
     """Visibility, weight and colour of every Gaussian in one view (module docstring).
     normals: (N, 3) unit outward normals. sample_labels: labels whose pixels may be sampled
-    (default skin and hair; None labels in the view: every pixel)."""
+    (default skin and hair; None labels in the view: every pixel). min_cos: the facing cut
+    (-1: none; the weight is still cos^2, zero for Gaussians facing away)."""
     from avatarkit.recon.image_sampling import sample_image
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.recon.visibility import seen_from
@@ -130,7 +131,7 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     cam = view.camera
     r = render_result if render_result is not None else render(gaussians, cam, background=(0.0, 0.0, 0.0))
     seen, px, cos = seen_from(np.asarray(gaussians.means, np.float64), np.asarray(normals, np.float64), cam,
-                              r.depth, cam, tol=depth_tolerance, min_facing=MIN_COS)
+                              r.depth, cam, tol=depth_tolerance, min_facing=min_cos)
     px = np.asarray(px, np.float64)
     ix = np.clip(np.floor(np.where(np.isfinite(px), px, 0)).astype(np.int64), 0, [cam.width - 1, cam.height - 1])
     seen &= r.alpha[ix[:, 1], ix[:, 0]] > ALPHA_MIN

@@ -19,8 +19,10 @@ Stages (`STAGES`, each timed and reported through the `progress` callback):
 A video build (`track.video_build`) passes `views` (a `multiview.VideoViews`): the identity
 shape is the joint fit's (the fit stage fits the pose only, as with --flame-params); the views
 stage registers the keyframes to the fitted camera and segments them; segment3d lifts the hair
-labels from every keyframe (votes) and removes hair outside any keyframe's silhouette; colours
-blends every keyframe's samples before matching the reference photo (`recon.multiview`). Without
+labels from every keyframe (votes), removes hair outside any keyframe's silhouette and grows the
+shell where a keyframe shows hair beyond it (`recon.hair_hull`); colours turns the hair strands to
+the directions the keyframes' hair flow gives (`recon.hair_directions`) and blends every
+keyframe's samples before matching the reference photo (`recon.multiview`). Without
 `views` the views stage does nothing.
 
 A portrait without hair (a bald person: no hair pixels, or none left after the 3D hair
@@ -58,6 +60,11 @@ NO_HAIR_WARNING = "no hair found: building a bald avatar"
 #: it and no final reference matching -3.39 / +3.22, +1.78 / +4.26, +4.65 dB (the keyframes'
 #: registration error blurs the face)
 MULTIVIEW_REFINE = False
+#: a video build turns hair strand directions to what the keyframes' hair flow shows
+#: (`recon.hair_directions`) and grows the hair shell where keyframes show more hair
+#: (`recon.hair_hull`); measured in docs/video-build.md
+MULTIVIEW_HAIR_DIRECTIONS = True
+GROW_HAIR_HULL = True
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512
 
@@ -323,6 +330,12 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             inside = silhouette_outside(hair.means, keyviews) == 0
             report.info.setdefault("segment3d", {})["outside_silhouettes"] = int((~inside).sum())
             hair = hair.subset(inside)
+        if keyviews and len(hair) and GROW_HAIR_HULL:
+            from avatarkit.gaussians.gaussian_set import GaussianSet
+            from avatarkit.recon.hair_hull import grow_hull
+
+            grown, report.info["segment3d"]["hull"] = grow_hull(lifted.bald, hair, keyviews, sdf)
+            hair = GaussianSet.concat([hair, grown]) if len(grown) else hair
         if len(hair) == 0:
             report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):
@@ -333,6 +346,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         fit = assembled.fit
     with stage("colours"):
         bald, hair = assembled.bald, assembled.hair
+        if keyviews and MULTIVIEW_HAIR_DIRECTIONS:
+            from avatarkit.recon.hair_directions import orient_from_views
+
+            hair, report.info["hair_directions"] = orient_from_views(bald, hair, keyviews, sdf, analysis.eye_distance)
         if keyviews:
             bald, hair, figures = views.colour(bald, hair, keyviews, fit, sdf)
             report.info["multiview_colours"] = figures

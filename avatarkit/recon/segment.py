@@ -289,6 +289,11 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
         raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
                          f"this one is {W}x{H}", path)
     imported = _load_hair_mask(hair_mask, (H, W), path) if hair_mask is not None else None
+    # GrabCut's k-means draws from OpenCV's thread-global RNG: without a reset each
+    # segmentation starts where the last one left it, so a second build in one process (or a
+    # video build's keyframes) segments differently. Seed 0 is the RNG's fresh state
+    # (0xffffffff): a process's first segmentation is unchanged.
+    cv2.setRNGSeed(0)
 
     k = min(1.0, work_size / max(H, W))
     if k < 1.0:

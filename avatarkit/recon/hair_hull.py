@@ -1,0 +1,242 @@
+"""The hair shell grown from a video build's keyframe silhouettes: hair that another keyframe
+shows beyond the single-view shell (the back of the head, volume at the sides seen in profile).
+
+The single-view shell (`recon.hair_strands.hair_shell`) extrapolates the reference photo's hair
+silhouette around the head; the keyframes then only remove hair outside their silhouettes
+(`multiview.silhouette_outside`). `grow_hull` adds hair where a keyframe shows more:
+
+1. missing pixels: in each labelled keyframe other than the reference, the pixels its
+   segmentation calls hair (eroded by `multiview.EDGE_MARGIN` of the image) that the current
+   avatar (bald + hair) leaves uncovered (rendered alpha < `multiview.ALPHA_MIN`, and at least
+   that margin from any covered pixel: a pose a few pixels off must not grow a rim);
+2. candidates along each missing pixel's ray, every `STEP` metres across the head's depth range,
+   kept when they lie in the hair region (between `MIN_GAP` and `hair_strands.MAX_SHELL` above
+   the scalp, within `REACH` of the existing hair) and inside the visual hull of the keyframes'
+   hair: every labelled keyframe (the reference included) that would see the point (the
+   image holds it and the avatar's rendered surface there is not in front of it) labels its
+   pixel hair. Undilated masks, unlike the silhouette bound that removes hair: growing is
+   held to what every view agrees on, so a pose a few pixels off leaves hair out rather than
+   putting a rim of it around the head;
+3. per ray, the shell is extended: the layer there is the median height above the scalp of the
+   `NEIGHBOURS` nearest existing hair Gaussians, and the ray's first admissible sample within
+   `LAYER_TOL` of it wins (the first crossing is what the pixel shows), else the admissible
+   sample nearest the layer (a visual hull alone is a loose bound on where hair is: the
+   existing shell's thickness decides the depth along the ray);
+4. one hair Gaussian there, the size of the ray's pixel footprint (times the subsampling
+   stride when there are more missing pixels than `budget`), lying along the nearest existing
+   hair's direction in the head's tangent plane, coloured from that keyframe's pixel (the
+   colour blend then mixes in every keyframe that sees it, `multiview.VideoViews.colour`).
+
+The grown Gaussians carry `strand` -1 and `seen` 0 (the reference camera does not see them:
+assemble keeps them free of the photo's landmarks), like the lifter's gap fill.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.hair_strands import HAIR_THICKNESS, MAX_SHELL, unit_vectors
+from avatarkit.recon.image_sampling import lookup, sample_image
+from avatarkit.recon.multiview import ALPHA_MIN, EDGE_MARGIN, View
+from avatarkit.recon.visibility import DEPTH_TOL
+from avatarkit.rotations import matrix_to_quat, quat_to_matrix
+
+#: ray samples are this far apart (metres)
+STEP = 0.002
+#: grown hair lies at least this far above the scalp (metres)
+MIN_GAP = 0.002
+#: and at most this far from the nearest existing hair Gaussian (metres)
+REACH = 0.03
+#: the shell's layer at a point: the median height above the scalp of this many nearest hair
+NEIGHBOURS = 8
+#: a ray sample this close (metres) to that layer lies on it
+LAYER_TOL = 0.002
+#: at most this share of the hair count is grown
+GROW_SHARE = 0.15
+#: rounds of growth (each reaches at most REACH beyond the hair so far)
+ROUNDS = 3
+#: rendering for the missing pixels at most this large (pixels)
+RENDER_SIDE = 256
+
+
+def _shrunk(camera, side: int = RENDER_SIDE):
+    k = min(1.0, side / max(camera.width, camera.height))
+    return camera if k >= 1 else camera.with_size(max(1, round(camera.width * k)), max(1, round(camera.height * k)))
+
+
+def _disc(r: int):
+    import cv2
+
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+
+def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> np.ndarray:
+    """(H, W) bool: the view's hair pixels (labels at alpha's size) the avatar leaves uncovered
+    (module docstring, step 1). alpha: (H, W) the avatar's render from the view."""
+    import cv2
+
+    from avatarkit.recon.segment import HAIR
+
+    h, w = alpha.shape
+    labels = np.asarray(view.labels)
+    if labels.shape != (h, w):
+        labels = cv2.resize(labels.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+    hair = (labels == HAIR).astype(np.uint8)
+    covered = (alpha > ALPHA_MIN).astype(np.uint8)
+    e = max(1, int(round(margin * max(h, w))))
+    hair = cv2.erode(hair, _disc(e))
+    covered = cv2.dilate(covered, _disc(e))
+    return (hair > 0) & (covered == 0)
+
+
+def _contradicted(points: np.ndarray, labels: list[np.ndarray], depths: list[np.ndarray],
+                  alphas: list[np.ndarray], cams) -> np.ndarray:
+    """(P,) bool: some view (labels (H, W), the avatar's rendered depth and alpha (H, W),
+    camera) would see the point (nothing rendered in front of it there) on a pixel it does not
+    label hair."""
+    from avatarkit.recon.segment import HAIR
+
+    bad = np.zeros(len(points), bool)
+    for lab_image, depth, alpha, cam in zip(labels, depths, alphas, cams):
+        px, z = cam.project(points)
+        inside = np.isfinite(px).all(axis=1) & (z > 0)
+        px = np.where(inside[:, None], px, -1.0)
+        inside &= (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        hidden = (lookup(alpha, px) > ALPHA_MIN) & (z > lookup(depth, px) + DEPTH_TOL)
+        bad |= inside & ~hidden & (lookup(lab_image, px) != HAIR)
+    return bad
+
+
+def grow_hull(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, budget: int | None = None,
+              rounds: int = ROUNDS):
+    """Hair Gaussians for what the keyframes show beyond the current shell (module docstring),
+    in `rounds` rounds (each grows from the hair so far, at most `REACH` at a time).
+    bald, hair: the avatar so far (hair with the lifter's `strand` / `seen` extras); views: the
+    keyframes, the reference among them (`View.reference`); sdf: the rest head's `HeadSDF`;
+    budget: at most this many (default `GROW_SHARE` of the hair). Returns (grown hair
+    GaussianSet with the same extras, info: missing pixels per keyframe before and after)."""
+    budget = int(GROW_SHARE * len(hair)) if budget is None else int(budget)
+    grown = hair.subset(np.zeros(len(hair), bool))
+    info = {"missing_px_before": None, "missing_px_after": None, "grown": 0, "rounds": 0}
+    rounds = max(int(rounds), 1)
+    for r in range(rounds + 1):
+        # the last pass only counts what is still missing
+        new, missing = _grow_once(bald, GaussianSet.concat([hair, grown]) if len(grown) else hair, views, sdf,
+                                  0 if r == rounds else budget - len(grown))
+        if info["missing_px_before"] is None:
+            info["missing_px_before"] = missing
+        info["missing_px_after"] = missing
+        if len(new) == 0:
+            break
+        grown = GaussianSet.concat([grown, new]) if len(grown) else new
+        info["rounds"] += 1
+    info["grown"] = len(grown)
+    return grown, info
+
+
+def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, budget: int):
+    """One round of `grow_hull`: (grown, missing pixels per keyframe). With budget <= 0 only the
+    missing pixels are counted."""
+    import cv2
+    from scipy.spatial import cKDTree
+
+    from avatarkit.render import render
+
+    labelled = [v for v in views if v.labels is not None]
+    others = [v for v in labelled if not v.reference]
+    empty = hair.subset(np.zeros(len(hair), bool))
+    info = {"missing_px": []}
+    if not others or len(hair) == 0:
+        return empty, info["missing_px"]
+    union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+    cams, depths, labels, alphas = [], [], [], []
+    for v in labelled:
+        cam = _shrunk(v.camera)
+        r = render(union, cam, background=(0.0, 0.0, 0.0))
+        lab = np.asarray(v.labels)
+        if lab.shape != (cam.height, cam.width):
+            lab = cv2.resize(lab.astype(np.uint8), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+        cams.append(cam)
+        depths.append(r.depth)
+        labels.append(lab.astype(np.int32))
+        alphas.append(r.alpha)
+    rays = []                                     # (view index, pixels (R, 2))
+    for i, v in enumerate(labelled):
+        if v.reference:
+            continue
+        miss = missing_hair(v, alphas[i])
+        ys, xs = np.nonzero(miss)
+        info["missing_px"].append(int(len(ys)))
+        if len(ys):
+            rays.append((i, np.stack([xs + 0.5, ys + 0.5], axis=1)))
+    total = sum(len(p) for _, p in rays)
+    if total == 0 or budget <= 0:
+        return empty, info["missing_px"]
+    stride = max(1.0, total / budget)
+    tree = cKDTree(np.asarray(hair.means, np.float64))
+    hair_sd = sdf.query(np.asarray(hair.means, np.float64))[0]
+    hair_axes = quat_to_matrix(hair.quats.astype(np.float64))[:, :, 0]
+    centre = np.asarray(bald.means, np.float64).mean(axis=0)
+    extent = float(np.linalg.norm(np.ptp(np.asarray(bald.means, np.float64), axis=0))) / 2 + MAX_SHELL
+    out_means, out_px_size, out_dirs, out_rgb = [], [], [], []
+    rng = np.random.default_rng(0)
+    for i, px in rays:
+        v, cam = labelled[i], cams[i]
+        if stride > 1:
+            px = px[np.sort(rng.choice(len(px), max(1, int(round(len(px) / stride))), replace=False))]
+        c = np.asarray(cam.camera_center, np.float64)
+        r = cam.rotation
+        d = unit_vectors(((px[:, :1] - cam.cx) / cam.fx) * r[0] + ((px[:, 1:] - cam.cy) / cam.fy) * r[1] + r[2])
+        dist = float(np.linalg.norm(centre - c))
+        ts = np.arange(dist - extent, dist + extent, STEP)
+        pts = c[None, None] + d[:, None, :] * ts[None, :, None]             # (R, T, 3)
+        flat = pts.reshape(-1, 3)
+        sd, _ = sdf.query(flat)
+        ok = (sd >= MIN_GAP) & (sd <= MAX_SHELL)
+        idx = np.flatnonzero(ok)
+        ok[idx[_contradicted(flat[idx], labels, depths, alphas, cams)]] = False
+        idx = np.flatnonzero(ok)
+        near, nb = tree.query(flat[idx], k=NEIGHBOURS, distance_upper_bound=REACH)
+        found = np.isfinite(near)
+        idx, found, nb = idx[found[:, 0]], found[found[:, 0]], nb[found[:, 0]]
+        # the shell's layer here: the neighbours' height above the scalp
+        layer = np.nanmedian(np.where(found, hair_sd[np.minimum(nb, len(hair) - 1)], np.nan), axis=1)
+        miss_by = np.full(len(flat), np.inf)
+        miss_by[idx] = np.abs(sd[idx] - layer)
+        miss_by = miss_by.reshape(pts.shape[:2])
+        # the first crossing of the layer along the ray is what the pixel shows; without one,
+        # the admissible point nearest the layer
+        on_layer = miss_by <= LAYER_TOL
+        best = np.where(on_layer.any(axis=1), np.argmax(on_layer, axis=1), np.argmin(miss_by, axis=1))
+        hit = np.isfinite(miss_by[np.arange(len(px)), best])
+        if not hit.any():
+            continue
+        p = pts[np.flatnonzero(hit), best[hit]]
+        out_means.append(p)
+        out_px_size.append(stride ** 0.5 * ts[best[hit]] / cam.fx)
+        _, j = tree.query(p)
+        out_dirs.append(hair_axes[j])
+        out_rgb.append(sample_image(v.image.astype(np.float32) / 255.0,
+                                    px[hit] * np.array([v.image.shape[1] / cam.width, v.image.shape[0] / cam.height])))
+    if not out_means:
+        return empty, info["missing_px"]
+    means = np.concatenate(out_means)[:budget]
+    size = np.concatenate(out_px_size)[:budget]
+    axis = np.concatenate(out_dirs)[:budget]
+    rgb = np.concatenate(out_rgb)[:budget]
+    _, normal = sdf.query(means)
+    t = unit_vectors(axis - np.einsum("ij,ij->i", axis, normal)[:, None] * normal)
+    nrm = unit_vectors(normal - np.einsum("ij,ij->i", normal, t)[:, None] * t)
+    rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
+    m = len(means)
+    scales = np.stack([1.6 * size, 0.8 * size, np.full(m, HAIR_THICKNESS)], axis=1)
+    extras = {}
+    for k, a in hair.extras.items():
+        fill = -1 if k == "strand" else 0
+        extras[k] = np.full((m,) + a.shape[1:], fill, dtype=a.dtype)
+    grown = GaussianSet.from_colors(means, matrix_to_quat(rot), scales, np.full(m, 0.9), np.clip(rgb, 0, 1),
+                                    extras=extras)
+    return grown, info["missing_px"]
+
+
+__all__ = ["GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "grow_hull", "missing_hair"]
