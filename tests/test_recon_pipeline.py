@@ -189,6 +189,14 @@ def test_rig_hair_modes(view):
     np.testing.assert_allclose(b.to_world(fit.rest_vertices).means, hair.means, atol=1e-5)
     cage = rig_hair(fit, hair, "cage", cage_vertices=150, sdf=sdf)
     assert "binding" not in cage.hair.extras
+    # the MVC weights wait for the first deformation, and are then what an eager build computes
+    from avatarkit.cage.deform import CageDeformer
+
+    assert not cage.rig.deformer.weights_ready
+    eager = CageDeformer.build(cage.rig.deformer.rest, cage.cage)
+    np.testing.assert_array_equal(cage.rig.deformer.weights_t, eager.weights_t)
+    frame = cage.cage.vertices * 1.01
+    np.testing.assert_array_equal(cage.rig.deformer.deform_arrays(frame)[0], eager.deform_arrays(frame)[0])
     with pytest.raises(InputError, match="hair mode"):
         rig_hair(fit, hair, "braided")
     with pytest.raises(InputError, match="no hair"):
