@@ -12,7 +12,8 @@ Stages (`STAGES`, each timed and reported through the `progress` callback):
     segment3d   3D hair segmentation cleans the hair                    recon.labels3d
     rig         bald Gaussians bound to the head's triangles            recon.assemble.rig_bald
     assemble    hair out of the scalp, small head-shape adjustment      recon.assemble.assemble
-    colours     input-view render matched to the photo                  recon.assemble.refine_colours
+    colours     uncovered head pixels filled, input-view render matched    recon.coverage, recon.assemble
+                to the photo
     hair_rig    cage + weights + roots, or rigid scalp binding          recon.hair_rig
     previews    front / three-quarter / profile renders                 render
 
@@ -58,6 +59,9 @@ NO_HAIR_WARNING = "no hair found: building a bald avatar"
 #: it and no final reference matching -3.39 / +3.22, +1.78 / +4.26, +4.65 dB (the keyframes'
 #: registration error blurs the face)
 MULTIVIEW_REFINE = False
+#: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
+#: (`recon.coverage`), before the colour matching
+COVER_SILHOUETTE = True
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512
 
@@ -346,6 +350,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours_views"] = figures
+        if COVER_SILHOUETTE:
+            from avatarkit.recon.coverage import cover_silhouette
+
+            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels)
         if options.refine_iterations > 0:
             # the reference photo last: the keyframes' residual misregistration must not blur
             # the face the build is made from
