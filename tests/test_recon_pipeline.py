@@ -248,8 +248,10 @@ def test_fast_end_to_end_build(tmp_path):
         ["avatar.json", "bald.ply", "hair.ply", "cage.ply", "rig.npz", *PREVIEW_VIEWS])
     assert [p.name for p in tmp_path.iterdir()] == ["av"]            # no temp folders left
     loaded = load_avatar(out)
-    assert len(loaded.bald) == 6000 and 0 < len(loaded.hair) <= 5000
     build = loaded.provenance["build"]
+    # the lifter's counts plus the coverage fill (at most MAX_COVER)
+    assert len(loaded.bald) == 6000 + build["coverage"]["bald_added"]
+    assert 0 < len(loaded.hair) <= 5000 + build["coverage"]["hair_added"]
     assert set(build["timings_s"]) == set(STAGES)
     assert loaded.provenance["hair_mode"] in ("rigid", "cage")
     assert build["assemble"]["inside_after"] == 0
@@ -361,4 +363,4 @@ def test_a_portrait_without_hair_builds_a_bald_avatar(tmp_path):
     out = save_avatar(avatar, tmp_path / "bald")
     assert sorted(p.name for p in out.iterdir()) == ["avatar.json", "bald.ply"]
     loaded = load_avatar(out)
-    assert len(loaded.bald) == 2000 and not loaded.has_hair
+    assert len(loaded.bald) == 2000 + build["coverage"]["bald_added"] and not loaded.has_hair
