@@ -74,7 +74,7 @@ def nearest_faces(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
         cd = cd.reshape(len(chunk), k)
         ci = ci.reshape(len(chunk), k)
         if prune:
-            d = _pruned_candidates(chunk, cd, ci, tri, centroids, radius, normal)
+            d = _pruned_candidates(chunk, ci, tri, centroids, radius, normal)
         else:
             d = point_triangle_distance(np.repeat(chunk, k, axis=0), tri[ci.ravel()]).reshape(len(chunk), k)
         best = np.argmin(d, axis=1)    # the first minimum: the nearer centroid wins a tie
@@ -136,7 +136,7 @@ def _bounded_search(pts: np.ndarray, owner: np.ndarray, tri_of_pair: np.ndarray,
     return out
 
 
-def _pruned_candidates(pts: np.ndarray, cd: np.ndarray, ci: np.ndarray, tri: np.ndarray,
+def _pruned_candidates(pts: np.ndarray, ci: np.ndarray, tri: np.ndarray,
                        centroids: np.ndarray, radius: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """(M, k) distances from each point (M, 3) to its k candidate triangles ci (M, k), exact
     where the triangle can be the nearest and +inf where it cannot (`_bounded_search`): argmin
