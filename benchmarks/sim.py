@@ -5,7 +5,8 @@ Run: `.venv/bin/python benchmarks/sim.py [--hair 50000] [--frames 90] [--ablatio
 Prints, for the test avatar (template head, long straight hair, ~500-vertex cage), with
 the default substeps x iterations (40 x 1) per frame at 30 fps on the whip clip:
   - ms per frame of the simulation alone (solver step, and the driver step that adds the root
-    targets from the posed head), median over the clip, wall and CPU time;
+    targets from the posed head), median over the clip, wall and CPU time; the solver also with
+    proxies of 32 MVC weights (the default before issue 18's session 5), in alternation;
   - ms per frame of simulation + deforming the hair Gaussians through the cage, as the bake does
     it (`bake.HAIR_BATCH` = 16 frames stepped, then deformed in one product), and one product
     per frame (`HairDriver.hair_arrays`) as the baseline;
@@ -100,17 +101,29 @@ def main(argv=None) -> int:
     state = driver.state.copy()
     solver.step(state, state, frames[0], frames[0], dt)  # compile outside the timing
 
-    it = iter(range(1, len(frames)))
+    # the baseline in the same process: proxies of 32 MVC weights (the default before session 5),
+    # stepped frame by frame in alternation with the default solver so both see the same load
+    from avatarkit.sim.model import CageModel
 
-    def solver_step():
-        i = next(it, None) or 1
-        solver.step(state, state, frames[i - 1], frames[i], dt)
-
+    m32 = CageModel.build(avatar.cage, hair, avatar.head_model, avatar.head_vertices, sdf=avatar.sdf, proxy_k=32)
+    solver32 = XPBDSolver(m32, config, skin=driver.skin)
+    state32 = driver.state.copy()
+    solver32.step(state32, state32, frames[0], frames[0], dt)
     n = len(frames) - 1
     print("\n== per frame (median over the whip clip, 30 fps; wall / CPU ms; the machine is shared, "
           "CPU time is the steadier figure)")
-    wall, cpu = timed(solver_step, n)
+    times = {"new": ([], []), "old": ([], [])}
+    for i in range(1, len(frames)):
+        for key, slv, st in (("new", solver, state), ("old", solver32, state32)):
+            w, c = time.perf_counter(), time.process_time()
+            slv.step(st, st, frames[i - 1], frames[i], dt)
+            times[key][0].append(1e3 * (time.perf_counter() - w))
+            times[key][1].append(1e3 * (time.process_time() - c))
+    wall, cpu = (float(np.median(x)) for x in times["new"])
+    wall32, cpu32 = (float(np.median(x)) for x in times["old"])
     print(f"solver step (XPBD only)                      {wall:7.2f} / {cpu:6.2f} ms   target <= 3")
+    print(f"  baseline: proxies of 32 weights            {wall32:7.2f} / {cpu32:6.2f} ms   "
+          f"({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU)")
     k = iter(range(1, len(frames)))
 
     def driver_step():
@@ -158,7 +171,8 @@ def main(argv=None) -> int:
     print(f"\n== targets ({machine()}; ms per frame, median, wall / CPU)")
     print(f"solver step, {config.substeps} x {config.iterations}, {m.num_vertices}-vertex cage   "
           f"{wall:7.2f} / {cpu:6.2f} ms   target <= 3: {'met' if wall <= 3 else 'NOT met'} (wall)   "
-          f"baseline numpy reference {ref_ms:.0f} ms ({ref_ms / wall:.0f}x)")
+          f"baselines: numpy reference {ref_ms:.0f} ms ({ref_ms / wall:.0f}x), 32-weight proxies "
+          f"{wall32:.2f} / {cpu32:.2f} ms ({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU)")
     print(f"simulation + {len(hair)} hair Gaussians (bake path) {wall_b:7.2f} / {cpu_b:6.2f} ms   "
           f"target <= 15: {'met' if wall_b <= 15 else 'NOT met'} (wall)   "
           f"baseline one product per frame {wall_f:.2f} / {cpu_f:.2f} ms ({wall_f / wall_b:.1f}x wall, "

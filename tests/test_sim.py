@@ -536,3 +536,87 @@ def test_push_out_screen_is_exact_near_the_clearance(scene, jaw_skin):
     assert (code[d < 0] == 0).all()
     assert (code * pushout.CELL_STEP <= np.maximum(d, 0) + 1e-7).all()
     assert (code * pushout.CELL_STEP > 0.01).mean() > 0.2
+
+
+def test_push_out_second_screen_is_exact_on_the_scalp_layer(scene, jaw_skin):
+    """With the jaw shut (deviation bound 0) hair lying 0-3 mm off the head sits in cells whose
+    floor cannot rule it out; the second screen (the rest SDF at the head-joint point) does, for
+    most of it, and the result is still the full lookup's bit for bit, in and just past the
+    clearance (where the screen's slack decides)."""
+    from avatarkit.sim import pushout
+    from avatarkit.sim.pushout import CLEARANCE, SCREEN_SLACK
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.0, rigid((0.1, 0.2, 0.0))).joint_transforms
+    rng = np.random.default_rng(10)
+    dirs = rng.normal(size=(20000, 3))
+    radius = RADIUS + np.r_[rng.uniform(0.0, 0.003, 14000),
+                            CLEARANCE + rng.uniform(-2, 2, 6000) * SCREEN_SLACK]
+    pts = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * radius[:, None]
+    pts = pts @ t[0, :3, :3].T + t[0, :3, 3]
+    screened = pushout.push_out(pts, model.sdf, skin, t)
+    np.testing.assert_array_equal(screened, pushout.push_out(pts, model.sdf, skin, t, screen=False))
+    assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 1000
+    # what the test exercises: points the floors pass but the second screen rules out
+    q = (pts - t[0, :3, 3]) @ t[0, :3, :3]
+    d, _ = model.sdf.query(q)
+    u = np.clip((q - model.sdf.origin) / model.sdf.spacing, 0, np.asarray(model.sdf.shape) - 1)
+    c = np.minimum(np.floor(u).astype(int), np.asarray(model.sdf.shape) - 2)
+    floor_pass = model.sdf.cell_floor[c[:, 0], c[:, 1], c[:, 2]] < pushout.screen_limit(CLEARANCE)
+    assert (floor_pass & (d >= CLEARANCE + SCREEN_SLACK)).sum() > 5000
+    # a slightly open jaw (a wide one bounds the deviation beyond what the screens can use):
+    # points on and around the posed lower cap, which the head joint's rest frame puts off the
+    # rest head (the bound on the jaw's deviation must keep them in)
+    t = jaw_frame(model, head, lower, 0.01, rigid((0.1, 0.2, 0.0))).joint_transforms
+    dev = float(pushout._pose_buffer(model.sdf, skin, t)[-7])
+    assert 0.001 < dev and pushout.screen_limit(CLEARANCE + 2.0 * dev) > 0
+    cap = head[lower] @ t[1, :3, :3].T + t[1, :3, 3]
+    pts = cap[rng.integers(0, len(cap), 20000)] + rng.normal(scale=0.003, size=(20000, 3))
+    screened = pushout.push_out(pts, model.sdf, skin, t)
+    np.testing.assert_array_equal(screened, pushout.push_out(pts, model.sdf, skin, t, screen=False))
+    assert (screened != pts.astype(np.float32)).any(axis=1).sum() > 1000
+
+
+def test_root_targets_match_the_triangle_frames_reference(scene):
+    """The written-out face frames of `root_targets` give what `triangle_frames` gives, bit for
+    bit, on randomly moved heads and on a root face collapsed to a point (identity frame)."""
+    model, head, _ = scene
+    rng = np.random.default_rng(11)
+    for scale in (0.0, 0.002, 0.02):
+        v = (head @ axis_angle_to_matrix(rng.normal(size=3)).T + rng.normal(scale=scale, size=head.shape))
+        np.testing.assert_array_equal(model.root_targets(v), model.root_targets_reference(v))
+    v = head.copy()
+    v[model.head_faces[model.root_faces[0]]] = v[model.head_faces[model.root_faces[0], 0]]
+    got = model.root_targets(v)
+    np.testing.assert_array_equal(got, model.root_targets_reference(v))
+    np.testing.assert_allclose(got[0], v[model.head_faces[model.root_faces[0], 0]] + model.root_offsets[0],
+                               atol=1e-6)
+    with pytest.raises(InputError):
+        model.root_targets(head[:10])
+
+
+def test_kernel_deviation_bound_matches_skin_deviation(scene, jaw_skin):
+    """The frame kernel works out the per-substep bound on how far the jaw's and neck's inverse
+    LBS moves a point against the skull itself; `solver.skin_deviation` is its reference."""
+    from avatarkit.sim.solver import joint_substep_transforms, skin_deviation
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    f0 = jaw_frame(model, head, lower, 0.1, rigid((0.1, 0.0, 0.0)))
+    f1 = jaw_frame(model, head, lower, 0.3, rigid((0.2, 0.1, 0.0), (0.0, 0.01, 0.0)))
+    cfg = SimConfig(substeps=5)
+    n_sub = cfg.substeps_for(1 / 30)
+    for frames, joints in (((f0, f1), 2), ((frame(model, head, np.eye(4)), frame(model, head, rigid((0.2, 0, 0)))), 1)):
+        solver = XPBDSolver(model, cfg, skin=skin)
+        state = model.rest_state()
+        solver.step(state, state, *frames, 1 / 30)
+        p = solver._packed
+        got = p.fbuf[p.dev_slice][:n_sub]
+        rot, tr = joint_substep_transforms(*frames, n_sub, joints)
+        want = skin_deviation(skin, model.sdf, rot, tr, joints)
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+        if joints > 1:
+            assert want.min() > 0.01 and np.ptp(want) > 0.001  # a jaw moving against the skull
+        else:
+            assert (got == 0).all()

@@ -88,8 +88,10 @@ class CageDeformer:
             k = principal_axis_index(self.rest.scales)
             rot = quat_to_matrix(self.rest.quats.astype(np.float64))
             perp = rot[np.arange(n), :, (k + 1) % 3]  # any unit vector normal to the axis
+            # C order for the rebuild kernel (rest_x is a transpose, so axis is Fortran order and
+            # Taichi would copy it on every frame's launch: ~1 ms a frame for 50k Gaussians)
             self._pre = dict(
-                axis=(axis / length[:, None]).astype(np.float32), length=length.astype(np.float32),
+                axis=np.ascontiguousarray(axis / length[:, None], np.float32), length=length.astype(np.float32),
                 perp=np.ascontiguousarray(perp, np.float32), index=k,
                 offset=(mu - 0.5 * (plus + minus)).astype(np.float32))
         else:

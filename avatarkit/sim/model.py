@@ -33,6 +33,13 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.head.sdf_grid import HeadSDF
 
+#: cage vertices (MVC weights) kept per proxy. The solver sums every proxy in every substep, so
+#: this is its largest per-vertex cost; 8 measured as good as 32 on the whip (issue 18, session 5:
+#: strain, volume, rest and penetration within the tests' bounds) and the kernel ~20 % cheaper.
+#: Plain renormalised truncation (no correction) put proxies 13-20 mm off their Gaussians at rest
+#: and broke the strain bound at every K tried (8-24): hence `sparsify_weights`' correction.
+PROXY_K = 8
+
 
 @dataclass(eq=False)
 class CageState:
@@ -96,6 +103,12 @@ class HeadFrame:
 
 
 _EYE3 = np.eye(3)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a x b of (N, 3) arrays (np.cross costs ~4x more on small arrays)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
 def _close(a: np.ndarray, b: np.ndarray, atol: float) -> bool:
@@ -203,6 +216,11 @@ class CageModel:
             raise InputError("root vertices must have inverse mass 0")
         if (self.inv_mass < 0).any():
             raise InputError("inverse masses must be >= 0")
+        # per-frame constants of root_targets
+        self._head_size = int(self.head_faces.max()) + 1 if self.head_faces.size else 0
+        self._root_corners = self.head_faces[self.root_faces]                     # (R, 3)
+        self._root_bary64 = self.root_bary.astype(np.float64)
+        self._root_offsets64 = self.root_offsets.astype(np.float64)
 
     # --- sizes -------------------------------------------------------------------------------
     @property
@@ -219,21 +237,49 @@ class CageModel:
 
     # --- kinematic input -----------------------------------------------------------------------
     def root_targets(self, head_vertices: np.ndarray) -> np.ndarray:
-        """Posed head vertices (V, 3) -> root positions (R, 3) float32 (see module docstring)."""
+        """Posed head vertices (V, 3) -> root positions (R, 3) float32 (see module docstring).
+
+        The face frames are written out here (e0 along the first edge, n the normal, b = e0 x n,
+        as `rig.frames.triangle_frames`, which `root_targets_reference` uses): this runs every
+        frame, and the general routine's ~25 array calls on (R, 3, 3) stacks cost ~2x more."""
+        from avatarkit.rig.frames import MIN_EDGE, MIN_RELATIVE_HEIGHT
+
+        v = np.asarray(head_vertices)
+        self._check_head(v)
+        c = v[self._root_corners].astype(np.float64)                             # (R, 3, 3)
+        a = c[:, 0]
+        d1 = c[:, 1] - a
+        d2 = c[:, 2] - a
+        len0 = np.sqrt(np.einsum("ri,ri->r", d1, d1))
+        e0 = d1 / np.where(len0 > MIN_EDGE, len0, 1.0)[:, None]
+        n = _cross(e0, d2)
+        height = np.sqrt(np.einsum("ri,ri->r", n, n))
+        flat = (len0 <= MIN_EDGE) | (height <= MIN_RELATIVE_HEIGHT * len0)
+        n /= np.where(flat, 1.0, height)[:, None]
+        o = self._root_offsets64
+        # a degenerate face's frame is the identity (as triangle_frames gives it)
+        turned = np.where(flat[:, None], o, o[:, :1] * e0 + o[:, 1:2] * n + o[:, 2:] * _cross(e0, n))
+        return (np.einsum("rk,rkc->rc", self._root_bary64, c) + turned).astype(np.float32)
+
+    def root_targets_reference(self, head_vertices: np.ndarray) -> np.ndarray:
+        """`root_targets` through `rig.frames.triangle_frames` (the tests compare the two)."""
         from avatarkit.rig.frames import triangle_frames
 
         v = np.asarray(head_vertices)
-        if v.ndim != 2 or v.shape[1] != 3:
-            raise InputError(f"head vertices must have shape (V, 3), got {v.shape}")
-        if self.head_faces.size and self.head_faces.max() >= len(v):
-            raise InputError(f"the cage's roots ride head faces over {self.head_faces.max() + 1} "
-                             f"vertices, but the head has {len(v)}")
+        self._check_head(v)
         # gather the root faces' corners first: the head has thousands of vertices, roots ~100s
         corners = v[self.head_faces[self.root_faces]].astype(np.float64)          # (R, 3, 3)
         points = np.einsum("rk,rkc->rc", self.root_bary.astype(np.float64), corners)
         flat = np.arange(3 * len(corners)).reshape(-1, 3)
         _, rotations, _ = triangle_frames(corners.reshape(-1, 3), flat)        # (R, 3, 3)
         return (points + np.einsum("rij,rj->ri", rotations, self.root_offsets)).astype(np.float32)
+
+    def _check_head(self, v: np.ndarray) -> None:
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise InputError(f"head vertices must have shape (V, 3), got {v.shape}")
+        if self._head_size > len(v):
+            raise InputError(f"the cage's roots ride head faces over {self._head_size} "
+                             f"vertices, but the head has {len(v)}")
 
     def head_frame(self, head_vertices: np.ndarray, transform: np.ndarray,
                    joint_transforms: np.ndarray | None = None) -> HeadFrame:
@@ -246,7 +292,7 @@ class CageModel:
     def from_arrays(cls, rest_positions: np.ndarray, faces: np.ndarray, roots: np.ndarray,
                     head_vertices: np.ndarray, head_faces: np.ndarray, *,
                     proxy_points: np.ndarray | None = None, proxy_weights: np.ndarray | None = None,
-                    proxy_k: int = 32, attach_faces: np.ndarray | None = None,
+                    proxy_k: int = PROXY_K, attach_faces: np.ndarray | None = None,
                     sdf: HeadSDF | None = None, sdf_spacing: float = 0.0025,
                     tether_slack: float = 0.0) -> "CageModel":
         """Derive every table from a closed cage mesh and a rest head.
@@ -338,7 +384,7 @@ class CageModel:
     @classmethod
     def build(cls, cage, hair, head_model, rest_head_vertices: np.ndarray | None = None, *,
               roots: np.ndarray | None = None, root_distance: float = 0.015, min_roots: int = 3,
-              root_region: str = "scalp", proxy_k: int = 32, sdf: HeadSDF | None = None,
+              root_region: str = "scalp", proxy_k: int = PROXY_K, sdf: HeadSDF | None = None,
               sdf_spacing: float = 0.0025, tether_slack: float = 0.0) -> "CageModel":
         """A model for a hair cage over a head.
 
@@ -428,8 +474,9 @@ def sparsify_weights(weights: np.ndarray, k: int, points: np.ndarray | None = No
     """Dense weights (P, C) -> the k largest in magnitude per row: index (P, k) i32, weight (P, k)
     f32. Mean value coordinates fall off slowly (k = 16 of a 500-vertex cage carry ~2 cm of
     error), so the kept weights are corrected by the smallest change that makes them sum to 1
-    and rebuild `points` (P, 3) exactly from `vertices` (C, 3) (linear precision at rest);
-    without points they are only renormalised to sum 1 (translation invariance)."""
+    and rebuild `points` (P, 3) exactly from `vertices` (C, 3) (linear precision at rest): the
+    proxy is then exactly its Gaussian at rest, with no offset; without points they are only
+    renormalised to sum 1 (translation invariance)."""
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim != 2 or not np.isfinite(w).all():
         raise InputError(f"proxy weights must be a finite (P, C) matrix, got shape {w.shape}")

@@ -39,11 +39,10 @@ def _pose_buffer(sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray) -> np.nda
     trans = np.zeros((JMAX, 3))
     rot[:len(t)] = t[:, :3, :3]
     trans[:len(t)] = t[:, :3, 3]
-    from avatarkit.sim.solver import DEVIATION_REACH, skin_deviation
+    from avatarkit.sim.solver import deviation_box, skin_deviation
 
     dev = skin_deviation(skin, sdf, rot[None], trans[None], len(t))[0]
-    lo = sdf.origin - DEVIATION_REACH  # the box skin_deviation's bound holds in
-    hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
+    lo, hi = deviation_box(sdf)  # the box skin_deviation's bound holds in
     return np.concatenate([sdf.origin, [1.0 / sdf.spacing], skin.origin, [1.0 / skin.spacing],
                            rot.ravel(), trans.ravel(), [dev], lo, hi]).astype(np.float32)
 
@@ -55,8 +54,9 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
 
     screen: first rule out, from one byte read (`HeadSDF.cell_floor` at the point in the head
     joint's frame, less LIPSCHITZ times the pose's bound on how far the skinned pieces move
-    against the skull), the points that no piece of the posed head comes within the clearance
-    of, and leave them as they are: the full lookup would too, so the result is the same bit
+    against the skull), then for the rest from one trilinear lookup of the rest SDF there, the
+    points that no piece of the posed head comes within the clearance of, and leave them as
+    they are: the full lookup would too, so the result is the same bit
     for bit (most hair centres lie millimetres to centimetres off the scalp); False: the full
     lookup for every point (the reference the tests compare with)."""
     from avatarkit.sim import _kernels
@@ -67,9 +67,10 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
     if len(out):
         pose = _pose_buffer(sdf, skin, t[:nj])
         dev = float(pose[8 + 12 * JMAX])
-        limit = screen_limit(float(clearance) + _kernels.LIPSCHITZ * dev) if screen else 0
+        reach = float(clearance) + _kernels.LIPSCHITZ * dev
+        limit = screen_limit(reach) if screen else 0
         _kernels.push_out_points(out, pose, sdf.values_grad, skin.weights, sdf.cell_floor, nj,
-                                 float(clearance), int(rounds), limit)
+                                 float(clearance), int(rounds), limit, reach + SCREEN_SLACK)
     return out
 
 

@@ -68,8 +68,16 @@ def frame_params(model: CageModel, config: SimConfig, dt: float, substeps: int,
         config.compliance_volume / h2, config.compliance_tether / h2,
         config.compliance_collision / h2, np.exp(-config.damping * h), config.collision_margin,
         *config.gravity, config.max_speed, model.rest_volume, *sdf.origin, 1.0 / sdf.spacing,
-        *skin.origin, 1.0 / skin.spacing,
+        *skin.origin, 1.0 / skin.spacing, *deviation_box(sdf)[0], *deviation_box(sdf)[1],
     ], dtype=np.float32)
+
+
+def deviation_box(sdf) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) of the box where `skin_deviation`'s bound holds: the SDF grid grown by
+    DEVIATION_REACH."""
+    lo = sdf.origin - DEVIATION_REACH
+    hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
+    return lo, hi
 
 
 def proxy_denominators(model: CageModel) -> np.ndarray:
@@ -144,11 +152,12 @@ def skin_deviation(skin: HeadSkin, sdf, rotations: np.ndarray, translations: np.
     point inverse LBS finds (x = sum_j w_j T_j q): |q1 - q| <= max_j |T_0^-1 T_j q - q|, an
     affine function's norm, so its maximum over a box (the SDF grid, grown by
     DEVIATION_REACH) is at a corner. 0 with the head joint alone. Lets the solver skip the
-    skinning and SDF lookups of points provably far from the head."""
+    skinning and SDF lookups of points provably far from the head. The solver's kernel computes
+    the same per substep itself (`_kernels.simulate_frame`); this is its reference and the
+    push-out's bound."""
     if joints <= 1:
         return np.zeros(len(rotations))
-    lo = sdf.origin - DEVIATION_REACH
-    hi = sdf.origin + sdf.spacing * (np.asarray(sdf.shape) - 1) + DEVIATION_REACH
+    lo, hi = deviation_box(sdf)
     corners = np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])])
     r0, t0 = rotations[:, 0], translations[:, 0]
     rel_r = np.einsum("sba,sjbc->sjac", r0, rotations[:, 1:joints])             # R0^T Rj
@@ -279,7 +288,6 @@ class XPBDSolver:
         rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
         p.fbuf[p.rot_slice][:9 * JMAX * n_sub] = rotations.ravel()
         p.fbuf[p.trans_slice][:3 * JMAX * n_sub] = translations.ravel()
-        p.fbuf[p.dev_slice][:n_sub] = skin_deviation(self.skin, m.sdf, rotations, translations, nj)
         _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
         state_out.positions = p.xbuf[:c].copy()
         state_out.velocities = p.xbuf[c:2 * c].copy()
