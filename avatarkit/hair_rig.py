@@ -40,11 +40,18 @@ class HairRig:
               method: str = "principal_axis",
               progress: Callable[[int, int], None] | None = None, sdf=None) -> "HairRig":
         """Compute the rig of `hair` in `cage` over the rest head (vertices (V, 3)).
-        sdf: the rest head's `HeadSDF` if already built (else built here)."""
+        sdf: the rest head's `HeadSDF` if already built (else built here).
+
+        The deformer's MVC weights are computed now only when `progress` is given (progress(done,
+        total) follows them); otherwise they are deferred to the first deformation
+        (`CageDeformer.deferred`, the same weights): rig.npz does not store them, so a build that
+        is saved and never moves its hair (`avatarkit build`, a rigid-hair avatar) does not pay
+        for them (about a third of a build's rig time)."""
         from avatarkit.cage.deform import CageDeformer
         from avatarkit.sim.model import CageModel
 
-        deformer = CageDeformer.build(hair, cage, method, progress=progress)
+        deformer = (CageDeformer.build(hair, cage, method, progress=progress) if progress is not None
+                    else CageDeformer.deferred(hair, cage, method))
         model = CageModel.build(cage, hair, head_model, np.asarray(rest_vertices, np.float32), sdf=sdf)
         # the file keeps the SDF's values only; use what a load rebuilds, so a loaded rig
         # simulates exactly like the one built here

@@ -189,6 +189,14 @@ def test_rig_hair_modes(view):
     np.testing.assert_allclose(b.to_world(fit.rest_vertices).means, hair.means, atol=1e-5)
     cage = rig_hair(fit, hair, "cage", cage_vertices=150, sdf=sdf)
     assert "binding" not in cage.hair.extras
+    # the MVC weights wait for the first deformation, and are then what an eager build computes
+    from avatarkit.cage.deform import CageDeformer
+
+    assert not cage.rig.deformer.weights_ready
+    eager = CageDeformer.build(cage.rig.deformer.rest, cage.cage)
+    np.testing.assert_array_equal(cage.rig.deformer.weights_t, eager.weights_t)
+    frame = cage.cage.vertices * 1.01
+    np.testing.assert_array_equal(cage.rig.deformer.deform_arrays(frame)[0], eager.deform_arrays(frame)[0])
     with pytest.raises(InputError, match="hair mode"):
         rig_hair(fit, hair, "braided")
     with pytest.raises(InputError, match="no hair"):
@@ -240,8 +248,10 @@ def test_fast_end_to_end_build(tmp_path):
         ["avatar.json", "bald.ply", "hair.ply", "cage.ply", "rig.npz", *PREVIEW_VIEWS])
     assert [p.name for p in tmp_path.iterdir()] == ["av"]            # no temp folders left
     loaded = load_avatar(out)
-    assert len(loaded.bald) == 6000 and 0 < len(loaded.hair) <= 5000
     build = loaded.provenance["build"]
+    # the lifter's counts plus the coverage fill (at most MAX_COVER)
+    assert len(loaded.bald) == 6000 + build["coverage"]["bald_added"]
+    assert 0 < len(loaded.hair) <= 5000 + build["coverage"]["hair_added"]
     assert set(build["timings_s"]) == set(STAGES)
     assert loaded.provenance["hair_mode"] in ("rigid", "cage")
     assert build["assemble"]["inside_after"] == 0
@@ -264,7 +274,7 @@ def test_full_build_on_the_sample_meets_the_targets(tmp_path):
     save_avatar(avatar, tmp_path / "av")
     image = read_image(SAMPLE)
     m = front_view_metrics(avatar, image, segment_portrait(image, analyze_portrait(image)))
-    assert m["psnr_db"] >= 25.0
+    assert m["psnr_db"] >= 27.0          # issue 15's target; measured 28.47 dB (26.39 before the coverage fill)
     assert m["hair_inside_share"] == 0.0
 
 
@@ -353,4 +363,4 @@ def test_a_portrait_without_hair_builds_a_bald_avatar(tmp_path):
     out = save_avatar(avatar, tmp_path / "bald")
     assert sorted(p.name for p in out.iterdir()) == ["avatar.json", "bald.ply"]
     loaded = load_avatar(out)
-    assert len(loaded.bald) == 2000 and not loaded.has_hair
+    assert len(loaded.bald) == 2000 + build["coverage"]["bald_added"] and not loaded.has_hair

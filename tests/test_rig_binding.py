@@ -194,6 +194,35 @@ def test_nearest_faces_with_very_uneven_triangles():
     np.testing.assert_allclose(dist, ref.min(axis=1), atol=1e-12)
 
 
+def _pruning_cases():
+    rng = np.random.default_rng(11)
+    v, f = bumpy_sphere(3)
+    # a few big triangles among small ones: the size classes each get their own search radius
+    coarse, cf = bumpy_sphere(1, seed=3)
+    v2 = np.concatenate([v, coarse * 1.02])
+    f2 = np.concatenate([f, cf + len(v)])
+    near = gaussians_near(v, 400, sh_degree=0, seed=12, spread=0.003).means
+    far = gaussians_near(v, 300, sh_degree=0, seed=13, spread=0.04).means   # hair over a scalp
+    on_vertices = v[rng.integers(0, len(v), 200)]                            # exact ties
+    degenerate = np.zeros(len(f), bool)
+    degenerate[::7] = True
+    return [(near, v, f, {}, 4), (far, v, f, {}, 8), (on_vertices, v, f, {}, 8),
+            (near, v, f, {"exclude": degenerate}, 32), (np.concatenate([near, far]), v2, f2, {}, 8)]
+
+
+@pytest.mark.parametrize("case", range(5))
+def test_nearest_faces_pruned_search_is_the_reference_bit_for_bit(case):
+    points, v, f, kw, k = _pruning_cases()[case]
+    ids, dist = nearest_faces(points, v, f, candidates=k, **kw)
+    ref_ids, ref_dist = nearest_faces(points, v, f, candidates=k, prune=False, **kw)
+    np.testing.assert_array_equal(ids, ref_ids)
+    np.testing.assert_array_equal(dist, ref_dist)
+    brute = brute_force_distances(points.astype(np.float64), v, f)
+    if "exclude" in kw:
+        brute[:, kw["exclude"]] = np.inf
+    np.testing.assert_allclose(dist, brute.min(axis=1), atol=1e-12)
+
+
 def test_bind_uses_given_face_ids_and_skips_degenerate_faces():
     v, f = bumpy_sphere(2)
     g = gaussians_near(v, 50, sh_degree=0)

@@ -12,7 +12,8 @@ Stages (`STAGES`, each timed and reported through the `progress` callback):
     segment3d   3D hair segmentation cleans the hair                    recon.labels3d
     rig         bald Gaussians bound to the head's triangles            recon.assemble.rig_bald
     assemble    hair out of the scalp, small head-shape adjustment      recon.assemble.assemble
-    colours     input-view render matched to the photo                  recon.assemble.refine_colours
+    colours     uncovered head pixels filled, input-view render matched    recon.coverage, recon.assemble
+                to the photo
     hair_rig    cage + weights + roots, or rigid scalp binding          recon.hair_rig
     previews    front / three-quarter / profile renders                 render
 
@@ -65,6 +66,9 @@ MULTIVIEW_REFINE = False
 #: (`recon.hair_hull`); measured in docs/video-build.md
 MULTIVIEW_HAIR_DIRECTIONS = True
 GROW_HAIR_HULL = True
+#: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
+#: (`recon.coverage`), before the colour matching
+COVER_SILHOUETTE = True
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512
 
@@ -363,6 +367,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours_views"] = figures
+        if COVER_SILHOUETTE:
+            from avatarkit.recon.coverage import cover_silhouette
+
+            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels)
         if options.refine_iterations > 0:
             # the reference photo last: the keyframes' residual misregistration must not blur
             # the face the build is made from
