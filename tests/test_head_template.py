@@ -275,3 +275,33 @@ def test_trimesh_round_trip_through_ply(head, tmp_path):
     back = trimesh.load(path, process=False)
     np.testing.assert_allclose(back.vertices, v[0], atol=1e-6)
     np.testing.assert_array_equal(back.faces, head.faces)
+
+
+# --- the shipped surface ----------------------------------------------------------------------
+
+def test_shipped_surface_is_current_and_equals_the_generated_one():
+    """The shipped file must come from today's generating code (else every process silently pays
+    ~2.5 s), and loading it must give what generating gives."""
+    from avatarkit.head import template
+
+    shipped = template.shipped_head_surface()
+    assert shipped is not None, ("avatarkit/head/data/template_surface.npz is stale or missing: "
+                                 "run scripts/make_template_surface.py")
+    v, f = template.generate_head_surface()
+    np.testing.assert_array_equal(shipped[1], f)
+    np.testing.assert_allclose(shipped[0], v, rtol=0, atol=1e-9)
+
+
+def test_surface_made_by_other_code_is_generated_instead(monkeypatch, tmp_path):
+    from avatarkit.head import template
+
+    generated = (np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    monkeypatch.setattr(template, "generate_head_surface", lambda: generated)
+    monkeypatch.setattr(template, "surface_sources_sha256", lambda: "other code")
+    assert template.shipped_head_surface() is None
+    assert template._head_surface() is generated
+    monkeypatch.setattr(template, "SURFACE_FILE", tmp_path / "missing.npz")
+    assert template.shipped_head_surface() is None
+    (tmp_path / "bad.npz").write_bytes(b"not an npz")
+    monkeypatch.setattr(template, "SURFACE_FILE", tmp_path / "bad.npz")
+    assert template.shipped_head_surface() is None

@@ -30,9 +30,14 @@ variation) and `EXPRESSION_NAMES` (one unit = a full expression) are analytic di
 fields evaluated on the vertices. Blinks rotate the upper lid about the eye centre (it slides
 over the eyeball on the socket sphere); other components leave the sockets rigid.
 
-Generation takes ~1-2 s and is cached in memory (`load_template`); it is deterministic.
+Generation is deterministic and cached in memory (`load_template`). The surface, its slow part
+(~2.5 s), ships as data/template_surface.npz keyed by a hash of the generating code: a change to
+that code falls back to generating it until `scripts/make_template_surface.py` is run again.
 """
 from __future__ import annotations
+
+import hashlib
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse
@@ -197,7 +202,36 @@ def _marching_cubes(hf=0.0028, hc=0.011, lo=(-0.1, -0.215, -0.115), hi=(0.1, 0.1
     return verts, np.ascontiguousarray(faces, dtype=np.int64)
 
 
-def _head_surface() -> tuple[np.ndarray, np.ndarray]:
+#: the generated head surface, shipped so a process does not spend ~2.5 s re-making it
+#: (`scripts/make_template_surface.py` writes it; `tests/test_head_template.py` checks it is current)
+SURFACE_FILE = Path(__file__).with_name("data") / "template_surface.npz"
+#: the modules whose code decides the surface: a change to any of them retires the shipped file
+_SURFACE_SOURCES = ("template.py", "remesh.py", "sdf.py")
+
+
+def surface_sources_sha256() -> str:
+    """sha256 over the source files that generate the head surface (the shipped file's key)."""
+    h = hashlib.sha256()
+    for name in _SURFACE_SOURCES:
+        h.update(Path(__file__).with_name(name).read_bytes())
+    return h.hexdigest()
+
+
+def shipped_head_surface() -> tuple[np.ndarray, np.ndarray] | None:
+    """The shipped surface (vertices (V, 3) float64, faces (F, 3) int64), or None when the file is
+    missing, unreadable or was made by other code than this (then the caller generates it)."""
+    try:
+        with np.load(SURFACE_FILE, allow_pickle=False) as z:
+            if str(z["sources_sha256"]) != surface_sources_sha256():
+                return None
+            return np.array(z["vertices"], np.float64), np.array(z["faces"], np.int64)
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def generate_head_surface() -> tuple[np.ndarray, np.ndarray]:
+    """The head surface from the SDF (the slow path, ~2.5 s): marching cubes, projection onto the
+    SDF, decimation toward the sizing field, edge flips and relaxation."""
     v, f = _marching_cubes()
     v = project_to_sdf(v, head_sdf, iterations=2)
     v, f = collapse_short_edges(v, f, _sizing, head_sdf)
@@ -205,6 +239,11 @@ def _head_surface() -> tuple[np.ndarray, np.ndarray]:
     v = relax(v, f, head_sdf, iterations=5)
     f = flip_edges(v, f)
     return v, f
+
+
+def _head_surface() -> tuple[np.ndarray, np.ndarray]:
+    shipped = shipped_head_surface()
+    return shipped if shipped is not None else generate_head_surface()
 
 
 def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
