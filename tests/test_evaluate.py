@@ -95,6 +95,17 @@ def test_metrics_on_the_mask_box_equal_the_whole_frame_ones(case):
             assert got[k] == pytest.approx(v, rel=1e-10, abs=1e-10), k
     if case == "blob":
         assert 0.5 < got["ssim"] < 0.99 and got["ssim_full"] > got["ssim"]  # a real difference
+    # the images before compositing, composited inside the box only: the same numbers
+    raw_a = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    raw_b = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    bg = (0.2, 0.5, 1.0)
+    want = metrics.region_metrics(metrics.composite(raw_a, mask, bg), metrics.composite(raw_b, mask, bg), mask)
+    got = metrics.region_metrics(raw_a, raw_b, mask, bg)
+    for k, v in want.items():
+        assert got[k] == pytest.approx(v, rel=1e-12, abs=1e-12) or (math.isnan(v) and math.isnan(got[k])), k
+    # the heat map on the box is the whole frame's
+    np.testing.assert_array_equal(metrics.error_heat_map(raw_a, raw_b, mask, margin=0),
+                                  metrics.error_heat_map(raw_a, raw_b, mask))
 
 
 def test_fast_ssim_map_equals_skimage():

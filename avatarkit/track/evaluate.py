@@ -11,8 +11,8 @@ Steps (`evaluate`):
    `single_frame` entry.
 2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
-   When step 1 tracked the video to choose the frame, its face meshes are reused (`meshes=`:
-   the same result, only the fits run again).
+   Step 1's tracking with the template head (which chose the build frame, or the video build's
+   keyframes) lends its face meshes (`meshes=`: the same result, only the fits run again).
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
@@ -163,32 +163,36 @@ def check_report_target(folder: str | os.PathLike) -> Path:
 
 
 def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarray,
-                  options: EvalOptions) -> tuple[dict, np.ndarray, np.ndarray]:
-    """Image metrics of one frame -> (values, composited video (H, W, 3) float, mask (H, W))."""
+                  options: EvalOptions) -> tuple[dict, np.ndarray]:
+    """Image metrics of one frame (video and render (H, W, 3), render alpha (H, W)) ->
+    (values, person mask (H, W)). Both images are composited onto the background outside the
+    mask; only inside the mask's bounding box, where anything differs (`metrics.region_metrics`:
+    the whole-frame numbers at a fraction of the cost)."""
     mask = metrics.person_mask(alpha, options.alpha_threshold)
-    ours = metrics.to_float(render_rgb)           # rendered on the background colour already
-    theirs = metrics.composite(video_rgb, mask, options.background)
-    ours_c = metrics.composite(ours, mask, options.background)
-    # on the mask's bounding box: the whole-frame numbers at a fraction of the cost
-    vals = {"mask_fraction": float(mask.mean()), **metrics.region_metrics(ours_c, theirs, mask)}
-    return vals, theirs, mask
+    vals = {"mask_fraction": float(mask.mean()),
+            **metrics.region_metrics(render_rgb, video_rgb, mask, options.background)}
+    return vals, mask
 
 
 def _build_video(video: str, report: Path, options: EvalOptions,
-                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int]]:
-    """The whole-video build into report/avatar -> (folder, reference frame, keyframes)."""
+                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int], object]:
+    """The whole-video build into report/avatar -> (folder, reference frame, keyframes, the
+    template tracking it chose them from: its face meshes are reused by the second tracking)."""
     from avatarkit.recon.pipeline import BuildOptions, save_avatar
-    from avatarkit.track.video_build import build_video_avatar
+    from avatarkit.track.video_build import build_tracking, build_video_avatar
 
+    build_options = BuildOptions(preview=False, n_bald=options.n_bald, n_hair=options.n_hair)
+    t0 = time.perf_counter()
+    tracking = build_tracking(video, build_options, (lambda d, t: progress("tracking for the build", d, t))
+                              if progress else None)
+    timings["choose_frame"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     target = report / "avatar"
-    avatar = build_video_avatar(video, BuildOptions(preview=False, n_bald=options.n_bald, n_hair=options.n_hair),
-                                track_progress=(lambda d, t: progress("tracking for the build", d, t))
-                                if progress else None)
+    avatar = build_video_avatar(video, build_options, tracking=tracking)
     save_avatar(avatar, target)
     timings["build"] = time.perf_counter() - t0
     src = avatar.provenance["source_video"]
-    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]]
+    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]], tracking
 
 
 def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
@@ -242,7 +246,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         tracking = None
         keyframes: list[int] = []
         if avatar is None and build_frame is None:
-            avatar_dir, build_frame, keyframes = _build_video(video, staged, options, progress, timings)
+            avatar_dir, build_frame, keyframes, tracking = _build_video(video, staged, options, progress, timings)
             built = True
         elif avatar is None:
             avatar_dir, build_frame, tracking = _build(video, staged, build_frame, options, progress, timings)
@@ -272,7 +276,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             single_dir, _, _ = _build(video, staged, build_frame, options, None, {}, "avatar_single_frame")
             single_result = track_video(video, avatar=single_dir,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
-                                        if progress else None)
+                                        if progress else None, meshes=tracking.meshes)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
             single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
                                                   staged, progress)
@@ -338,7 +342,7 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
                 while current.index < index[i]:
                     current = next(source)
                 ours = to_uint8(np.clip(r.rgb, 0, 1))
-                vals, theirs, mask = compare_frame(current.rgb, ours, r.alpha, options)
+                vals, mask = compare_frame(current.rgb, ours, r.alpha, options)
                 t3 = time.perf_counter()
                 mesh = follower(ours)
                 video_mesh = result.landmarks[i] if result.found[i] else None
@@ -351,7 +355,8 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
                                          vals["ssim"], vals["psnr_full"], vals["ssim_full"], err,
                                          err / iod if iod > 0 else float("nan")))
                 if writer is not None:
-                    heat = metrics.error_heat_map(ours, theirs, mask)
+                    # inside the mask the composited video is the video itself
+                    heat = metrics.error_heat_map(ours, current.rgb, mask, margin=0)
                     writer.append(np.concatenate([current.rgb, ours, heat], axis=1))
                 t5 = time.perf_counter()
                 t["bake"] += t1 - t0
