@@ -43,3 +43,28 @@ def test_slots_follow_flame_order():
 def test_angle_is_clamped():
     aa = eye_rotation(np.array([1.0, 0.0, 0.2]))
     assert np.linalg.norm(aa) == pytest.approx(MAX_ANGLE)
+
+
+def test_relative_eyes_compose_with_the_inverse_of_the_reference():
+    """Against scipy's rotations: R_t R_ref^T per eye; the reference frame becomes zero."""
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track.gaze import relative_eyes
+
+    rng = np.random.default_rng(3)
+    eyes = rng.normal(0, 0.4, (7, 6))
+    got = relative_eyes(eyes, eyes[4])
+    np.testing.assert_allclose(got[4], 0.0, atol=1e-12)
+    for s in range(2):
+        want = (Rotation.from_rotvec(eyes[:, 3 * s:3 * s + 3])
+                * Rotation.from_rotvec(eyes[4, 3 * s:3 * s + 3]).inv()).as_rotvec()
+        np.testing.assert_allclose(got[:, 3 * s:3 * s + 3], want, atol=1e-10)
+    # a constant bias on every frame cancels: the changes of gaze are what is left
+    bias = np.array([-0.45, 0.1, 0.0, -0.5, -0.1, 0.0])
+    turns = np.zeros((3, 6))
+    turns[:, 1] = [0.0, 0.2, -0.1]
+    turns[:, 4] = [0.0, 0.2, -0.1]
+    biased = np.concatenate([(Rotation.from_rotvec(turns[:, 3 * s:3 * s + 3])
+                              * Rotation.from_rotvec(np.tile(bias[3 * s:3 * s + 3], (3, 1)))).as_rotvec()
+                             for s in range(2)], axis=1)
+    np.testing.assert_allclose(relative_eyes(biased, biased[0]), turns, atol=1e-10)

@@ -13,6 +13,8 @@ Steps (`evaluate`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
    Step 1's tracking with the template head (which chose the build frame, or the video build's
    keyframes) lends its face meshes (`meshes=`: the same result, only the fits run again).
+   The clip's eye rotations are made relative to the build frame's (`eyes_from_build_frame`):
+   the avatar's eyeballs carry the build frame's eyes.
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
@@ -217,6 +219,20 @@ def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
     return target, index, tracking
 
 
+def eyes_from_build_frame(result, frame: int | None) -> bool:
+    """Make the tracked clip's eye rotations relative to the build frame's (`gaze.relative_eyes`:
+    the avatar's eyeballs carry that frame's eyes). False (clip unchanged) when the build frame
+    is unknown or not in the clip."""
+    from avatarkit.track.gaze import relative_eyes
+
+    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
+    if len(rows) == 0:
+        return False
+    eyes = np.asarray(result.clip.eyes)
+    result.clip.eyes = relative_eyes(eyes, eyes[int(rows[0])]).astype(eyes.dtype)
+    return True
+
+
 def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
     """The frame of `video` the avatar was built from, when its provenance says so
     (`build VIDEO --frame`), else None."""
@@ -261,6 +277,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
         result = track_video(video, avatar=avatar_dir, progress=step,
                              meshes=tracking.meshes if tracking is not None else None)
+        relative = eyes_from_build_frame(result, build_frame)
         timings["track"] = time.perf_counter() - t0
         centres = sorted(set(keyframes) | ({build_frame} if build_frame is not None else set()))
         frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
@@ -277,6 +294,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             single_result = track_video(video, avatar=single_dir,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
                                         if progress else None, meshes=tracking.meshes)
+            eyes_from_build_frame(single_result, build_frame)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
             single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
                                                   staged, progress)
@@ -292,6 +310,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "background": list(options.background),
             "ssim": {k: v for k, v in metrics.SSIM_SETTINGS.items()},
             "hair": "simulated" if options.simulate_hair else "static (rides the head)",
+            "eyes": ("tracked gaze relative to the build frame's" if relative else "tracked gaze as it is"),
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),
         }
