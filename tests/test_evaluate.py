@@ -95,6 +95,17 @@ def test_metrics_on_the_mask_box_equal_the_whole_frame_ones(case):
             assert got[k] == pytest.approx(v, rel=1e-10, abs=1e-10), k
     if case == "blob":
         assert 0.5 < got["ssim"] < 0.99 and got["ssim_full"] > got["ssim"]  # a real difference
+    # the images before compositing, composited inside the box only: the same numbers
+    raw_a = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    raw_b = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    bg = (0.2, 0.5, 1.0)
+    want = metrics.region_metrics(metrics.composite(raw_a, mask, bg), metrics.composite(raw_b, mask, bg), mask)
+    got = metrics.region_metrics(raw_a, raw_b, mask, bg)
+    for k, v in want.items():
+        assert got[k] == pytest.approx(v, rel=1e-12, abs=1e-12) or (math.isnan(v) and math.isnan(got[k])), k
+    # the heat map on the box is the whole frame's
+    np.testing.assert_array_equal(metrics.error_heat_map(raw_a, raw_b, mask, margin=0),
+                                  metrics.error_heat_map(raw_a, raw_b, mask))
 
 
 def test_fast_ssim_map_equals_skimage():
@@ -141,8 +152,43 @@ def test_build_frame_choice_prefers_frontal_neutral_confident():
     clip = SimpleNamespace(rotation=rot, jaw=jaw, expr=np.zeros((T, 10)))
     conf = np.array([0.9, 0.9, 0.5, 0.9, 0.9])   # frame 2 frontal but unsure
     found = np.array([True, True, True, True, False])   # frame 4 interpolated
-    r = SimpleNamespace(clip=clip, confidence=conf, found=found, frame_index=np.arange(10, 15))
+    r = SimpleNamespace(clip=clip, confidence=conf, found=found, frame_index=np.arange(10, 15),
+                        landmarks=face_marks(T))
     assert choose_build_frame(r) == 13
+
+
+def face_marks(T: int, gap=0.0, width=None) -> np.ndarray:
+    """(T, 468, 2) face meshes with only the points the build frame's mouth term reads: eye
+    corners 60 px apart, inner lips `gap` (T,) eye distances apart, mouth corners `width`
+    (T,) eye distances apart (default 0.8); the rest at the origin."""
+    p = np.zeros((T, 468, 2))
+    p[:, [33, 133, 362, 263], 0] = [-40, -20, 20, 40]          # eye centres at -30 and +30
+    w = 0.8 * np.ones(T) if width is None else np.asarray(width, float)
+    p[:, 61, 0], p[:, 291, 0] = -30 * w, 30 * w
+    p[:, 13, 1], p[:, 14, 1] = 50, 50 + 60 * np.asarray(gap, float)
+    return p
+
+
+def test_build_frame_choice_reads_the_mouth_from_the_face_mesh():
+    """The tracked jaw and expression miss a smile (calibrated tracking fits every frame well):
+    the face mesh's lip gap and widening rule it out; a few degrees of turn do not."""
+    from types import SimpleNamespace
+
+    from avatarkit.track.build_frame import choose_build_frame, mouth_cost
+
+    T = 4
+    rot = np.zeros((T, 3))
+    rot[:, 1] = [0.0, 0.05, 0.1, 0.06]
+    clip = SimpleNamespace(rotation=rot, jaw=np.zeros((T, 3)), expr=np.zeros((T, 10)))
+    gap = np.array([0.12, 0.0, 0.0, 0.0])            # frame 0: frontal, lips apart
+    width = np.array([0.8, 1.0, 0.8, 0.8])           # frame 1: nearly frontal, a wide smile
+    marks = face_marks(T, gap, width)
+    np.testing.assert_allclose(mouth_cost(marks), [0.12, 0.2, 0.0, 0.0], atol=1e-12)
+    r = SimpleNamespace(clip=clip, confidence=np.full(T, 0.9), found=np.ones(T, bool),
+                        frame_index=np.arange(T), landmarks=marks)
+    assert choose_build_frame(r) == 3
+    marks[3] = np.nan                                 # no face there: never chosen
+    assert choose_build_frame(r) == 2
 
 
 # ---- end to end on a synthetic video ---------------------------------------------------------

@@ -19,8 +19,11 @@ def _tracking(yaw, pitch=None, jaw=None, conf=None):
         j[:, 0] = jaw
     clip = SimpleNamespace(rotation=rot, jaw=j, expr=np.zeros((T, 10)))
     conf = np.full(T, 0.9) if conf is None else np.asarray(conf, float)
+    # face meshes with closed lips and a still mouth: the build frame's mouth term is 0
+    marks = np.zeros((T, 468, 2))
+    marks[:, [33, 133, 362, 263], 0] = [-40, -20, 20, 40]
     return SimpleNamespace(clip=clip, confidence=conf, found=np.ones(T, bool),
-                           frame_index=np.arange(100, 100 + T), num_frames=T)
+                           frame_index=np.arange(100, 100 + T), num_frames=T, landmarks=marks)
 
 
 def test_yaw_pitch_reads_back_euler_angles():

@@ -43,3 +43,62 @@ def test_slots_follow_flame_order():
 def test_angle_is_clamped():
     aa = eye_rotation(np.array([1.0, 0.0, 0.2]))
     assert np.linalg.norm(aa) == pytest.approx(MAX_ANGLE)
+
+
+def test_relative_eyes_compose_with_the_inverse_of_the_reference():
+    """Against scipy's rotations: R_t R_ref^T per eye; the reference frame becomes zero."""
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track.gaze import relative_eyes
+
+    rng = np.random.default_rng(3)
+    eyes = rng.normal(0, 0.4, (7, 6))
+    got = relative_eyes(eyes, eyes[4])
+    np.testing.assert_allclose(got[4], 0.0, atol=1e-12)
+    for s in range(2):
+        want = (Rotation.from_rotvec(eyes[:, 3 * s:3 * s + 3])
+                * Rotation.from_rotvec(eyes[4, 3 * s:3 * s + 3]).inv()).as_rotvec()
+        np.testing.assert_allclose(got[:, 3 * s:3 * s + 3], want, atol=1e-10)
+    # a constant bias on every frame cancels: the changes of gaze are what is left
+    bias = np.array([-0.45, 0.1, 0.0, -0.5, -0.1, 0.0])
+    turns = np.zeros((3, 6))
+    turns[:, 1] = [0.0, 0.2, -0.1]
+    turns[:, 4] = [0.0, 0.2, -0.1]
+    biased = np.concatenate([(Rotation.from_rotvec(turns[:, 3 * s:3 * s + 3])
+                              * Rotation.from_rotvec(np.tile(bias[3 * s:3 * s + 3], (3, 1)))).as_rotvec()
+                             for s in range(2)], axis=1)
+    np.testing.assert_allclose(relative_eyes(biased, biased[0]), turns, atol=1e-10)
+
+
+def test_clip_relative_to_the_build_pose():
+    """The build frame's view transform becomes the build's exactly; the motion between frames
+    (R_s R_t^T, and where a head point goes relative to the build frame) is kept."""
+    from avatarkit.rotations import axis_angle_to_matrix
+    from avatarkit.track.build_pose import relative_to_build, view_transforms
+
+    rng = np.random.default_rng(5)
+    T, b = 9, 4
+    rot = rng.normal(0, 0.15, (T, 3))
+    tau = rng.normal(0, 0.01, (T, 3))
+    C = np.diag([1.0, -1.0, -1.0])
+    cam = np.eye(4)
+    cam[:3, :3] = C
+    cam[:3, 3] = C @ np.array([0.01, -0.05, -0.5])
+    J0 = np.array([0.0, -0.12, -0.02])
+    Rf = axis_angle_to_matrix(np.array([0.1, -0.05, 0.03])).astype(np.float64)
+    tf = np.array([0.004, -0.053, -0.466])
+    build = np.eye(4)
+    build[:3, :3], build[:3, 3] = C @ Rf, C @ tf
+    new_rot, new_tau = relative_to_build(rot, tau, b, cam, build, J0)
+    R0, t0 = view_transforms(rot, tau, cam, J0)
+    R1, t1 = view_transforms(new_rot, new_tau, cam, J0)
+    np.testing.assert_allclose(R1[b], Rf, atol=1e-12)
+    np.testing.assert_allclose(t1[b], tf, atol=1e-12)
+    for s in range(T):
+        np.testing.assert_allclose(R1[s] @ R1[b].T, R0[s] @ R0[b].T, atol=1e-12)
+    # with no offset (the build saw what the tracker saw) nothing moves
+    same = np.eye(4)
+    same[:3, :3], same[:3, 3] = C @ R0[b], C @ t0[b]
+    r2, t2 = relative_to_build(rot, tau, b, cam, same, J0)
+    np.testing.assert_allclose(r2, rot, atol=1e-10)
+    np.testing.assert_allclose(t2, tau, atol=1e-12)

@@ -11,8 +11,12 @@ Steps (`evaluate`):
    `single_frame` entry.
 2. Track the whole video with that avatar's head model and identity (`track_video(avatar=)`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
-   When step 1 tracked the video to choose the frame, its face meshes are reused (`meshes=`:
-   the same result, only the fits run again).
+   Step 1's tracking with the template head (which chose the build frame, or the video build's
+   keyframes) lends its face meshes (`meshes=`: the same result, only the fits run again).
+   The clip's eye rotations are made relative to the build frame's (`eyes_from_build_frame`):
+   the avatar's eyeballs carry the build frame's eyes. Its head pose is made relative to the
+   build's fit (`pose_from_build`, `track.build_pose`): the build frame is then seen exactly as
+   the build saw it, and the tracked motion from there drives the avatar.
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
@@ -163,32 +167,36 @@ def check_report_target(folder: str | os.PathLike) -> Path:
 
 
 def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarray,
-                  options: EvalOptions) -> tuple[dict, np.ndarray, np.ndarray]:
-    """Image metrics of one frame -> (values, composited video (H, W, 3) float, mask (H, W))."""
+                  options: EvalOptions) -> tuple[dict, np.ndarray]:
+    """Image metrics of one frame (video and render (H, W, 3), render alpha (H, W)) ->
+    (values, person mask (H, W)). Both images are composited onto the background outside the
+    mask; only inside the mask's bounding box, where anything differs (`metrics.region_metrics`:
+    the whole-frame numbers at a fraction of the cost)."""
     mask = metrics.person_mask(alpha, options.alpha_threshold)
-    ours = metrics.to_float(render_rgb)           # rendered on the background colour already
-    theirs = metrics.composite(video_rgb, mask, options.background)
-    ours_c = metrics.composite(ours, mask, options.background)
-    # on the mask's bounding box: the whole-frame numbers at a fraction of the cost
-    vals = {"mask_fraction": float(mask.mean()), **metrics.region_metrics(ours_c, theirs, mask)}
-    return vals, theirs, mask
+    vals = {"mask_fraction": float(mask.mean()),
+            **metrics.region_metrics(render_rgb, video_rgb, mask, options.background)}
+    return vals, mask
 
 
 def _build_video(video: str, report: Path, options: EvalOptions,
-                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int]]:
-    """The whole-video build into report/avatar -> (folder, reference frame, keyframes)."""
+                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int], object]:
+    """The whole-video build into report/avatar -> (folder, reference frame, keyframes, the
+    template tracking it chose them from: its face meshes are reused by the second tracking)."""
     from avatarkit.recon.pipeline import BuildOptions, save_avatar
-    from avatarkit.track.video_build import build_video_avatar
+    from avatarkit.track.video_build import build_tracking, build_video_avatar
 
+    build_options = BuildOptions(preview=False, n_bald=options.n_bald, n_hair=options.n_hair)
+    t0 = time.perf_counter()
+    tracking = build_tracking(video, build_options, (lambda d, t: progress("tracking for the build", d, t))
+                              if progress else None)
+    timings["choose_frame"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     target = report / "avatar"
-    avatar = build_video_avatar(video, BuildOptions(preview=False, n_bald=options.n_bald, n_hair=options.n_hair),
-                                track_progress=(lambda d, t: progress("tracking for the build", d, t))
-                                if progress else None)
+    avatar = build_video_avatar(video, build_options, tracking=tracking)
     save_avatar(avatar, target)
     timings["build"] = time.perf_counter() - t0
     src = avatar.provenance["source_video"]
-    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]]
+    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]], tracking
 
 
 def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
@@ -211,6 +219,45 @@ def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
     index = build_from_video(video, target, frame, n_bald=options.n_bald, n_hair=options.n_hair)
     timings["build"] = time.perf_counter() - t0
     return target, index, tracking
+
+
+def eyes_from_build_frame(result, frame: int | None) -> bool:
+    """Make the tracked clip's eye rotations relative to the build frame's (`gaze.relative_eyes`:
+    the avatar's eyeballs carry that frame's eyes). False (clip unchanged) when the build frame
+    is unknown or not in the clip."""
+    from avatarkit.track.gaze import relative_eyes
+
+    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
+    if len(rows) == 0:
+        return False
+    eyes = np.asarray(result.clip.eyes)
+    result.clip.eyes = relative_eyes(eyes, eyes[int(rows[0])]).astype(eyes.dtype)
+    return True
+
+
+def pose_from_build(result, avatar_dir: Path, frame: int | None) -> bool:
+    """Re-pose the tracked clip so that the build frame is seen as the avatar's build saw it
+    (`track.build_pose`: the tracked motion kept, the offset between the build's fit and the
+    tracker's removed). False (clip unchanged) when the build frame is unknown or not in the
+    clip, or the avatar's provenance has no build camera."""
+    from avatarkit.avatar import load_avatar_head, read_manifest
+    from avatarkit.head.model import HeadParams
+    from avatarkit.track.build_pose import relative_to_build
+
+    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
+    camera = (read_manifest(avatar_dir).get("provenance", {}).get("build", {}).get("camera") or {})
+    w2c = camera.get("world_to_camera")
+    if len(rows) == 0 or w2c is None or camera.get("convention", "opencv") != "opencv":
+        return False
+    model, shape, _, _ = load_avatar_head(avatar_dir)
+    params = HeadParams(shape=np.asarray(shape, np.float32), expr=np.zeros((1, model.num_expr), np.float32))
+    joint0 = model.rest_joints(params)[0][0]
+    clip = result.clip
+    rot, tau = relative_to_build(clip.rotation, clip.translation, int(rows[0]), result.camera.world_to_camera,
+                                 np.asarray(w2c, np.float64), joint0)
+    clip.rotation = rot.astype(np.asarray(clip.rotation).dtype)
+    clip.translation = tau.astype(np.asarray(clip.translation).dtype)
+    return True
 
 
 def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
@@ -242,7 +289,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         tracking = None
         keyframes: list[int] = []
         if avatar is None and build_frame is None:
-            avatar_dir, build_frame, keyframes = _build_video(video, staged, options, progress, timings)
+            avatar_dir, build_frame, keyframes, tracking = _build_video(video, staged, options, progress, timings)
             built = True
         elif avatar is None:
             avatar_dir, build_frame, tracking = _build(video, staged, build_frame, options, progress, timings)
@@ -257,6 +304,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
         result = track_video(video, avatar=avatar_dir, progress=step,
                              meshes=tracking.meshes if tracking is not None else None)
+        relative = eyes_from_build_frame(result, build_frame)
+        posed = pose_from_build(result, avatar_dir, build_frame)
         timings["track"] = time.perf_counter() - t0
         centres = sorted(set(keyframes) | ({build_frame} if build_frame is not None else set()))
         frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
@@ -272,7 +321,9 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             single_dir, _, _ = _build(video, staged, build_frame, options, None, {}, "avatar_single_frame")
             single_result = track_video(video, avatar=single_dir,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
-                                        if progress else None)
+                                        if progress else None, meshes=tracking.meshes)
+            eyes_from_build_frame(single_result, build_frame)
+            pose_from_build(single_result, single_dir, build_frame)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
             single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
                                                   staged, progress)
@@ -288,6 +339,9 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "background": list(options.background),
             "ssim": {k: v for k, v in metrics.SSIM_SETTINGS.items()},
             "hair": "simulated" if options.simulate_hair else "static (rides the head)",
+            "eyes": ("tracked gaze relative to the build frame's" if relative else "tracked gaze as it is"),
+            "head_pose": ("tracked motion, the build frame posed as the build's fit" if posed
+                          else "tracked pose as it is"),
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),
         }
@@ -338,7 +392,7 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
                 while current.index < index[i]:
                     current = next(source)
                 ours = to_uint8(np.clip(r.rgb, 0, 1))
-                vals, theirs, mask = compare_frame(current.rgb, ours, r.alpha, options)
+                vals, mask = compare_frame(current.rgb, ours, r.alpha, options)
                 t3 = time.perf_counter()
                 mesh = follower(ours)
                 video_mesh = result.landmarks[i] if result.found[i] else None
@@ -351,7 +405,8 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
                                          vals["ssim"], vals["psnr_full"], vals["ssim_full"], err,
                                          err / iod if iod > 0 else float("nan")))
                 if writer is not None:
-                    heat = metrics.error_heat_map(ours, theirs, mask)
+                    # inside the mask the composited video is the video itself
+                    heat = metrics.error_heat_map(ours, current.rgb, mask, margin=0)
                     writer.append(np.concatenate([current.rgb, ours, heat], axis=1))
                 t5 = time.perf_counter()
                 t["bake"] += t1 - t0

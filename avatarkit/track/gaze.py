@@ -86,3 +86,21 @@ def project_gaze(eyes: np.ndarray, eye_centres_head: np.ndarray, rotation: np.nd
         p_cam = _C @ (R @ (eye_centres_head[slot] + radius * g) + t)
         out[row] = (focal * p_cam[0] / p_cam[2] + principal[0], focal * p_cam[1] / p_cam[2] + principal[1])
     return out
+
+
+def relative_eyes(eyes: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(T, 6) eye rotations relative to the `reference` (6,): per eye R_t R_ref^T, so the
+    reference itself becomes no rotation. An avatar built from a frame carries that frame's
+    eyes painted on its eyeballs (iris where the photo showed it): driving it with the tracked
+    gaze as it is turns the painted iris by the whole tracked angle, including the estimate's
+    constant bias (measured on talking_man_glasses.mp4: ~25-30 degrees downward at every
+    frame, the iris ray meets the model's eyeball far from its front), and the eyeballs show
+    their unpainted white. Relative to the build frame, the avatar's eyes look as the video's
+    did there, and the gaze's changes drive them."""
+    from avatarkit.rotations import matrix_to_axis_angle
+
+    e = np.asarray(eyes, np.float64).reshape(-1, 2, 3)
+    R = axis_angle_to_matrix(e.reshape(-1, 3)).astype(np.float64).reshape(-1, 2, 3, 3)   # (T, 2, 3, 3)
+    ref = axis_angle_to_matrix(np.asarray(reference, np.float64).reshape(2, 3)).astype(np.float64)
+    rel = R @ np.swapaxes(ref, -1, -2)[None]
+    return matrix_to_axis_angle(rel.reshape(-1, 3, 3)).astype(np.float64).reshape(-1, 6)

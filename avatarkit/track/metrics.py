@@ -88,12 +88,14 @@ def mask_box(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
             slice(max(cols[0] - margin, 0), min(cols[-1] + 1 + margin, w)))
 
 
-def region_metrics(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
+def region_metrics(a: np.ndarray, b: np.ndarray, mask: np.ndarray, background=None) -> dict:
     """psnr / ssim over `mask` and psnr_full / ssim_full over the whole frame of two composited
     images a, b (H, W, 3) that are equal outside `mask` (both the background there), computed
     on the mask's bounding box only with `ssim_map_fast`: the same numbers as `masked_psnr` /
     `ssim_map` on the whole frames (to float rounding; tests compare them), at a fraction of
-    the cost.
+    the cost. background: when given (3,), a and b are the images before compositing (uint8
+    or float) and are composited onto it inside the box only: the same numbers again, without
+    converting and copying the whole frames.
 
     Why it is exact: outside the mask the squared error is 0, and SSIM's map is 1 wherever the
     Gaussian window (radius `SSIM_RADIUS`) sees only equal pixels. The box is grown by twice
@@ -106,8 +108,11 @@ def region_metrics(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
     box = mask_box(m, 2 * SSIM_RADIUS)
     if box is None:
         return {"psnr": float("nan"), "ssim": float("nan"), "psnr_full": float("inf"), "ssim_full": 1.0}
-    fa, fb = to_float(a[box]), to_float(b[box])
     mb = m[box]
+    if background is None:
+        fa, fb = to_float(a[box]), to_float(b[box])
+    else:
+        fa, fb = composite(a[box], mb, background), composite(b[box], mb, background)
     sq = (fa - fb) ** 2                                         # (h', w', 3), 0 outside the mask
     mse_mask = float(sq[mb].mean())
     mse_full = float(sq.sum()) / (h * w * 3)
@@ -115,6 +120,8 @@ def region_metrics(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
            "psnr_full": float("inf") if mse_full == 0 else float(10.0 * np.log10(1.0 / mse_full))}
     win = 2 * SSIM_RADIUS + 1
     if min(fa.shape[:2]) < win:         # a box narrower than the window: only on tiny frames
+        if background is not None:
+            a, b = composite(a, m, background), composite(b, m, background)
         ssim_full, smap = ssim_map_fast(a, b)
         out.update(ssim=float(smap[m].mean()), ssim_full=ssim_full)
         return out
@@ -199,9 +206,18 @@ def landmark_error(ours: np.ndarray | None, theirs: np.ndarray | None) -> float:
     return float(np.median(np.linalg.norm(a - b, axis=1)))
 
 
-def error_heat_map(a: np.ndarray, b: np.ndarray, mask: np.ndarray, full_scale: float = 0.25) -> np.ndarray:
+def error_heat_map(a: np.ndarray, b: np.ndarray, mask: np.ndarray, full_scale: float = 0.25,
+                   margin: int | None = None) -> np.ndarray:
     """(H, W, 3) uint8 colour map (inferno) of the mean absolute difference per pixel inside
-    `mask` (black outside); `full_scale` (in [0, 1] units) maps to the brightest colour."""
+    `mask` (black outside); `full_scale` (in [0, 1] units) maps to the brightest colour.
+    margin: colour only the mask's bounding box grown by this many pixels (the rest is black
+    anyway): the same image for less work."""
+    if margin is not None:
+        out = np.zeros(np.shape(a)[:2] + (3,), np.uint8)
+        box = mask_box(np.asarray(mask, bool), margin)
+        if box is not None:
+            out[box] = error_heat_map(a[box], b[box], np.asarray(mask, bool)[box], full_scale)
+        return out
     import cv2
 
     err = np.abs(to_float(a) - to_float(b)).mean(axis=2)

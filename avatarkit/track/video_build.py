@@ -48,26 +48,37 @@ def joint_identity(result, keyframes, size: tuple[int, int]):
                               result.raw["translation"][idx], np.asarray(result.clip.shape, np.float64)[:S])
 
 
+def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, int], None] | None = None):
+    """The tracking the video build chooses its keyframes from (`BuildOptions`' head model)."""
+    from avatarkit.track.tracker import TrackOptions
+    from avatarkit.track.video import track_video
+
+    return track_video(video, head_model=options.head_model, landmark_embedding=options.landmark_embedding,
+                       options=TrackOptions(face_index=options.face_index or 0), progress=progress)
+
+
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
-                       progress=None, track_progress: Callable[[int, int], None] | None = None):
+                       progress=None, track_progress: Callable[[int, int], None] | None = None,
+                       tracking=None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
-    build's stage callback; track_progress(done, total) per tracked frame. The provenance gets
+    build's stage callback; track_progress(done, total) per tracked frame; tracking: the
+    `TrackResult` of `build_tracking(video, options)` when the caller has it already
+    (`evaluate` reuses its face meshes), else the video is tracked here. The provenance gets
     `source_video` {video, frame (the reference), keyframes, mode}."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness
-    from avatarkit.track.tracker import TrackOptions
-    from avatarkit.track.video import track_video
 
     options = options or BuildOptions()
     options.check()
     video = os.fspath(video)
     timings = {}
-    t0 = time.perf_counter()
-    result = track_video(video, head_model=options.head_model, landmark_embedding=options.landmark_embedding,
-                         options=TrackOptions(face_index=options.face_index or 0), progress=track_progress)
-    timings["track"] = time.perf_counter() - t0
+    result = tracking
+    if result is None:
+        t0 = time.perf_counter()
+        result = build_tracking(video, options, track_progress)
+        timings["track"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     sharp = video_sharpness(video, result)
     kf = choose_keyframes(result, sharp, KEYFRAMES if keyframes is None else int(keyframes))
@@ -107,4 +118,4 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     return avatar
 
 
-__all__ = ["IDENTITY_EXPR", "build_video_avatar", "joint_identity"]
+__all__ = ["IDENTITY_EXPR", "build_tracking", "build_video_avatar", "joint_identity"]
