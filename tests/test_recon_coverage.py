@@ -85,3 +85,27 @@ def test_nothing_to_cover_changes_nothing(scene):
     # labels of another size (an imported mask at another resolution) are left alone
     same, _, info = cover_silhouette(bald, hair, fit, image, labels[:64, :64])
     assert same is bald and info["uncovered"] == 0
+
+
+def test_head_labels_far_from_the_avatar_get_nothing(scene):
+    """A patch labelled skin well away from the rendered head (a segmentation mistake, like the
+    sample's orange suit at the shoulders) must not become Gaussians floating beside the head;
+    the ear and tuft next to the silhouette are still filled."""
+    from scipy import ndimage
+
+    fit, bald, hair, image, labels, ear, tuft = scene
+    covered = render(bald.replace(extras={}), fit.camera).alpha >= COVER_ALPHA
+    gap_m = ndimage.distance_transform_edt(~covered) * np.linalg.norm(fit.camera.camera_center) / fit.camera.fx
+    far = (gap_m > 0.045) & (gap_m < 0.09)                                # 4.5-9 cm from the head
+    yy, xx = np.mgrid[:128, :128]
+    far &= yy > 100                                                       # a band below the chin
+    assert far.sum() > 20
+    stray = labels.copy()
+    stray[far] = SKIN
+    new_bald, new_hair, info = cover_silhouette(bald, hair, fit, image, stray)
+    assert info["beyond_reach"] >= far.sum()
+    added = new_bald.subset(np.arange(len(bald), len(new_bald)))
+    both = GaussianSet.concat([added.replace(extras={}), new_hair.replace(extras={})])
+    hit = render(both, fit.camera).alpha >= 0.5
+    assert not (hit & far).any()                                          # nothing drawn there
+    assert hit[ear].mean() > 0.9 and hit[tuft].mean() > 0.5               # the ear and tuft still are

@@ -275,7 +275,7 @@ def test_full_build_on_the_sample_meets_the_targets(tmp_path):
     save_avatar(avatar, tmp_path / "av")
     image = read_image(SAMPLE)
     m = front_view_metrics(avatar, image, segment_portrait(image, analyze_portrait(image)))
-    assert m["psnr_db"] >= 27.0          # issue 15's target; measured 28.47 dB (26.39 before the coverage fill)
+    assert m["psnr_db"] >= 27.0          # issue 15's target; measured 28.08 dB (26.39 before the coverage fill)
     assert m["hair_inside_share"] == 0.0
 
 

@@ -10,7 +10,7 @@ gave 40 % of the squared error).
 
 `cover_silhouette` renders the avatar from the input camera and gives every head pixel whose
 alpha is below `COVER_ALPHA` one flat Gaussian facing the camera, one pixel and a half wide, at
-the depth of the nearest covered head pixel, coloured from the photo (the colour matching that
+the depth of the nearest covered head pixel (if that is within `COVER_REACH`), coloured from the photo (the colour matching that
 follows refines it). Skin pixels become bald Gaussians bound to their nearest head triangle
 (`part` skin), hair pixels hair Gaussians (`strand` -1, `seen` 1; kept `HAIR_MARGIN` outside the
 head, the others dropped). At most `MAX_COVER` pixels are filled (evenly thinned, larger
@@ -26,6 +26,10 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 COVER_ALPHA = 0.9
 #: at most this many Gaussians are added (larger ones when thinned)
 MAX_COVER = 4000
+#: only pixels this close (metres at the depth of the nearest covered pixel) to the rendered avatar
+#: are filled: ears and gaps lie next to it, while head labels far from it are the segmentation's
+#: mistakes (the sample's orange suit read as skin at the shoulders became floating Gaussians)
+COVER_REACH = 0.025
 #: the discs' width in pixels of their depth, and thickness relative to the width
 COVER_WIDTH_PX = 1.5
 COVER_FLATNESS = 0.15
@@ -72,7 +76,11 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     info["uncovered"] = int(hole.sum())
     if not hole.any() or not known.any():
         return bald, hair, info
-    _, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
+    gap, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
+    hole &= gap <= COVER_REACH * cam.fx / np.maximum(r.depth[iy, ix], 1e-6)
+    info["beyond_reach"] = info["uncovered"] - int(hole.sum())
+    if not hole.any():
+        return bald, hair, info
     ys, xs = np.nonzero(hole)
     spread = 1.0
     if len(ys) > MAX_COVER:
@@ -114,4 +122,4 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     return out_bald, out_hair, info
 
 
-__all__ = ["COVER_ALPHA", "COVER_FLATNESS", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette"]
+__all__ = ["COVER_ALPHA", "COVER_FLATNESS", "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette"]
