@@ -51,13 +51,25 @@ def speed(repeats: int) -> None:
     print(f"baseline: cascade face detection    {t_cascade * 1e3:7.1f} ms   (ratio all/cascade {t_all / t_cascade:.2f})")
 
 
+def detected_targets(image: np.ndarray, emb, missing: str):
+    """The fit's landmark targets from the best face found in image (H, W, 3), or None (and the
+    line `missing` printed) when there is none."""
+    from avatarkit.face import detect_faces, face_landmarks
+    from avatarkit.face.fit import LandmarkTargets
+
+    faces = detect_faces(image)
+    if not faces:
+        print(missing)
+        return None
+    mesh = face_landmarks(image, max(faces, key=lambda q: q.score))
+    return LandmarkTargets.from_mesh(mesh, emb, image.shape[:2][::-1])
+
+
 def accuracy(cases: int) -> None:
     from scipy.spatial.transform import Rotation
 
-    from avatarkit.face import detect_faces, face_landmarks
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import (LandmarkModel, LandmarkTargets, fit_landmarks, initial_pose,
-                                    pixel_errors)
+    from avatarkit.face.fit import LandmarkModel, fit_landmarks, initial_pose, pixel_errors
     from avatarkit.head.model import HeadModel
     from avatarkit.recon.fit import portrait_focal, synthetic_head_view, view_camera
 
@@ -75,12 +87,9 @@ def accuracy(cases: int) -> None:
         rot = Rotation.from_euler("YXZ", [yaw, pitch, roll], degrees=True)
         s = synthetic_head_view(rotation=rot.as_rotvec(), size=size, distance=0.55, shape=shape,
                                 n_gaussians=40000, seed=i)
-        faces = detect_faces(s.image)
-        if not faces:
-            print(f"  case {i}: no face found (yaw {yaw:.0f})")
+        targets = detected_targets(s.image, emb, f"  case {i}: no face found (yaw {yaw:.0f})")
+        if targets is None:
             continue
-        mesh = face_landmarks(s.image, max(faces, key=lambda q: q.score))
-        targets = LandmarkTargets.from_mesh(mesh, emb, (size, size))
         truth_px = s.truth.camera.project(lm.points_numpy(shape))[0]
         r0, t0 = initial_pose(lm.points_numpy(), targets, f)
         fit = fit_landmarks(model, emb, targets, f)
@@ -112,9 +121,8 @@ def accuracy_avatar(cases: int, folder: str) -> None:
     from scipy.spatial.transform import Rotation
 
     from avatarkit.avatar import load_avatar
-    from avatarkit.face import detect_faces, face_landmarks
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import LandmarkModel, LandmarkTargets, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.face.fit import LandmarkModel, fit_landmarks, initial_pose, pixel_errors
     from avatarkit.head.model import HeadParams
     from avatarkit.motion.clip import MotionClip
     from avatarkit.recon.fit import portrait_focal, view_camera
@@ -137,12 +145,9 @@ def accuracy_avatar(cases: int, folder: str) -> None:
     print(f"\n== fit on {cases} renders of the avatar {folder} ({size}x{size}), same pose ranges, its own shape")
     rows = []
     for i, frame in enumerate(avatar_video(avatar, clip, camera)):
-        faces = detect_faces(frame.rgb)
-        if not faces:
-            print(f"  case {i}: no face found (yaw {angles[i, 0]:.0f})")
+        targets = detected_targets(frame.rgb, emb, f"  case {i}: no face found (yaw {angles[i, 0]:.0f})")
+        if targets is None:
             continue
-        mesh = face_landmarks(frame.rgb, max(faces, key=lambda q: q.score))
-        targets = LandmarkTargets.from_mesh(mesh, emb, (size, size))
         params = HeadParams.from_clip(clip, frames=[i])
         params.shape = shape.astype(np.float32)
         truth_px = camera.project(emb.points(model.forward(params)[0][0], model.faces))[0]
