@@ -322,6 +322,7 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
     """
     import torch
 
+    from avatarkit.lbfgs import LBFGS
     from avatarkit.recon.segment import HAIR, SKIN
 
     model = HeadModel.template() if model is None else model
@@ -439,7 +440,7 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
         return out
 
     def run(params, use_silhouette):
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
+        opt = LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                                 tolerance_grad=1e-10, tolerance_change=1e-12, history_size=20)
 
         def closure():
