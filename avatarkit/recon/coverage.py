@@ -91,10 +91,10 @@ def _background_colour(image: np.ndarray, labels: np.ndarray, ys: np.ndarray, xs
 
 def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(share (N,) in [0, 1], background (N, 3)): how much of each pixel (ys, xs) with colour rgb (N, 3) in [0, 1] is head
-    rather than background (module docstring): unmixed between the smoothed photo at the nearest
-    `covered` (H, W) pixel of the same label (any covered pixel if none has it) and the nearest
-    background (`_background_colour`), and that background colour."""
+    """(share (N,) in [0, 1], background (N, 3)): how much of each pixel (ys, xs), colour rgb
+    (N, 3) in [0, 1], is head rather than background (module docstring): unmixed between the
+    smoothed photo at the nearest `covered` (H, W) pixel of the same label (any covered pixel if
+    none has it) and the nearest background (`_background_colour`), and that background colour."""
     from scipy import ndimage
 
     smooth = _smoothed(image)
@@ -132,7 +132,7 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     margin = HAIR_MARGIN if margin is None else float(margin)
     cam = fit.camera
     labels = np.asarray(labels)
-    info = {"uncovered": 0, "bald_added": 0, "hair_added": 0}
+    info = {"uncovered": 0, "bald_added": 0, "hair_added": 0, "background_dropped": 0}
     if labels.shape != (cam.height, cam.width) or len(bald) + len(hair) == 0:
         return bald, hair, info
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
