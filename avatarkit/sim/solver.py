@@ -22,6 +22,7 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from avatarkit.sim.config import SimConfig
+from avatarkit.sim._launch import BoundLaunch
 from avatarkit.sim._skin_math import JMAX
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
 from avatarkit.sim.sdf import HeadSkin
@@ -206,6 +207,8 @@ class PackedModel:
         # A zero cached distance makes every vertex's first collision test a real lookup.
         self.c, self.r, self.substeps = c, r, substeps
         self.model, self.skin = m, skin
+        #: the frame kernel's launch on these buffers (bound on the first step)
+        self.launch: BoundLaunch | None = None
 
     def set_time_step(self, config: SimConfig, dt: float, substeps: int) -> None:
         """Fill the parameters and the per-constraint data that depend on the substep length."""
@@ -288,6 +291,9 @@ class XPBDSolver:
         rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
         p.fbuf[p.rot_slice][:9 * JMAX * n_sub] = rotations.ravel()
         p.fbuf[p.trans_slice][:3 * JMAX * n_sub] = translations.ravel()
-        _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
+        arrays = (p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
+        if p.launch is None or not p.launch.binds(*arrays):  # a model or skin given new grids
+            p.launch = BoundLaunch(_kernels.simulate_frame, *arrays)
+        p.launch()
         state_out.positions = p.xbuf[:c].copy()
         state_out.velocities = p.xbuf[c:2 * c].copy()
