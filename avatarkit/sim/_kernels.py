@@ -121,8 +121,9 @@ def joint_translation(fb: ti.template(), o_trans, s, j):
 
 
 @ti.func
-def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
-    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb.
+def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, first):
+    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb;
+    first: the substep's first sweep, whose multiplier is 0 (not read: see `simulate_frame`).
 
     The correction w_a dl / |d| is rewritten as (r w_a k) / |d| - w_a k with r = l0 - alpha~ lambda
     (dl = (r - |d|) k): the chain from the positions just written by the previous constraint to
@@ -132,7 +133,9 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
     len2 = d.dot(d)
     if len2 > 1e-18:
         inv_len = ti.rsqrt(len2)
-        lam = fb[od + 4]
+        lam = 0.0
+        if not first:
+            lam = fb[od + 4]
         r = fb[od] - fb[od + 5] * lam
         wak = fb[od + 2]
         wbk = fb[od + 3]
@@ -295,18 +298,28 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             fb[o_dev + s] = dev
         for s in range(n_sub):
             # 1. kinematic roots (linear between the frame's start and end) and prediction
+            # (x0, the volume's linearisation point below, is the position after this step;
+            # set here rather than in a pass of its own)
             frac = ti.cast(s + 1, ti.f32) / ti.cast(n_sub, ti.f32)
             for i in range(nc):
                 xb[o_prev + i] = xb[i]
                 if fb[o_w + i] > 0.0:
                     xb[o_v + i] = xb[o_v + i] + h * gravity
                     xb[i] = xb[i] + h * xb[o_v + i]
+                xb[o_x0 + i] = xb[i]
+                xb[o_grad + i] = vec3(0.0)
             for r in range(nr):
-                xb[ib[o_root + r]] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
-            for li in range(1 + 2 * nc):
-                fb[o_lam + li] = 0.0
-            for e in range(ne + nb):
-                fb[o_edata + 8 * e + 4] = 0.0
+                root = ib[o_root + r]
+                xb[root] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
+                xb[o_x0 + root] = xb[root]
+            # Multipliers start each substep at 0. The first sweep takes them as 0 without reading
+            # them, so with one sweep (the default) there is nothing to reset: ~3,000 stores a
+            # substep, most of them strided through the constraint records.
+            if n_iter > 1:
+                for li in range(1 + 2 * nc):
+                    fb[o_lam + li] = 0.0
+                for e in range(ne + nb):
+                    fb[o_edata + 8 * e + 4] = 0.0
             rs = joint_rotation(fb, o_rot, s, 0)
             ts = joint_translation(fb, o_trans, s, 0)
             # The volume constraint is linearised once per substep at the predicted positions
@@ -317,9 +330,6 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             vol_denom = 0.0
             if nf > 0:
                 centre = xb[ib[o_face]]  # volumes about a nearby point keep float32 precise
-                for i in range(nc):
-                    xb[o_grad + i] = vec3(0.0)
-                    xb[o_x0 + i] = xb[i]
                 for f in range(nf):
                     ia = ib[o_face + 3 * f]
                     ic_b = ib[o_face + 3 * f + 1]
@@ -337,17 +347,21 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     xb[o_grad + i] = xb[o_grad + i] / 6.0
                     vol_denom += fb[o_w + i] * xb[o_grad + i].norm_sqr()
             # 3. constraint projection
-            for _it in range(n_iter):
+            for it in range(n_iter):
+                first = it == 0
                 for e in range(ne + nb):  # stretch, then bending (adjacent tables)
                     solve_distance(xb, fb, ib[o_edge + 2 * e], ib[o_edge + 2 * e + 1],
-                                   o_edata + 8 * e)
+                                   o_edata + 8 * e, first)
                 dl_vol = 0.0
                 if nf > 0:
                     vol = vol0
                     for i in range(nc):
                         vol += xb[o_grad + i].dot(xb[i] - xb[o_x0 + i])
-                    dl_vol = (rest_volume - vol - a_v * fb[l_vol]) / (vol_denom + a_v + 1e-20)
-                    fb[l_vol] = fb[l_vol] + dl_vol
+                    lam_vol = 0.0
+                    if not first:
+                        lam_vol = fb[l_vol]
+                    dl_vol = (rest_volume - vol - a_v * lam_vol) / (vol_denom + a_v + 1e-20)
+                    fb[l_vol] = lam_vol + dl_vol
                 # Volume and tether updates of vertex i read only x_i and its (kinematic) root,
                 # so one pass per vertex gives exactly what two passes would.
                 for i in range(nc):
@@ -359,9 +373,12 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             d = xb[i] - xb[r]
                             length = d.norm()
                             li = l_tether + i
-                            dl = (length - fb[o_tlen + i] - a_t * fb[li]) / (wi + a_t)
-                            new = ti.max(fb[li] + dl, 0.0)  # a tether only pulls
-                            dl = new - fb[li]
+                            lam = 0.0
+                            if not first:
+                                lam = fb[li]
+                            dl = (length - fb[o_tlen + i] - a_t * lam) / (wi + a_t)
+                            new = ti.max(lam + dl, 0.0)  # a tether only pulls
+                            dl = new - lam
                             fb[li] = new
                             if length > 1e-9:
                                 xb[i] = xb[i] - (wi * dl / length) * d
@@ -376,6 +393,9 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                                 p = proxy_point(xb, ib, fb, o_pidx + i * nk, o_pw + i * nk, nk)
                             q1 = rs.transpose() @ (p - ts)
                             li = l_coll + i
+                            lam = 0.0
+                            if not first:
+                                lam = fb[li]
                             cq = vec3(fb[o_cache + 3 * i], fb[o_cache + 3 * i + 1], fb[o_cache + 3 * i + 2])
                             # Skipping is exact: with no contact force yet (lambda = 0) and the
                             # point provably outside the margin, the update below is zero. The
@@ -383,16 +403,16 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             # bound of the distance there (the found one less LIPSCHITZ times
                             # that substep's deviation bound); the true rest point is within
                             # this substep's deviation bound of q1.
-                            if fb[li] > 0.0 or LIPSCHITZ * ((q1 - cq).norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin:
+                            if lam > 0.0 or LIPSCHITZ * ((q1 - cq).norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin:
                                 hit = posed_sdf(sdf, skin, fb, p, q1, rs, o_rot, o_trans, s, nj, origin, inv_h,
                                                 skin_origin, skin_inv_h, ti.math.inf)
                                 fb[o_cache + 3 * i] = q1[0]
                                 fb[o_cache + 3 * i + 1] = q1[1]
                                 fb[o_cache + 3 * i + 2] = q1[2]
                                 fb[o_cdist + i] = hit[0] - LIPSCHITZ * fb[o_dev + s]
-                                dl = (margin - hit[0] - a_c * fb[li]) / (den + a_c)
-                                new = ti.max(fb[li] + dl, 0.0)  # contact only pushes
-                                dl = new - fb[li]
+                                dl = (margin - hit[0] - a_c * lam) / (den + a_c)
+                                new = ti.max(lam + dl, 0.0)  # contact only pushes
+                                dl = new - lam
                                 fb[li] = new
                                 if dl != 0.0:
                                     n = vec3(hit[1], hit[2], hit[3])
