@@ -58,6 +58,9 @@ H_COUNT = 25
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
 LIPSCHITZ = 2.0
+#: squared lengths below SLACK x a squared limit are certainly under the limit (the square root and
+#: its float rounding, ~1e-7, cannot take them over): tests that skip a square root use it
+SLACK = 0.9999
 
 # fbuf parameter slots (compliances already divided by h^2)
 (FP_H, FP_ALPHA_S, FP_ALPHA_B, FP_ALPHA_V, FP_ALPHA_T, FP_ALPHA_C, FP_DAMP, FP_MARGIN,
@@ -371,17 +374,22 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                         r = ib[o_tether + i]
                         if r >= 0:
                             d = xb[i] - xb[r]
-                            length = d.norm()
                             li = l_tether + i
                             lam = 0.0
                             if not first:
                                 lam = fb[li]
-                            dl = (length - fb[o_tlen + i] - a_t * lam) / (wi + a_t)
-                            new = ti.max(lam + dl, 0.0)  # a tether only pulls
-                            dl = new - lam
-                            fb[li] = new
-                            if length > 1e-9:
-                                xb[i] = xb[i] - (wi * dl / length) * d
+                            tlen = fb[o_tlen + i]
+                            # A slack tether with no force yet is left alone (the max below
+                            # would give 0): no square root and no divisions for most of them.
+                            # The factor keeps the test clear of float rounding.
+                            if lam > 0.0 or d.dot(d) > SLACK * tlen * tlen:
+                                length = d.norm()
+                                dl = (length - tlen - a_t * lam) / (wi + a_t)
+                                new = ti.max(lam + dl, 0.0)  # a tether only pulls
+                                dl = new - lam
+                                fb[li] = new
+                                if length > 1e-9:
+                                    xb[i] = xb[i] - (wi * dl / length) * d
                 if mode > 0:
                     for i in range(nc):
                         den = fb[o_w + i]
@@ -427,9 +435,10 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                 vi = (xb[i] - xb[o_prev + i]) / h
                 if fb[o_w + i] > 0.0:
                     vi *= damp
-                    speed = vi.norm()
-                    if speed > vmax:
-                        vi *= vmax / speed
+                    if vi.dot(vi) > SLACK * vmax * vmax:  # (a square root only near the limit)
+                        speed = vi.norm()
+                        if speed > vmax:
+                            vi *= vmax / speed
                 xb[o_v + i] = vi
 
 
