@@ -21,13 +21,14 @@ import numpy as np
 
 class BoundLaunch:
     """kernel(*arrays) as a call without arguments. `fast` tells whether the bound path is
-    used (False: Taichi's plain call, for a Taichi without the internals used here)."""
+    used (False: Taichi's plain call, for a Taichi without the internals used here, or with
+    bind=False: the benchmark's baseline)."""
 
-    def __init__(self, kernel, *arrays: np.ndarray):
+    def __init__(self, kernel, *arrays: np.ndarray, bind: bool = True):
         self.kernel = kernel
         self.arrays = arrays
         self._launch = None
-        if all(isinstance(a, np.ndarray) and a.flags.c_contiguous for a in arrays):
+        if bind and all(isinstance(a, np.ndarray) and a.flags.c_contiguous for a in arrays):
             try:
                 self._launch = _bind(kernel, arrays)
             except (AttributeError, TypeError, KeyError, IndexError):
