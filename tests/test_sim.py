@@ -541,6 +541,31 @@ def test_push_out_matches_reference_and_clears_the_posed_head(scene, jaw_skin):
     np.testing.assert_array_equal(fast[outside], pts[outside].astype(np.float32))
 
 
+def test_kernel_call_matches_the_plain_kernel_call(scene, jaw_skin):
+    """`push_out` launches through `KernelCall` (the instance looked up once, the context filled
+    per call): the same bits as Taichi's plain call, and that call for a Fortran-order array."""
+    from avatarkit.sim import _kernels
+    from avatarkit.sim._launch import KernelCall
+    from avatarkit.sim.pushout import _pose_buffer
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.4, rigid((0.2, -0.3, 0.1))).joint_transforms
+    rng = np.random.default_rng(3)
+    pts = (rng.normal(size=(2000, 3)) * 0.06 + t[0, :3, 3]).astype(np.float32)
+    args = (_pose_buffer(model.sdf, skin, t), model.sdf.values_grad, skin.weights, model.sdf.cell_floor,
+            len(t), 0.0005, 2, 0, 1.0)
+    plain, fast, fortran = pts.copy(), pts.copy(), np.asfortranarray(pts)
+    _kernels.push_out_points(plain, *args)
+    call = KernelCall(_kernels.push_out_points)
+    call(fast, *args)
+    call(fortran, *args)
+    assert list(call._instances.values()) != [False]  # the fast path ran (the Fortran call did not look up)
+    assert (plain != pts).any(axis=1).sum() > 100  # many points were pushed
+    np.testing.assert_array_equal(fast, plain)
+    np.testing.assert_array_equal(fortran, plain)
+
+
 def test_push_out_screen_is_exact_near_the_clearance(scene, jaw_skin):
     """Points in a thin shell just outside the clearance, where the screen's bound is tightest,
     and across the jaw's region: the screened and the full kernel agree bit for bit, and the
