@@ -43,29 +43,38 @@ def timed(fn, repeat: int):
 
 
 def count_launches(fn) -> int:
-    """Taichi kernel launches while fn() runs: through Taichi's own call, and bound ones
-    (`avatarkit.sim._launch.BoundLaunch`)."""
+    """Taichi kernel launches while fn() runs: through Taichi's own call, and through
+    `avatarkit.sim._launch` (BoundLaunch, KernelCall), each counted once."""
     from taichi.lang.kernel_impl import Kernel
 
-    from avatarkit.sim._launch import BoundLaunch
+    from avatarkit.sim._launch import BoundLaunch, KernelCall
 
     count = [0]
-    plain, bound = Kernel.launch_kernel, BoundLaunch.__call__
+    originals = {cls: cls.__call__ for cls in (BoundLaunch, KernelCall)}
+    plain = Kernel.launch_kernel
 
     def plain_counted(self, *args):
         count[0] += 1
         return plain(self, *args)
 
-    def bound_counted(self):
-        if self.fast:  # (a plain call below the bound one counts itself)
-            count[0] += 1
-        return bound(self)
+    def counted(call):
+        def wrapper(self, *args):
+            before = count[0]
+            out = call(self, *args)
+            if count[0] == before:  # not already counted as a plain call inside
+                count[0] += 1
+            return out
+        return wrapper
 
-    Kernel.launch_kernel, BoundLaunch.__call__ = plain_counted, bound_counted
+    Kernel.launch_kernel = plain_counted
+    for cls, call in originals.items():
+        cls.__call__ = counted(call)
     try:
         fn()
     finally:
-        Kernel.launch_kernel, BoundLaunch.__call__ = plain, bound
+        Kernel.launch_kernel = plain
+        for cls, call in originals.items():
+            cls.__call__ = call
     return count[0]
 
 
