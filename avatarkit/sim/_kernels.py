@@ -26,9 +26,9 @@ the `ibuf` header, filled by `solver.PackedModel`):
                per substep, a bound on how far inverse LBS puts a point from where the head
                joint alone would (S)
   A distance constraint's record is [rest length l0, k = 1 / (w_a + w_b + alpha~), w_a k, w_b k,
-  multiplier, alpha~, -, -]: one 32-byte aligned block instead of scattered reads and a
-  division (filled per time step; the multiplier reset per substep). Edges and bend pairs, and
-  their records, are adjacent, so one loop sweeps stretch then bending in the usual order.
+  multiplier, alpha~, -, -]: one 32-byte block instead of scattered reads and a division (filled
+  per time step; the multiplier is 0 at each substep's start, see `simulate_frame`). Edges and
+  bend pairs, and their records, are adjacent: one loop sweeps stretch then bending in order.
   sdf (vec4, 3-D): the rest head SDF grid, [distance, unit gradient].
   skin (vec4, 3-D): the skinning weights of up to JMAX joints (joint 0: the head joint) of the
   rest head surface nearest each node of a coarse grid (`sdf.HeadSkin`).
