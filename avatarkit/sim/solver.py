@@ -114,7 +114,8 @@ def joint_substep_transforms(frame_in: HeadFrame, frame_out: HeadFrame, substeps
     two_sin = np.ascontiguousarray(flat[:, [7, 2, 3]] - flat[:, [5, 6, 1]])
     two_cos = flat[:, 0] + flat[:, 4] + flat[:, 8] - 1.0
     sin_norm = np.sqrt(np.einsum("ja,ja->j", two_sin, two_sin))
-    fast = (two_cos > 0.0) & (sin_norm > 0.0) & ~(r_in == r_out).all(axis=(1, 2))
+    still = (r_in == r_out).all(axis=(1, 2))
+    fast = (two_cos > 0.0) & (sin_norm > 0.0) & ~still
     every = bool(fast.all())  # the usual case: no boolean selections (each a numpy call)
     if every or fast.any():
         sel = slice(None) if every else fast
@@ -130,7 +131,10 @@ def joint_substep_transforms(frame_in: HeadFrame, frame_out: HeadFrame, substeps
         rot[:, slice(0, joints) if every else np.flatnonzero(fast)] = (
             r_fast + np.sin(angles)[..., None, None] * kr + (1.0 - np.cos(angles))[..., None, None] * kkr)
     if not every:
-        for j in np.flatnonzero(~fast):
+        # a still joint (the jaw and neck of most frames) is R_out at every substep, as
+        # `substep_transforms` gives it, without the call
+        rot[:, np.flatnonzero(still)] = r_out[still]
+        for j in np.flatnonzero(~fast & ~still):
             rot[:, j] = substep_transforms(a[j], b[j], substeps)[0]
     trans[:, :joints] = a[None, :, :3, 3] + frac[:, None, None] * (b[:, :3, 3] - a[:, :3, 3])[None]
     return rot, trans
