@@ -17,6 +17,8 @@ In `static` mode the cage moves rigidly with the head joint (roots still on thei
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from avatarkit.errors import InputError
@@ -255,7 +257,7 @@ class PackedModel:
 
 def check_step_inputs(model: CageModel, state_in: CageState, frame_in: HeadFrame,
                       frame_out: HeadFrame, dt: float) -> None:
-    if not (np.isfinite(dt) and dt > 0):
+    if not (math.isfinite(dt) and dt > 0):
         raise InputError(f"time step must be > 0 seconds, got {dt}")
     if state_in.positions.shape != model.rest_positions.shape:
         raise InputError(f"state has {len(state_in.positions)} vertices, the cage "
