@@ -231,13 +231,14 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
         rgb[:] = bg
         return rgb, np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     k = _kernels()
-    packed = np.empty((len(proj.radii), k.PACK), np.float32)  # only visible rows are read
-    k.pack_splats(proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
-                  np.ascontiguousarray(colors, np.float32), proj.depths, proj.radii, packed)
-    pairs = np.empty((len(bins.gaussian_ids), k.PACK), np.float32)
-    k.gather_pairs(bins.gaussian_ids, packed, pairs)
-    k.rasterize(bins.tile_offsets, pairs, float(bg[0]), float(bg[1]),
-                float(bg[2]), rgb, trans, depth)
+    slot = np.full(len(proj.radii), -1, np.int32)
+    sids = np.empty_like(bins.gaussian_ids)
+    k.first_sight(bins.gaussian_ids, slot, sids)
+    packed = np.empty((int(slot.max()) + 1, k.PACK), np.float32)
+    k.pack_splats(slot, proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
+                  np.ascontiguousarray(colors, np.float32), proj.depths, packed)
+    k.rasterize(bins.tile_offsets, sids, packed, float(bg[0]), float(bg[1]), float(bg[2]), rgb,
+                trans, depth)
     return rgb, 1.0 - trans, depth
 
 
