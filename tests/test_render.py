@@ -61,9 +61,11 @@ def test_fast_matches_reference_on_random_scenes(seed, sh_degree):
     assert ref.alpha.max() > 0.5 and (ref.alpha < 0.01).any()  # a scene with content and gaps
 
 
-def test_fast_matches_reference_with_early_termination():
-    # many opaque splats on one spot: most pixels stop at T < 1e-4
-    gs, cam = random_scene(600, 7, 1, width=48, height=40, spread=0.8)
+@pytest.mark.parametrize("width", [48, 45])
+def test_fast_matches_reference_with_early_termination(width):
+    # many opaque splats on one spot: most pixels stop at T < 1e-4. Width 45 cuts the last
+    # tile column at 13 pixels: the compositor's 8-pixel blocks there reach past the image
+    gs, cam = random_scene(600, 7, 1, width=width, height=40, spread=0.8)
     gs = gs.replace(opacities=np.full(len(gs), 0.97, np.float32), scales=gs.scales * 4)
     fast = render(gs, cam)
     ref = render_reference(gs, cam)
@@ -73,7 +75,7 @@ def test_fast_matches_reference_with_early_termination():
 
 
 def test_fast_matches_reference_on_large_and_needle_splats():
-    # long spans (forward differencing over many pixels) and thin rotated ellipses (span bounds)
+    # wide splats (rows of many 8-pixel blocks) and thin rotated ellipses (the extents)
     rng = np.random.default_rng(8)
     n = 60
     scales = np.where(rng.uniform(size=(n, 1)) < 0.5, [0.4, 0.002, 0.002], [0.3, 0.25, 0.2])
@@ -85,6 +87,30 @@ def test_fast_matches_reference_on_large_and_needle_splats():
     assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
     assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
     assert fast.meta["radii"].max() > 40
+
+
+def test_compositor_exp_matches_numpy():
+    # the compositor's inlined float32 exp (Cephes expf), over every exponent it meets: alpha
+    # >= 1/255 needs x >= ln(1/255) ~ -5.5; far lanes of a block go down to the -87 clamp
+    from avatarkit.render import _kernels as k
+
+    ti = k.ti
+
+    @ti.kernel
+    def exp_all(x: k.f32_1, out: k.f32_1):
+        for i in range(x.shape[0]):
+            out[i] = k.exp_f32(x[i])
+
+    x = np.concatenate([np.linspace(-87.0, 0.0, 20001), -np.geomspace(1e-8, 1.0, 200), [0.0]])
+    x = x.astype(np.float32)
+    got = np.empty_like(x)
+    exp_all(x, got)
+    want = np.exp(x.astype(np.float64))
+    assert np.abs(got / want - 1).max() < 3e-7  # ~2 ulp
+    assert got[-1] == 1.0
+    below = np.array([-87.0, -100.0, -1e4], np.float32)
+    exp_all(below, got[:3])
+    assert (got[:3] == got[0]).all() and 0 < got[0] < 1e-37  # clamped: alpha far below 1/255
 
 
 def test_projection_stage_matches_reference():

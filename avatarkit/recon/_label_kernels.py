@@ -49,10 +49,11 @@ def accumulate(offsets: i32_1, ids: i32_1, packed: f32_2, labels: i32_2, weights
         y1 = ti.min(y0 + BAND, height)
         st_t = ti.Vector([1.0] * (BAND * TILE), ti.f32)
         st_d = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        remaining = (x1 - x0) * ti.max(y1 - y0, 0)
+        cols = (x1 - x0 + LANES - 1) // LANES * LANES  # whole blocks, as the renderer
+        remaining = cols * ti.max(y1 - y0, 0)
         row_left = ti.Vector([0] * BAND, ti.i32)
         for r in range(y1 - y0):
-            row_left[r] = x1 - x0
+            row_left[r] = cols
         for k in range(offsets[t], offsets[t + 1]):
             if remaining == 0:
                 break
@@ -83,7 +84,7 @@ def accumulate(offsets: i32_1, ids: i32_1, packed: f32_2, labels: i32_2, weights
                                 p = row | lane
                                 alpha = lane_alpha(op, ha, bdy, cdy, dx0 - lane)
                                 tr = st_t[p]
-                                draw = (alpha >= ALPHA_MIN) & (tr > 0) & (lane < lanes)
+                                draw = (alpha >= ALPHA_MIN) & (tr > 0)
                                 a = alpha if draw else 0.0
                                 test_t = tr * (1.0 - a)
                                 end = draw & (test_t < T_MIN)
@@ -93,7 +94,7 @@ def accumulate(offsets: i32_1, ids: i32_1, packed: f32_2, labels: i32_2, weights
                                 ended += ti.cast(end, ti.i32)
                                 wv[lane] = w
                             for lane in ti.static(range(LANES)):
-                                if wv[lane] > 0:
+                                if lane < lanes and wv[lane] > 0:  # not past the edge
                                     lab = labels[y0 + r, x0 + blk * LANES + lane]
                                     if lab != run_label:
                                         if run_label >= 0:

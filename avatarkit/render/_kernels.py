@@ -394,17 +394,19 @@ def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, bg_r: ti.f32, bg_g: ti.
         y0 = (t // tiles_x) * TILE + (tb % NBAND) * BAND
         x1 = ti.min(x0 + TILE, width)
         y1 = ti.min(y0 + BAND, height)  # y1 <= y0 for a band below the image: nothing to do
-        # pixel (x0 + c, y0 + r) is entry (r << 4) | c; in a tile cut by the image's right
-        # edge the lanes at columns >= x1 draw nothing (they are not counted in `remaining`)
+        # pixel (x0 + c, y0 + r) is entry (r << 4) | c. A tile cut by the image's right edge is
+        # composited and counted in whole blocks: the lanes past the edge are pixels like any
+        # other (never written out), so `remaining` and `row_left` need no lane mask
         st_t = ti.Vector([1.0] * (BAND * TILE), ti.f32)
         st_r = ti.Vector([0.0] * (BAND * TILE), ti.f32)
         st_g = ti.Vector([0.0] * (BAND * TILE), ti.f32)
         st_b = ti.Vector([0.0] * (BAND * TILE), ti.f32)
         st_d = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        remaining = (x1 - x0) * ti.max(y1 - y0, 0)
+        cols = (x1 - x0 + LANES - 1) // LANES * LANES
+        remaining = cols * ti.max(y1 - y0, 0)
         row_left = ti.Vector([0] * BAND, ti.i32)  # unfinished pixels per row of the band
         for r in range(y1 - y0):
-            row_left[r] = x1 - x0
+            row_left[r] = cols
         for k in range(offsets[t], offsets[t + 1]):
             if remaining == 0:
                 break
@@ -429,14 +431,13 @@ def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, bg_r: ti.f32, bg_g: ti.
                     for blk in ti.static(range(TILE // LANES)):
                         if b0 <= blk and blk <= b1:
                             dx0 = mx - (ti.cast(x0 + blk * LANES, ti.f32) + 0.5)
-                            lanes = x1 - x0 - blk * LANES
                             # the masked row index tells LLVM the 8 entries are consecutive
                             row = ((r & (BAND - 1)) << 4) | (blk << 3)
                             for lane in ti.static(range(LANES)):
                                 p = row | lane
                                 alpha = lane_alpha(op, ha, bdy, cdy, dx0 - lane)
                                 tr = st_t[p]
-                                draw = (alpha >= ALPHA_MIN) & (tr > 0) & (lane < lanes)
+                                draw = (alpha >= ALPHA_MIN) & (tr > 0)
                                 a = alpha if draw else 0.0
                                 test_t = tr * (1.0 - a)
                                 end = draw & (test_t < T_MIN)
