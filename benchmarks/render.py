@@ -8,7 +8,7 @@ figure does not move when other processes share the cores), and the stage split.
 (the smallest size asked for) also times the numpy reference once and reports the ratio and the image difference.
 
 Baseline in the same process: each timed frame is followed by one frame of the previous
-compositor (`render_baseline.py`, sessions 4-5) on the same scene, and the script prints the
+compositor (`_render_baseline.py`, sessions 4-5) on the same scene, and the script prints the
 ratio of the two medians (wall and CPU): on a shared machine that ratio is steadier than
 either time. `--no-baseline` skips it.
 
@@ -58,7 +58,7 @@ def main() -> int:
     from avatarkit.render import Camera, render
     from avatarkit.render.reference import render_reference
     if not args.no_baseline:
-        from render_baseline import render_previous  # beside this script
+        from _render_baseline import render_previous  # beside this script
 
     print(f"renderer benchmark: 512x512, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start (timings on a shared machine are noisy)")
