@@ -21,11 +21,15 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    (stable, so ties keep input order); the depth-ordered Gaussians are cut into 16 chunks
    that are counted and scattered in parallel, chunk after chunk within each tile's list, so
    the per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted.
-4. `rasterize`: the splats' packed records are copied into list order first (the compositor
-   then reads memory sequentially); per pixel, in list order, d = mean2d - pixel centre,
-   alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if compositing
-   would bring the transmittance T below 1e-4 the pixel stops *before* that splat (INRIA);
-   colour += c alpha T, T *= 1 - alpha. Output rgb = colour + T background, alpha = 1 - T,
+4. `rasterize`: each splat's record (mean, conic, opacity, colour, depth and the half-extents
+   of its alpha >= 1/255 ellipse) is packed in the order the tile lists first name it, so a
+   tile's records lie close together in memory; per pixel, in list order, d = mean2d - pixel
+   centre, alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if
+   compositing would bring the transmittance T below 1e-4 the pixel stops *before* that splat
+   (INRIA); colour += c alpha T, T *= 1 - alpha. One task per 16x16 tile visits, per splat,
+   only the rows and aligned 8-pixel blocks its extents reach and composites each block as one
+   8-wide SIMD vector, with its own exponential per pixel (an inlined float32 `exp`, Cephes
+   `expf`, ~1e-7 relative error). Output rgb = colour + T background, alpha = 1 - T,
    depth = the alpha-weighted expected camera-space z (sum z alpha T / (1 - T); 0 where
    nothing was drawn).
 
