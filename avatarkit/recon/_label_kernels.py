@@ -93,8 +93,10 @@ def accumulate(offsets: i32_1, ids: i32_1, packed: f32_2, labels: i32_2, weights
                                 st_t[p] = -tr if end else test_t
                                 ended += ti.cast(end, ti.i32)
                                 wv[lane] = w
-                            for lane in ti.static(range(LANES)):
-                                if lane < lanes and wv[lane] > 0:  # not past the edge
+                            # a run-time loop: unrolled, the label runs' branches took
+                            # seconds more to compile (cold cache) for no measurable gain
+                            for lane in range(ti.min(LANES, lanes)):  # not past the edge
+                                if wv[lane] > 0:
                                     lab = labels[y0 + r, x0 + blk * LANES + lane]
                                     if lab != run_label:
                                         if run_label >= 0:
