@@ -177,6 +177,28 @@ def test_snug_binning_drops_only_tiles_the_splat_cannot_reach():
     np.testing.assert_array_equal(render(gs, cam).rgb, full_lists)  # the same image
 
 
+def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
+    # count_tiles hands a splat's tiles to the scatter as 63 bits; splats whose rect has more
+    # tiles are tested again there: both kinds must give the numpy twin's lists
+    gs, cam = random_scene(200, 9, 0, width=160, height=144)
+    gs = gs.replace(scales=gs.scales * np.where(np.arange(len(gs))[:, None] % 5 == 0, 15.0, 1.0))
+    proj = project_gaussians(gs, cam)
+    r = proj.tile_rects
+    tiles = (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])
+    assert (tiles > 63).sum() >= 5 and ((tiles <= 63) & (proj.radii > 0)).sum() >= 50
+    loose, snug = bin_gaussians(proj, cam), bin_gaussians(proj, cam, gs.opacities)
+    qlims = tile_q_limits(gs.opacities)
+    for t in range(snug.tiles_x * snug.tiles_y):
+        ty, tx = divmod(t, snug.tiles_x)
+        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
+        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
+        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
+                                    tx, ty, cam)
+        np.testing.assert_array_equal(got, all_ids[meets])
+    big = np.flatnonzero(tiles > 63)
+    assert np.isin(loose.gaussian_ids, big).sum() > np.isin(snug.gaussian_ids, big).sum()
+
+
 def test_depth_order_is_a_stable_argsort():
     rng = np.random.default_rng(0)
     d = rng.choice(rng.uniform(0.01, 100, 50).astype(np.float32), 5000)  # many ties

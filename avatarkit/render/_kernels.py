@@ -228,40 +228,62 @@ def splat_in_tile(s_geo: ti.template(), k, tx, ty, width, height):
     return hit
 
 
+MASK_TILES = 63  # rects of up to this many tiles keep count_tiles' hits as bits for the scatter
+i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
+
+
 @ti.kernel
 def count_tiles(s_rects: i32_2, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32, height: ti.i32,
-                counts: i32_2):
+                counts: i32_2, hits: i64_1):
     """counts[c, t] = number of splats of depth-order chunk c in tile t's list (counts start at
-    0). One task per chunk, so no atomics."""
+    0). One task per chunk, so no atomics. hits[k] = splat k's tiles as bits, row-major over
+    its rect (bit (ty - y0) * width + tx - x0), or -1 for a rect of more than MASK_TILES tiles,
+    so that `scatter_tiles` need not test the ellipse again."""
     m = s_rects.shape[0]
     per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
         for k in range(c * per, ti.min(m, (c + 1) * per)):
+            rw = s_rects[k, 2] - s_rects[k, 0]
+            bits = ti.cast(0, ti.i64)
+            j = 0
             for ty in range(s_rects[k, 1], s_rects[k, 3]):
                 for tx in range(s_rects[k, 0], s_rects[k, 2]):
                     if splat_in_tile(s_geo, k, tx, ty, width, height):
                         t = ty * tiles_x + tx
                         counts[c, t] = counts[c, t] + 1
+                        if j < MASK_TILES:
+                            bits |= ti.cast(1, ti.i64) << j
+                    j += 1
+            hits[k] = bits if rw * (s_rects[k, 3] - s_rects[k, 1]) <= MASK_TILES else -1
 
 
 @ti.kernel
 def scatter_tiles(order: i32_1, s_rects: i32_2, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
-                  height: ti.i32, cursor: i32_2, ids: i32_1):
+                  height: ti.i32, hits: i64_1, cursor: i32_2, ids: i32_1):
     """Walk each chunk's splats front to back and append them to their tiles' lists from
     cursor[c, t] (where chunk c's part of tile t's list starts); every list comes out
-    depth-sorted without a per-tile sort."""
+    depth-sorted without a per-tile sort. A splat's tiles are count_tiles' `hits` bits, or
+    tested again where it kept none."""
     m = s_rects.shape[0]
     per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
         for k in range(c * per, ti.min(m, (c + 1) * per)):
+            bits = hits[k]
+            j = 0
             for ty in range(s_rects[k, 1], s_rects[k, 3]):
                 for tx in range(s_rects[k, 0], s_rects[k, 2]):
-                    if splat_in_tile(s_geo, k, tx, ty, width, height):
+                    hit = 0
+                    if bits >= 0:
+                        hit = ti.cast((bits >> j) & 1, ti.i32)
+                    else:
+                        hit = splat_in_tile(s_geo, k, tx, ty, width, height)
+                    if hit:
                         t = ty * tiles_x + tx
                         ids[cursor[c, t]] = order[k]
                         cursor[c, t] = cursor[c, t] + 1
+                    j += 1
 
 
 SPAN_EPS = 1e-3  # pixels of slack on every extent bound (float rounding)

@@ -211,12 +211,13 @@ def bin_gaussians(proj: Projection, camera: Camera, opacities: np.ndarray | None
     k.sort_bin_data(rank, proj.tile_rects, proj.means2d, proj.conics, qlims, s_rects, s_geo)
     args = (s_rects, s_geo, tiles_x, camera.width, camera.height)
     counts = np.zeros((k.BIN_CHUNKS, n_tiles), np.int32)
-    k.count_tiles(*args, counts)
+    hits = np.empty(len(order), np.int64)
+    k.count_tiles(*args, counts, hits)
     np.cumsum(counts.sum(axis=0), out=offsets[1:])
     # chunk c's entries of tile t start after the earlier chunks' entries of that tile
     cursor = (np.cumsum(counts, axis=0) - counts + offsets[:-1]).astype(np.int32)
     ids = np.empty(int(offsets[-1]), np.int32)
-    k.scatter_tiles(order, *args, cursor, ids)
+    k.scatter_tiles(order, *args, hits, cursor, ids)
     return TileBins(tiles_x, tiles_y, offsets, ids)
 
 
