@@ -7,7 +7,13 @@ time, the CPU time (all threads; divide by the core count for an idle-machine es
 figure does not move when other processes share the cores), and the stage split. At 50k it
 (the smallest size asked for) also times the numpy reference once and reports the ratio and the image difference.
 
+Baseline in the same process: each timed frame is followed by one frame of the previous
+compositor (`_render_baseline.py`, sessions 4-5) on the same scene, and the script prints the
+ratio of the two medians (wall and CPU): on a shared machine that ratio is steadier than
+either time. `--no-baseline` skips it.
+
 Usage: benchmarks/render.py [--sizes 50000 100000 200000] [--repeats 5] [--no-reference]
+                            [--no-baseline]
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 PEER_CPP_100K = 0.80   # s/frame, compiled C++ single-thread rasterizer (the project's bench notes)
 PEER_TORCH_50K = 9.0   # s/frame, pure-PyTorch tiled rasterizer on CPU
 TARGET_100K = 0.07  # issue 17: median wall s/frame at 512x512, 2 cores, quiet machine
+PREVIOUS_QUIET_100K = 0.151  # the previous compositor's median wall at 100k, quiet (2026-12-02)
 
 
 def main() -> int:
@@ -34,6 +41,8 @@ def main() -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[50_000, 100_000, 200_000])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--no-reference", action="store_true")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="do not time the previous compositor after each frame")
     ap.add_argument("--quick", action="store_true",
                     help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
@@ -48,10 +57,12 @@ def main() -> int:
     from avatarkit.gaussians.io import load_gaussians
     from avatarkit.render import Camera, render
     from avatarkit.render.reference import render_reference
+    if not args.no_baseline:
+        from _render_baseline import render_previous  # beside this script
 
     print(f"renderer benchmark: 512x512, {os.cpu_count()} cores, load average "
           f"{os.getloadavg()[0]:.2f} at start (timings on a shared machine are noisy)")
-    results = {}
+    results, ratios = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
             ply = Path(tmp) / f"scene_{n}.ply"
@@ -64,13 +75,20 @@ def main() -> int:
             t = time.perf_counter()
             first = render(gs, cam)
             warm = time.perf_counter() - t
-            wall, cpu, stages = [], [], []
+            if not args.no_baseline:
+                render_previous(gs, cam)  # compiles its kernels outside the timed frames
+            wall, cpu, stages, base_wall, base_cpu = [], [], [], [], []
             for _ in range(args.repeats):
                 c0, w0 = time.process_time(), time.perf_counter()
                 res = render(gs, cam)
                 wall.append(time.perf_counter() - w0)
                 cpu.append(time.process_time() - c0)
                 stages.append(res.meta["timings"])
+                if not args.no_baseline:
+                    c0, w0 = time.process_time(), time.perf_counter()
+                    prev = render_previous(gs, cam)
+                    base_wall.append(time.perf_counter() - w0)
+                    base_cpu.append(time.process_time() - c0)
             med = statistics.median(wall)
             results[n] = med
             split = ", ".join(f"{k} {1000 * statistics.median(s[k] for s in stages):.1f}"
@@ -80,6 +98,13 @@ def main() -> int:
                   f"{statistics.median(cpu) / (os.cpu_count() or 1):.3f}); warm-up frame {warm:.2f} s")
             print(f"           stages (median ms): {split}; {res.meta['n_visible']:,} visible, "
                   f"{res.meta['n_pairs']:,} splat-tile pairs, mean alpha {first.alpha.mean():.3f}")
+            if not args.no_baseline:
+                bmed, bcpu = statistics.median(base_wall), statistics.median(base_cpu)
+                ratios[n] = bmed / med
+                gap = max(float(np.abs(prev[0] - res.rgb).max()), float(np.abs(prev[1] - res.alpha).max()))
+                print(f"           previous compositor (same process, alternating frames): median "
+                      f"{bmed:.3f} s/frame, CPU {bcpu:.3f}; this one is {bmed / med:.2f}x faster "
+                      f"(wall), {bcpu / statistics.median(cpu):.2f}x (CPU); images differ by <= {gap:.1e}")
             if n == min(args.sizes) and not args.no_reference:
                 t = time.perf_counter()
                 ref = render_reference(gs, cam)
@@ -93,6 +118,9 @@ def main() -> int:
         s = results[100_000]
         print(f"100k: {s:.3f} s/frame = {PEER_CPP_100K / s:.1f}x the single-thread C++ peer "
               f"({PEER_CPP_100K} s); target {TARGET_100K} s: {'met' if s <= TARGET_100K else 'NOT met'}")
+        if 100_000 in ratios:
+            print(f"100k quiet-machine estimate: {PREVIOUS_QUIET_100K} s (previous compositor, quiet) / "
+                  f"{ratios[100_000]:.2f} = {PREVIOUS_QUIET_100K / ratios[100_000]:.3f} s/frame")
     if 50_000 in results:
         print(f"50k: {PEER_TORCH_50K / results[50_000]:.0f}x the pure-PyTorch peer ({PEER_TORCH_50K} s)")
     return 0

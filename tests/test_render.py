@@ -61,9 +61,11 @@ def test_fast_matches_reference_on_random_scenes(seed, sh_degree):
     assert ref.alpha.max() > 0.5 and (ref.alpha < 0.01).any()  # a scene with content and gaps
 
 
-def test_fast_matches_reference_with_early_termination():
-    # many opaque splats on one spot: most pixels stop at T < 1e-4
-    gs, cam = random_scene(600, 7, 1, width=48, height=40, spread=0.8)
+@pytest.mark.parametrize("width", [48, 45])
+def test_fast_matches_reference_with_early_termination(width):
+    # many opaque splats on one spot: most pixels stop at T < 1e-4. Width 45 cuts the last
+    # tile column at 13 pixels: the compositor's 8-pixel blocks there reach past the image
+    gs, cam = random_scene(600, 7, 1, width=width, height=40, spread=0.8)
     gs = gs.replace(opacities=np.full(len(gs), 0.97, np.float32), scales=gs.scales * 4)
     fast = render(gs, cam)
     ref = render_reference(gs, cam)
@@ -73,7 +75,7 @@ def test_fast_matches_reference_with_early_termination():
 
 
 def test_fast_matches_reference_on_large_and_needle_splats():
-    # long spans (forward differencing over many pixels) and thin rotated ellipses (span bounds)
+    # wide splats (rows of many 8-pixel blocks) and thin rotated ellipses (the extents)
     rng = np.random.default_rng(8)
     n = 60
     scales = np.where(rng.uniform(size=(n, 1)) < 0.5, [0.4, 0.002, 0.002], [0.3, 0.25, 0.2])
@@ -85,6 +87,30 @@ def test_fast_matches_reference_on_large_and_needle_splats():
     assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
     assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
     assert fast.meta["radii"].max() > 40
+
+
+def test_compositor_exp_matches_numpy():
+    # the compositor's inlined float32 exp (Cephes expf), over every exponent it meets: alpha
+    # >= 1/255 needs x >= ln(1/255) ~ -5.5; far lanes of a block go down to the -87 clamp
+    from avatarkit.render import _kernels as k
+
+    ti = k.ti
+
+    @ti.kernel
+    def exp_all(x: k.f32_1, out: k.f32_1):
+        for i in range(x.shape[0]):
+            out[i] = k.exp_f32(x[i])
+
+    x = np.concatenate([np.linspace(-87.0, 0.0, 20001), -np.geomspace(1e-8, 1.0, 200), [0.0]])
+    x = x.astype(np.float32)
+    got = np.empty_like(x)
+    exp_all(x, got)
+    want = np.exp(x.astype(np.float64))
+    assert np.abs(got / want - 1).max() < 3e-7  # ~2 ulp
+    assert got[-1] == 1.0
+    below = np.array([-87.0, -100.0, -1e4], np.float32)
+    exp_all(below, got[:3])
+    assert (got[:3] == got[0]).all() and 0 < got[0] < 1e-37  # clamped: alpha far below 1/255
 
 
 def test_projection_stage_matches_reference():
@@ -149,6 +175,28 @@ def test_snug_binning_drops_only_tiles_the_splat_cannot_reach():
     assert 0.1 * len(loose.gaussian_ids) < dropped_any  # the test is not vacuous
     full_lists = rasterize(proj, sh_colors(gs, cam), gs.opacities, loose, cam)[0]
     np.testing.assert_array_equal(render(gs, cam).rgb, full_lists)  # the same image
+
+
+def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
+    # count_tiles hands a splat's tiles to the scatter as 63 bits; splats whose rect has more
+    # tiles are tested again there: both kinds must give the numpy twin's lists
+    gs, cam = random_scene(200, 9, 0, width=160, height=144)
+    gs = gs.replace(scales=gs.scales * np.where(np.arange(len(gs))[:, None] % 5 == 0, 15.0, 1.0))
+    proj = project_gaussians(gs, cam)
+    r = proj.tile_rects
+    tiles = (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])
+    assert (tiles > 63).sum() >= 5 and ((tiles <= 63) & (proj.radii > 0)).sum() >= 50
+    loose, snug = bin_gaussians(proj, cam), bin_gaussians(proj, cam, gs.opacities)
+    qlims = tile_q_limits(gs.opacities)
+    for t in range(snug.tiles_x * snug.tiles_y):
+        ty, tx = divmod(t, snug.tiles_x)
+        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
+        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
+        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
+                                    tx, ty, cam)
+        np.testing.assert_array_equal(got, all_ids[meets])
+    big = np.flatnonzero(tiles > 63)
+    assert np.isin(loose.gaussian_ids, big).sum() > np.isin(snug.gaussian_ids, big).sum()
 
 
 def test_depth_order_is_a_stable_argsort():

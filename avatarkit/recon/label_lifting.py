@@ -84,10 +84,14 @@ def accumulate_view(gaussians: GaussianSet, camera: Camera, labels: np.ndarray, 
     if len(bins.gaussian_ids) == 0:
         return weights, np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     from avatarkit.recon import _label_kernels as k
+    from avatarkit.render import _kernels as rk
 
-    packed = np.zeros((n, k.PACK), np.float32)
-    k.pack_splats(proj.means2d, proj.conics, np.ascontiguousarray(gaussians.opacities, np.float32),
-                  proj.depths, proj.radii, packed)
+    # the renderer's records, splat g in row g (colours unused)
+    slot = np.where(proj.radii > 0, np.arange(n, dtype=np.int32), -1).astype(np.int32)
+    packed = np.zeros((n, rk.PACK), np.float32)
+    rk.pack_splats(slot, proj.means2d, proj.conics,
+                   np.ascontiguousarray(gaussians.opacities, np.float32),
+                   np.zeros((n, 3), np.float32), proj.depths, packed)
     trans = np.empty((h, w), np.float32)
     depth = np.empty((h, w), np.float32)
     k.accumulate(bins.tile_offsets, bins.gaussian_ids, packed, labels, weights, trans, depth)
