@@ -294,8 +294,10 @@ class Keyframe:
 
 @dataclass
 class VideoViews:
-    """What a video build passes to `build_avatar`: shape (S,) the joint identity; keyframes:
-    the reference first (its image is the portrait being built); info: figures for the report."""
+    """What a video build passes to `build_avatar`: shape (S,) the joint identity (the shape the
+    keyframes' poses were fitted with; the build fits the reference keyframe's own shape);
+    keyframes: the reference first (its image is the portrait being built); info: figures for
+    the report."""
 
     shape: np.ndarray
     keyframes: list[Keyframe]
