@@ -46,15 +46,18 @@ demo: $(STAMP)
 	@echo "  long_hair_shake.usdc/.mp4 the long-haired sample avatar: simulated hair swinging with a head shake"
 	@echo "The avatarkit command is .venv/bin/avatarkit (try: .venv/bin/avatarkit inspect $(DEMO)/portrait_talk.usdc)."
 
+# Two workers (pytest-xdist), one test file each at a time so module fixtures are built once:
+# the suite is mostly single-threaded, and CI has 2 cores. TEST_WORKERS=0 runs it in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Debian's Chromium for the slow web-player tests (`avatarkit view`); they skip without it.
 chromium:
 	test -x /usr/bin/chromium || (apt-get update && apt-get install -y chromium)
 
 test-all: $(STAMP)
-	$(PY) -m pytest -q -m ""
+	$(PY) -m pytest -q -m "" -n $(TEST_WORKERS) --dist loadfile
 
 # Every benchmark script (helpers: _*.py and the scene generator make_scene.py are not run).
 BENCH_SCRIPTS := $(filter-out benchmarks/_% benchmarks/make_scene.py,$(sort $(wildcard benchmarks/*.py)))

@@ -54,8 +54,10 @@ class HairRig:
                     else CageDeformer.deferred(hair, cage, method))
         model = CageModel.build(cage, hair, head_model, np.asarray(rest_vertices, np.float32), sdf=sdf)
         # the file keeps the SDF's values only; use what a load rebuilds, so a loaded rig
-        # simulates exactly like the one built here
-        model.sdf = sdf_from_values(model.sdf.values_grad[..., 0], model.sdf.origin, model.sdf.spacing)
+        # simulates exactly like the one built here (the model's roots read distances only,
+        # which are the same float32 values either way)
+        if not model.sdf.from_values:
+            model.sdf = sdf_from_values(model.sdf.values_grad[..., 0], model.sdf.origin, model.sdf.spacing)
         return cls(deformer, model)
 
     @property
@@ -161,7 +163,8 @@ def sdf_from_values(values: np.ndarray, origin, spacing: float):
         raise InputError(f"SDF values must be a (nx, ny, nz) grid with n >= 2, got {v.shape}")
     grad = np.stack(np.gradient(v.astype(np.float64), float(spacing)), axis=-1)
     grad /= np.maximum(np.linalg.norm(grad, axis=-1, keepdims=True), 1e-12)
-    return HeadSDF(np.concatenate([v[..., None], grad.astype(np.float32)], axis=-1), origin, spacing)
+    return HeadSDF(np.concatenate([v[..., None], grad.astype(np.float32)], axis=-1), origin, spacing,
+                   from_values=True)
 
 
 def sdf_inputs_sha256(rest_vertices: np.ndarray, head_faces: np.ndarray) -> str:

@@ -11,6 +11,8 @@ the default substeps x iterations (40 x 1) per frame at 30 fps on the whip clip:
     it (`bake.HAIR_BATCH` = 16 frames stepped, then deformed in one product), and one product
     per frame (`HairDriver.hair_arrays`) as the baseline;
   - the numpy reference solver's time for one frame, as the simple baseline (speed-up ratio);
+  - the solver launched through Taichi's plain kernel call (the default before issue 18's
+    session 6), in the same alternation, and how many kernel launches a step and a bake frame make;
   - the ablation table: static / none / vertex / proxy x whip / nod (penetration, scalp gap).
 Targets (issues 6 and 18): <= 3 ms per frame simulation, <= 15 ms with 50k Gaussians, on 2
 cores; the last block ("targets") prints exactly those two figures, with the machine's CPU and
@@ -38,6 +40,42 @@ def timed(fn, repeat: int):
         wall.append(1e3 * (time.perf_counter() - w))
         cpu.append(1e3 * (time.process_time() - c))
     return float(np.median(wall)), float(np.median(cpu))
+
+
+def count_launches(fn) -> int:
+    """Taichi kernel launches while fn() runs: through Taichi's own call, and through
+    `avatarkit.sim._launch` (BoundLaunch, KernelCall), each counted once."""
+    from taichi.lang.kernel_impl import Kernel
+
+    from avatarkit.sim._launch import BoundLaunch, KernelCall
+
+    count = [0]
+    originals = {cls: cls.__call__ for cls in (BoundLaunch, KernelCall)}
+    plain = Kernel.launch_kernel
+
+    def plain_counted(self, *args):
+        count[0] += 1
+        return plain(self, *args)
+
+    def counted(call):
+        def wrapper(self, *args):
+            before = count[0]
+            out = call(self, *args)
+            if count[0] == before:  # not already counted as a plain call inside
+                count[0] += 1
+            return out
+        return wrapper
+
+    Kernel.launch_kernel = plain_counted
+    for cls, call in originals.items():
+        cls.__call__ = counted(call)
+    try:
+        fn()
+    finally:
+        Kernel.launch_kernel = plain
+        for cls, call in originals.items():
+            cls.__call__ = call
+    return count[0]
 
 
 def machine() -> str:
@@ -109,21 +147,35 @@ def main(argv=None) -> int:
     solver32 = XPBDSolver(m32, config, skin=driver.skin)
     state32 = driver.state.copy()
     solver32.step(state32, state32, frames[0], frames[0], dt)
+    # and the default solver launched through Taichi's plain kernel call (before session 6)
+    from avatarkit.sim import _kernels
+    from avatarkit.sim._launch import BoundLaunch
+
+    solver_plain = XPBDSolver(m, config, skin=driver.skin)
+    state_plain = driver.state.copy()
+    solver_plain.step(state_plain, state_plain, frames[0], frames[0], dt)
+    pp = solver_plain._packed
+    pp.launch = BoundLaunch(_kernels.simulate_frame, *pp.launch.arrays, bind=False)
     n = len(frames) - 1
     print("\n== per frame (median over the whip clip, 30 fps; wall / CPU ms; the machine is shared, "
           "CPU time is the steadier figure)")
-    times = {"new": ([], []), "old": ([], [])}
+    launches = count_launches(lambda: solver.step(state.copy(), state.copy(), frames[0], frames[1], dt))
+    print(f"Taichi kernel launches per solver step: {launches} (every substep in one launch)")
+    times = {"new": ([], []), "old": ([], []), "plain": ([], [])}
     for i in range(1, len(frames)):
-        for key, slv, st in (("new", solver, state), ("old", solver32, state32)):
+        for key, slv, st in (("new", solver, state), ("old", solver32, state32), ("plain", solver_plain, state_plain)):
             w, c = time.perf_counter(), time.process_time()
             slv.step(st, st, frames[i - 1], frames[i], dt)
             times[key][0].append(1e3 * (time.perf_counter() - w))
             times[key][1].append(1e3 * (time.process_time() - c))
     wall, cpu = (float(np.median(x)) for x in times["new"])
     wall32, cpu32 = (float(np.median(x)) for x in times["old"])
+    wallp, cpup = (float(np.median(x)) for x in times["plain"])
     print(f"solver step (XPBD only)                      {wall:7.2f} / {cpu:6.2f} ms   target <= 3")
     print(f"  baseline: proxies of 32 weights            {wall32:7.2f} / {cpu32:6.2f} ms   "
           f"({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU)")
+    print(f"  baseline: Taichi's plain kernel call       {wallp:7.2f} / {cpup:6.2f} ms   "
+          f"({wallp / wall:.2f}x wall, {cpup / cpu:.2f}x CPU)")
     k = iter(range(1, len(frames)))
 
     def driver_step():
@@ -151,6 +203,7 @@ def main(argv=None) -> int:
         for (means, _, _), pose in zip(deformer.deform_batch(np.stack(cages), chunk=HAIR_BATCH), poses):
             driver.pushed_out(means, pose)  # as the bake does: centres out of the posed head
 
+    batch_launches = count_launches(batch_step)
     wall_b, cpu_b = (x / HAIR_BATCH for x in timed(batch_step, max(3, n // HAIR_BATCH)))
     print(f"driver step + deform {len(hair)} Gaussians, {HAIR_BATCH} frames per product (the bake's path)\n"
           f"                                             {wall_b:7.2f} / {cpu_b:6.2f} ms   target <= 15")
@@ -161,6 +214,7 @@ def main(argv=None) -> int:
     means = deformer.deform_arrays(driver.state.positions)[0]
     wall_p, cpu_p = timed(lambda: driver.pushed_out(means), 20)
     print(f"  and the push-out of the centres (one frame){wall_p:7.2f} / {cpu_p:6.2f} ms")
+    print(f"  Taichi kernel launches per frame on this path: {batch_launches / HAIR_BATCH:.2f}")
 
     t0 = time.perf_counter()
     reference_step(m, config, driver.state, frames[0], frames[1], dt, skin=driver.skin)
@@ -172,7 +226,8 @@ def main(argv=None) -> int:
     print(f"solver step, {config.substeps} x {config.iterations}, {m.num_vertices}-vertex cage   "
           f"{wall:7.2f} / {cpu:6.2f} ms   target <= 3: {'met' if wall <= 3 else 'NOT met'} (wall)   "
           f"baselines: numpy reference {ref_ms:.0f} ms ({ref_ms / wall:.0f}x), 32-weight proxies "
-          f"{wall32:.2f} / {cpu32:.2f} ms ({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU)")
+          f"{wall32:.2f} / {cpu32:.2f} ms ({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU), Taichi's plain "
+          f"kernel call {wallp:.2f} / {cpup:.2f} ms ({wallp / wall:.2f}x wall, {cpup / cpu:.2f}x CPU)")
     print(f"simulation + {len(hair)} hair Gaussians (bake path) {wall_b:7.2f} / {cpu_b:6.2f} ms   "
           f"target <= 15: {'met' if wall_b <= 15 else 'NOT met'} (wall)   "
           f"baseline one product per frame {wall_f:.2f} / {cpu_f:.2f} ms ({wall_f / wall_b:.1f}x wall, "

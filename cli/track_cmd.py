@@ -28,9 +28,13 @@ _FILE = click.Path(dir_okay=False)
               help="Temporal smoothing (frames^4; 0 = none). It does not lag: see docs/tracking.md.")
 @click.option("--preview", type=_FILE, help="Also write the video with the fitted head's landmarks "
               "and mesh drawn on it (.mp4 or .gif).")
+@click.option("--align-to-build/--no-align-to-build", default=True, show_default=True,
+              help="With --avatar built from this same video: drive its eyes relative to the build "
+              "frame's gaze and pose the head so the build frame is seen as the build saw it "
+              "(docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, quiet):
+              smoothing, preview, align_to_build, quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
 
@@ -61,8 +65,22 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,
                              options=options, progress=bar.step)
+    aligned, saved = None, result
+    if avatar is not None and align_to_build:
+        import dataclasses
+
+        from avatarkit.track.build_pose import align_to_build as align, recorded_build_frame
+
+        frame = recorded_build_frame(avatar, video)
+        if frame is not None:
+            # the overlay keeps drawing the fit to the video; the file gets the aligned clip
+            saved = dataclasses.replace(result, clip=result.clip.replace())
+            aligned = align(saved, avatar, frame)
+            if aligned["frame"] is None and not quiet:
+                click.echo(f"warning: {avatar} was built from frame {frame} of this video, outside the "
+                           "tracked frames: the clip is not aligned to it", err=True)
     with cli_warnings(quiet):
-        save_tracking(output, result)
+        save_tracking(output, saved)
         if preview is not None:
             from avatarkit.track.overlay import write_overlay
 
@@ -75,6 +93,9 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         err = np.nanmedian(result.landmark_error)
         click.echo(f"tracked {result.num_frames} frames at {result.clip.fps:g} fps: face in {found}, "
                    f"interpolated {result.num_frames - found}; median landmark error {err:.2f} px", err=True)
+        if aligned is not None and aligned["frame"] is not None:
+            parts = [n for n, k in (("eyes", "eyes"), ("head pose", "head_pose")) if aligned[k]]
+            click.echo(f"aligned to the avatar's build frame {aligned['frame']} ({' and '.join(parts)})", err=True)
         click.echo(f"wrote {output}" + (f" and {preview}" if preview else ""), err=True)
 
 

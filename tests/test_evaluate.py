@@ -373,7 +373,7 @@ def test_evaluate_a_real_clip_builds_tracks_and_reports(tmp_path):
 def test_recorded_build_frame_is_read_from_the_avatar(synthetic, tmp_path):
     import shutil
 
-    from avatarkit.track.evaluate import recorded_build_frame
+    from avatarkit.track.build_pose import recorded_build_frame
 
     video = str(synthetic / "head.mp4")
     assert recorded_build_frame(synthetic / "avatar", video) is None
@@ -384,3 +384,65 @@ def test_recorded_build_frame_is_read_from_the_avatar(synthetic, tmp_path):
     (copy / "avatar.json").write_text(json.dumps(doc))
     assert recorded_build_frame(copy, video) == 4
     assert recorded_build_frame(copy, str(tmp_path / "other.mp4")) is None
+
+
+def _built_from(synthetic, tmp_path, frame: int, w2c: np.ndarray):
+    """A copy of the synthetic avatar whose provenance says it was built from `frame` of the
+    synthetic video, with the build's camera `w2c` (as `build VIDEO --frame` records them)."""
+    import shutil
+
+    copy = tmp_path / "avatar"
+    shutil.copytree(synthetic / "avatar", copy)
+    doc = json.loads((copy / "avatar.json").read_text())
+    doc["provenance"]["source_video"] = {"video": str(synthetic / "head.mp4"), "frame": frame}
+    doc["provenance"].setdefault("build", {})["camera"] = {"convention": "opencv",
+                                                          "world_to_camera": w2c.tolist()}
+    (copy / "avatar.json").write_text(json.dumps(doc))
+    return copy
+
+
+def test_track_with_the_avatar_built_from_the_video_aligns_to_its_build_frame(synthetic, tmp_path, capsys):
+    """`track --avatar` on the avatar's own source video: the saved clip shows the build frame as
+    the build's camera saw the head and looks from there with the build frame's gaze (what
+    `evaluate` does); the motion between frames is the tracked one. --no-align-to-build: as tracked."""
+    from avatarkit.avatar import load_avatar_head
+    from avatarkit.head.model import HeadParams
+    from avatarkit.rotations import axis_angle_to_matrix
+    from avatarkit.track.build_pose import view_transforms
+    from avatarkit.track.io import load_tracking
+
+    video, b = str(synthetic / "head.mp4"), 4
+    model, shape, _, _ = load_avatar_head(synthetic / "avatar")
+    J0 = model.rest_joints(HeadParams(shape=np.asarray(shape, np.float32),
+                                      expr=np.zeros((1, model.num_expr), np.float32)))[0][0]
+    C = np.diag([1.0, -1.0, -1.0])
+    # the build's fit: 3 degrees of pitch and 2 cm of depth away from the tracked one (unknown yet:
+    # any pose near it will do, so take the true camera's view of the true clip's frame b)
+    R_f = axis_angle_to_matrix(np.array([[0.05, 0.0, 0.0]]))[0].astype(np.float64) @ \
+        axis_angle_to_matrix(synthetic_clip().rotation[b:b + 1])[0].astype(np.float64)
+    t_f = np.array([0.004, -0.003, 0.52])
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = C @ R_f, C @ t_f
+    avatar = _built_from(synthetic, tmp_path, b, w2c)
+    raw_out, out = tmp_path / "raw.npz", tmp_path / "aligned.npz"
+    args = ["track", video, "--avatar", str(avatar), "--end", "8"]
+    assert main([*args, "-o", str(raw_out), "--no-align-to-build"]) == 0
+    assert "aligned" not in capsys.readouterr().err
+    assert main([*args, "-o", str(out)]) == 0
+    assert f"aligned to the avatar's build frame {b} (eyes and head pose)" in capsys.readouterr().err
+    raw, got = load_tracking(raw_out), load_tracking(out)
+    R, t = view_transforms(got.clip.rotation, got.clip.translation, got.camera.world_to_camera, J0)
+    np.testing.assert_allclose(R[b], R_f, atol=2e-5)
+    np.testing.assert_allclose(t[b], t_f, atol=2e-5)
+    np.testing.assert_allclose(got.clip.eyes[b], 0.0, atol=1e-6)
+    R0, _ = view_transforms(raw.clip.rotation, raw.clip.translation, raw.camera.world_to_camera, J0)
+    assert np.abs(R0[b] - R_f).max() > 0.01                    # it did move
+    # the motion between frames is unchanged (R_s R_b^T; `track.build_pose`)
+    for s in (0, 7):
+        np.testing.assert_allclose(R[s] @ R[b].T, R0[s] @ R0[b].T, atol=2e-5)
+    np.testing.assert_array_equal(got.clip.jaw, raw.clip.jaw)
+    # outside the tracked frames: nothing aligned, and the user is told
+    assert main(["track", video, "--avatar", str(_built_from(synthetic, tmp_path / "b", 10, w2c)),
+                 "--end", "8", "-o", str(tmp_path / "late.npz")]) == 0
+    assert "outside the tracked frames" in capsys.readouterr().err
+    np.testing.assert_array_equal(load_tracking(tmp_path / "late.npz").clip.rotation, raw.clip.rotation)

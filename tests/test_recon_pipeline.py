@@ -171,15 +171,26 @@ def test_detect_hair_mode_short_and_long():
     assert mode == "cage" and why["hair_below_ears_iod"] > 1.5
 
 
-def test_rig_hair_modes(view):
+def test_rig_hair_modes(view, monkeypatch):
     from avatarkit.synthetic.head_hair import make_test_avatar
 
+    from avatarkit.hair_rig import sdf_from_values
     from avatarkit.head.sdf_grid import HeadSDF
+    from avatarkit.recon import hair_rig as recon_hair_rig
 
     fit = view.truth
     hair = make_test_avatar("short", 1500, 0, 200, head_model=fit.model).hair
     sdf = HeadSDF.build(fit.rest_vertices, fit.model.faces, spacing=0.004)
-    rigid = rig_hair(fit, hair, "rigid", cage_vertices=150, sdf=sdf)
+    # without an SDF given, the rig's is computed on a second thread beside the cage and the
+    # scalp binding: it must be what the plain sequence gives (HeadSDF.build, then the gradients
+    # a rig file's load makes), bit for bit (a coarse grid keeps the test fast)
+    monkeypatch.setattr(recon_hair_rig, "RIG_SDF_SPACING", 0.004)
+    rigid = rig_hair(fit, hair, "rigid", cage_vertices=150)
+    got = rigid.rig.model.sdf
+    ref = sdf_from_values(sdf.values_grad[..., 0], sdf.origin, sdf.spacing)
+    assert got.from_values and got.spacing == 0.004
+    np.testing.assert_array_equal(got.values_grad, ref.values_grad)
+    np.testing.assert_array_equal(got.origin, ref.origin)
     assert rigid.mode == "rigid" and "binding" in rigid.hair.extras
     scalp = fit.model.region_mask("scalp")[fit.model.faces].sum(axis=1) >= 2
     assert scalp[rigid.hair.extras["binding"]].all()

@@ -197,6 +197,38 @@ def test_solver_puts_roots_on_their_targets(scene):
 
 
 # --- fast path vs reference ---------------------------------------------------------------------
+def test_bound_launch_matches_the_plain_kernel_call(scene):
+    """The solver launches its frame kernel through `BoundLaunch` (arrays bound once); it must
+    write exactly what Taichi's plain call writes, and fall back to that call for an array
+    Taichi would copy (Fortran order)."""
+    from avatarkit.sim import _kernels
+    from avatarkit.sim._launch import BoundLaunch
+
+    model, head, _ = scene
+    solver = XPBDSolver(model, SimConfig(collision="proxy", substeps=4))
+    state = model.rest_state()
+    f0, f1 = frame(model, head, np.eye(4)), frame(model, head, rigid((-0.3, 0.2, 0.0)))
+    solver.step(state, state, f0, f0, 1 / 30)
+    solver.step(state, state, f0, f1, 1 / 30)  # leaves the buffers set up for a moving frame
+    p = solver._packed
+    assert p.launch.fast and p.launch.binds(p.xbuf, p.ibuf, p.fbuf, model.sdf.values_grad,
+                                            solver.skin.weights)
+    grids = (model.sdf.values_grad, solver.skin.weights)
+    plain = (p.xbuf.copy(), p.ibuf.copy(), p.fbuf.copy())
+    fortran = (np.asfortranarray(p.xbuf), p.ibuf.copy(), p.fbuf.copy())
+    before = p.xbuf.copy()
+    p.launch()
+    _kernels.simulate_frame(*plain, *grids)
+    slow = BoundLaunch(_kernels.simulate_frame, *fortran, *grids)
+    assert not slow.fast
+    slow()
+    assert np.abs(p.xbuf - before).max() > 1e-4  # the launch moved the cage
+    for got in (plain, fortran):
+        np.testing.assert_array_equal(got[0], p.xbuf)
+        np.testing.assert_array_equal(got[2], p.fbuf)
+    assert not p.launch.binds(*plain, *grids)
+
+
 @pytest.mark.parametrize("mode", ["none", "vertex", "proxy"])
 @pytest.mark.parametrize("substeps", [1, 2])
 def test_kernel_matches_numpy_reference(scene, mode, substeps):
@@ -507,6 +539,31 @@ def test_push_out_matches_reference_and_clears_the_posed_head(scene, jaw_skin):
     assert d1.min() > CLEARANCE - 2e-4
     outside = d0 > CLEARANCE
     np.testing.assert_array_equal(fast[outside], pts[outside].astype(np.float32))
+
+
+def test_kernel_call_matches_the_plain_kernel_call(scene, jaw_skin):
+    """`push_out` launches through `KernelCall` (the instance looked up once, the context filled
+    per call): the same bits as Taichi's plain call, and that call for a Fortran-order array."""
+    from avatarkit.sim import _kernels
+    from avatarkit.sim._launch import KernelCall
+    from avatarkit.sim.pushout import _pose_buffer
+
+    model, head, _ = scene
+    skin, lower = jaw_skin
+    t = jaw_frame(model, head, lower, 0.4, rigid((0.2, -0.3, 0.1))).joint_transforms
+    rng = np.random.default_rng(3)
+    pts = (rng.normal(size=(2000, 3)) * 0.06 + t[0, :3, 3]).astype(np.float32)
+    args = (_pose_buffer(model.sdf, skin, t), model.sdf.values_grad, skin.weights, model.sdf.cell_floor,
+            len(t), 0.0005, 2, 0, 1.0)
+    plain, fast, fortran = pts.copy(), pts.copy(), np.asfortranarray(pts)
+    _kernels.push_out_points(plain, *args)
+    call = KernelCall(_kernels.push_out_points)
+    call(fast, *args)
+    call(fortran, *args)
+    assert list(call._instances.values()) != [False]  # the fast path ran (the Fortran call did not look up)
+    assert (plain != pts).any(axis=1).sum() > 100  # many points were pushed
+    np.testing.assert_array_equal(fast, plain)
+    np.testing.assert_array_equal(fortran, plain)
 
 
 def test_push_out_screen_is_exact_near_the_clearance(scene, jaw_skin):

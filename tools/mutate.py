@@ -66,8 +66,8 @@ MUTATIONS = [
       "*(0.5 * g for g in config.gravity), config.max_speed",
       ["tests/test_sim.py", "-k", "kernel_matches or settles"],
       "the kernel applies half the gravity"),
-    M("sim.contact_pulls", "avatarkit/sim/_kernels.py", "new = ti.max(fb[li] + dl, 0.0)  # contact only pushes",
-      "new = fb[li] + dl", ["tests/test_sim.py", "-k", "kernel_matches or collision"],
+    M("sim.contact_pulls", "avatarkit/sim/_kernels.py", "new = ti.max(lam + dl, 0.0)  # contact only pushes",
+      "new = lam + dl", ["tests/test_sim.py", "-k", "kernel_matches or collision"],
       "a collision contact may pull a vertex into the head"),
     # --- cage -----------------------------------------------------------------------------------
     M("cage.manifold_unreported", "avatarkit/cage/mesh.py",

@@ -257,6 +257,7 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     """
     import torch
 
+    from avatarkit.lbfgs import LBFGS
     from avatarkit.recon.fit import torch_single_thread
 
     lm = landmark_model or LandmarkModel(model, embedding)
@@ -304,7 +305,7 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
         return out, px
 
     def run(params):
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
+        opt = LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                                 tolerance_grad=1e-10, tolerance_change=1e-13, history_size=20)
 
         def closure():

@@ -57,11 +57,14 @@ def trilinear(grid: np.ndarray, uc: np.ndarray) -> np.ndarray:
 @dataclass(eq=False)
 class HeadSDF:
     """values_grad: (nx, ny, nz, 4) float32, [..., 0] signed distance (m), [..., 1:] unit gradient.
-    origin: (3,) the position of grid node (0, 0, 0); spacing: node distance in metres."""
+    origin: (3,) the position of grid node (0, 0, 0); spacing: node distance in metres.
+    from_values: the gradients are central differences of the float32 distances themselves (what
+    a rig file's load rebuilds, `hair_rig.sdf_from_values`), not of the float64 ones `build` had."""
 
     values_grad: np.ndarray
     origin: np.ndarray
     spacing: float
+    from_values: bool = False
 
     def __post_init__(self):
         self.values_grad = np.ascontiguousarray(self.values_grad, dtype=np.float32)
@@ -92,34 +95,7 @@ class HeadSDF:
     def build(cls, vertices: np.ndarray, faces: np.ndarray, spacing: float = 0.0025,
               margin: float = 0.04) -> "HeadSDF":
         """Grid SDF of the mesh (vertices (V,3), faces (F,3)) over its bounding box + margin."""
-        v = np.asarray(vertices, dtype=np.float64)
-        f = np.asarray(faces, dtype=np.int64)
-        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3:
-            raise InputError(f"head vertices must have shape (V, 3), got {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or f.min() < 0 or f.max() >= len(v):
-            raise InputError(f"head faces must be (F, 3) indices into {len(v)} vertices")
-        if not (spacing > 0 and margin >= 0):
-            raise InputError("SDF spacing must be > 0 and margin >= 0")
-        lo = v.min(axis=0) - margin
-        dims = np.ceil((v.max(axis=0) + margin - lo) / spacing).astype(int) + 1
-        samples, normals = _surface_samples(v, f, spacing / 2)
-        # Exact-ish values only in a band of nodes around the surface (a kd-tree query far from
-        # a round surface degenerates: every sample is almost equally near); elsewhere the
-        # distance to the nearest band node is added to that node's value (Euclidean transform).
-        occupied = np.zeros(dims, bool)
-        cell = np.clip(np.rint((samples - lo) / spacing).astype(np.int64), 0, dims - 1)
-        occupied[cell[:, 0], cell[:, 1], cell[:, 2]] = True
-        band = ndimage.binary_dilation(occupied, np.ones((3, 3, 3), bool), iterations=_BAND)
-        band_idx = np.argwhere(band)
-        nodes = lo + spacing * band_idx
-        dist, idx = cKDTree(samples).query(nodes, workers=-1)
-        offset = nodes - samples[idx]
-        plane = np.einsum("ij,ij->i", offset, normals[idx])
-        value = np.zeros(dims)
-        value[band] = np.where(dist < 3 * spacing, plane, np.copysign(dist, plane))
-        far, nearest = ndimage.distance_transform_edt(~band, sampling=spacing, return_indices=True)
-        near_value = value[nearest[0], nearest[1], nearest[2]]
-        value = np.where(band, value, np.copysign(np.abs(near_value) + far, near_value))
+        value, lo = distance_grid(vertices, faces, spacing, margin)
         grad = np.stack(np.gradient(value, spacing), axis=-1)
         grad /= np.maximum(np.linalg.norm(grad, axis=-1, keepdims=True), 1e-12)
         return cls(np.concatenate([value[..., None], grad], axis=-1), lo, spacing)
@@ -147,6 +123,40 @@ class HeadSDF:
         return d, g @ r.T
 
 
+def distance_grid(vertices: np.ndarray, faces: np.ndarray, spacing: float = 0.0025,
+                  margin: float = 0.04) -> tuple[np.ndarray, np.ndarray]:
+    """The signed distances of `HeadSDF.build` without its gradients: (values (nx, ny, nz)
+    float64, origin (3,)) over the mesh's bounding box + margin (module docstring)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3:
+        raise InputError(f"head vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or f.min() < 0 or f.max() >= len(v):
+        raise InputError(f"head faces must be (F, 3) indices into {len(v)} vertices")
+    if not (spacing > 0 and margin >= 0):
+        raise InputError("SDF spacing must be > 0 and margin >= 0")
+    lo = v.min(axis=0) - margin
+    dims = np.ceil((v.max(axis=0) + margin - lo) / spacing).astype(int) + 1
+    samples, normals = _surface_samples(v, f, spacing / 2)
+    # Exact-ish values only in a band of nodes around the surface (a kd-tree query far from
+    # a round surface degenerates: every sample is almost equally near); elsewhere the
+    # distance to the nearest band node is added to that node's value (Euclidean transform).
+    occupied = np.zeros(dims, bool)
+    cell = np.clip(np.rint((samples - lo) / spacing).astype(np.int64), 0, dims - 1)
+    occupied[cell[:, 0], cell[:, 1], cell[:, 2]] = True
+    band = ndimage.binary_dilation(occupied, np.ones((3, 3, 3), bool), iterations=_BAND)
+    band_idx = np.argwhere(band)
+    nodes = lo + spacing * band_idx
+    dist, idx = cKDTree(samples).query(nodes, workers=-1)
+    offset = nodes - samples[idx]
+    plane = np.einsum("ij,ij->i", offset, normals[idx])
+    value = np.zeros(dims)
+    value[band] = np.where(dist < 3 * spacing, plane, np.copysign(dist, plane))
+    far, nearest = ndimage.distance_transform_edt(~band, sampling=spacing, return_indices=True)
+    near_value = value[nearest[0], nearest[1], nearest[2]]
+    return np.where(band, value, np.copysign(np.abs(near_value) + far, near_value)), lo
+
+
 def _surface_samples(v: np.ndarray, f: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Points on every face on a barycentric lattice finer than `step`, with the face normals.
     Deterministic (no random sampling) so the same mesh always gives the same grid."""
@@ -170,4 +180,4 @@ def _surface_samples(v: np.ndarray, f: np.ndarray, step: float) -> tuple[np.ndar
     return np.concatenate(points), np.concatenate(normals)
 
 
-__all__ = ["CELL_STEP", "HeadSDF", "trilinear"]
+__all__ = ["CELL_STEP", "HeadSDF", "distance_grid", "trilinear"]

@@ -131,6 +131,7 @@ def assemble(fit: HeadFit, binding: TriangleBinding, hair: GaussianSet, analysis
     import torch
 
     from avatarkit.head.lbs import axis_angle_to_matrix_torch
+    from avatarkit.lbfgs import LBFGS
     from avatarkit.recon.fit import FLAME_SHAPE_COMPONENTS, _landmark_targets
 
     model = fit.model
@@ -230,7 +231,7 @@ def assemble(fit: HeadFit, binding: TriangleBinding, hair: GaussianSet, analysis
             return loss
 
         params = [offset, dshape] if k else [offset]
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
+        opt = LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                                 tolerance_grad=1e-12, tolerance_change=1e-14, history_size=10)
         with torch_single_thread():
             opt.step(closure)

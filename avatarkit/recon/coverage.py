@@ -15,6 +15,18 @@ follows refines it). Skin pixels become bald Gaussians bound to their nearest he
 (`part` skin), hair pixels hair Gaussians (`strand` -1, `seen` 1; kept `HAIR_MARGIN` outside the
 head, the others dropped). At most `MAX_COVER` pixels are filled (evenly thinned, larger
 Gaussians). Seen from the side they are thin, like the hair fill (`hair_fill.fill_coverage`).
+
+Pixels at the label's edge mix the head with what is behind it (an ear's rim with the wall), and
+a segmentation's mistake next to the head (a collar labelled skin) is the background's colour
+outright. A disc coloured like that matches the photo from the front, but from the side the
+discs are seen edge-on and a column of them reads as a pale (or dark) streak behind the ear. So
+each pixel's colour c is unmixed between the photo's nearest covered pixel of the same label h
+(what the head looks like there) and its nearest background b (`COVER_BG_GAP` pixels clear of
+the head labels): its head share a = (c - b).(h - b) / |h - b|^2, clipped to [0, 1]. A pixel
+with a < `COVER_MIN_SHARE` is mostly background and gets nothing; the others get the unmixed
+colour (c - (1 - a) b) / a and opacity a times the usual, so that seen from the front over the
+background they still show c, and seen from the side they show the head's colour, faintly. Where
+h and b are too alike to tell apart (`COVER_MIN_CONTRAST`), a = 1, as before.
 """
 from __future__ import annotations
 
@@ -33,6 +45,14 @@ COVER_REACH = 0.025
 #: the discs' width in pixels of their depth, and thickness relative to the width
 COVER_WIDTH_PX = 1.5
 COVER_FLATNESS = 0.15
+#: opacity of a disc wholly of the head
+COVER_OPACITY = 0.9
+#: pixels whose head share (module docstring) is below this get no disc
+COVER_MIN_SHARE = 0.35
+#: the background colour is read this many pixels clear of the head labels (past the mixed rim)
+COVER_BG_GAP = 2
+#: head and background colours closer than this (RGB in [0, 1], Euclidean) cannot be unmixed
+COVER_MIN_CONTRAST = 0.1
 
 
 def _extras_like(template: GaussianSet, n: int, values: dict) -> dict:
@@ -44,6 +64,53 @@ def _extras_like(template: GaussianSet, n: int, values: dict) -> dict:
         fill = values.get(key, 0)
         out[key] = np.broadcast_to(np.asarray(fill, arr.dtype), (n,) + arr.shape[1:]).copy()
     return out
+
+
+def _smoothed(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float in [0, 1], a 3x3 box mean: one pixel's colour is too noisy (video codecs)
+    to stand for a region's."""
+    from scipy import ndimage
+
+    return ndimage.uniform_filter(np.asarray(image, np.float32) / 255.0, size=(3, 3, 1), mode="nearest")
+
+
+def _background_colour(image: np.ndarray, labels: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """(N, 3) the smoothed photo at the nearest pixel `COVER_BG_GAP` clear of the head labels
+    (SKIN, HAIR) for pixels (ys, xs); the image's mean colour when there is no such pixel."""
+    from scipy import ndimage
+
+    from avatarkit.recon.segment import HAIR, SKIN
+
+    smooth = _smoothed(image)
+    clear = ~ndimage.binary_dilation(np.isin(labels, (SKIN, HAIR)), iterations=COVER_BG_GAP)
+    if not clear.any():
+        return np.broadcast_to(smooth.reshape(-1, 3).mean(axis=0), (len(ys), 3)).astype(np.float64)
+    _, (by, bx) = ndimage.distance_transform_edt(~clear, return_indices=True)
+    return smooth[by[ys, xs], bx[ys, xs]].astype(np.float64)
+
+
+def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+               rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(share (N,) in [0, 1], background (N, 3)): how much of each pixel (ys, xs), colour rgb
+    (N, 3) in [0, 1], is head rather than background (module docstring): unmixed between the
+    smoothed photo at the nearest `covered` (H, W) pixel of the same label (any covered pixel if
+    none has it) and the nearest background (`_background_colour`), and that background colour."""
+    from scipy import ndimage
+
+    smooth = _smoothed(image)
+    lab = labels[ys, xs]
+    h = np.zeros((len(ys), 3))
+    for value in np.unique(lab):
+        ref = covered & (labels == value)
+        ref = ref if ref.any() else covered
+        _, (hy, hx) = ndimage.distance_transform_edt(~ref, return_indices=True)
+        sel = lab == value
+        h[sel] = smooth[hy[ys[sel], xs[sel]], hx[ys[sel], xs[sel]]]
+    b = _background_colour(image, labels, ys, xs)
+    hb = h - b
+    n2 = np.einsum("ij,ij->i", hb, hb)
+    share = np.einsum("ij,ij->i", rgb - b, hb) / np.maximum(n2, 1e-12)
+    return np.where(n2 >= COVER_MIN_CONTRAST ** 2, np.clip(share, 0.0, 1.0), 1.0), b
 
 
 def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarray, labels: np.ndarray,
@@ -65,7 +132,7 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     margin = HAIR_MARGIN if margin is None else float(margin)
     cam = fit.camera
     labels = np.asarray(labels)
-    info = {"uncovered": 0, "bald_added": 0, "hair_added": 0}
+    info = {"uncovered": 0, "bald_added": 0, "hair_added": 0, "background_dropped": 0}
     if labels.shape != (cam.height, cam.width) or len(bald) + len(hair) == 0:
         return bald, hair, info
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
@@ -98,6 +165,13 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     quat = np.tile(matrix_to_quat(np.asarray(cam.rotation, np.float64).T[None])[0], (len(ys), 1))
     rgb = np.clip(sample_image(image, px) / 255.0, 0, 1)
     is_hair = labels[ys, xs] == HAIR
+    share, b = head_share(image, labels, known, ys, xs, rgb)
+    keep = share >= COVER_MIN_SHARE
+    info["background_dropped"] = int((~keep).sum())
+    if not keep.all():
+        means, scales, quat, rgb, is_hair, share, b = (a[keep] for a in (means, scales, quat, rgb, is_hair, share, b))
+    rgb = np.clip((rgb - (1.0 - share[:, None]) * b) / np.maximum(share[:, None], 1e-6), 0, 1)
+    opacity = COVER_OPACITY * share
 
     out_bald, out_hair = bald, hair
     skin = ~is_hair
@@ -105,7 +179,7 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
         faces = np.asarray(fit.model.faces)
         ids, _ = nearest_faces(means[skin], np.asarray(fit.rest_vertices, np.float64), faces)
         extras = _extras_like(bald, int(skin.sum()), {"binding": ids, "part": PART_SKIN})
-        added = GaussianSet.from_colors(means[skin], quat[skin], scales[skin], np.full(int(skin.sum()), 0.9),
+        added = GaussianSet.from_colors(means[skin], quat[skin], scales[skin], opacity[skin],
                                         rgb[skin], extras=extras)
         out_bald = GaussianSet.concat([bald, added])
         info["bald_added"] = len(added)
@@ -115,11 +189,12 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
         sel = sel[sd >= margin]                 # hair stays outside the head
         if len(sel):
             extras = _extras_like(hair, len(sel), {"strand": -1, "seen": 1})
-            added = GaussianSet.from_colors(means[sel], quat[sel], scales[sel], np.full(len(sel), 0.9),
+            added = GaussianSet.from_colors(means[sel], quat[sel], scales[sel], opacity[sel],
                                             rgb[sel], extras=extras)
             out_hair = GaussianSet.concat([hair, added])
             info["hair_added"] = len(added)
     return out_bald, out_hair, info
 
 
-__all__ = ["COVER_ALPHA", "COVER_FLATNESS", "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette"]
+__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_OPACITY",
+           "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette", "head_share"]

@@ -322,6 +322,7 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
     """
     import torch
 
+    from avatarkit.lbfgs import LBFGS
     from avatarkit.recon.segment import HAIR, SKIN
 
     model = HeadModel.template() if model is None else model
@@ -439,7 +440,7 @@ def fit_head(analysis, segmentation, model: HeadModel | None = None, *, shape: n
         return out
 
     def run(params, use_silhouette):
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
+        opt = LBFGS(params, lr=1.0, max_iter=iterations, line_search_fn="strong_wolfe",
                                 tolerance_grad=1e-10, tolerance_change=1e-12, history_size=20)
 
         def closure():
@@ -595,10 +596,15 @@ class SyntheticHead:
 
 def synthetic_head_view(rotation=(0.0, 0.0, 0.0), distance: float = 0.6, shape=None, size: int = 256,
                         n_gaussians: int = 30000, seed: int = 0, offset=(0.0, 0.0),
-                        background=(0.47, 0.59, 0.73)) -> SyntheticHead:
+                        background=(0.47, 0.59, 0.73), light=None, ambient: float = 0.35) -> SyntheticHead:
     """Render the template head (bald Gaussians on its surface, `synthetic.sample_avatar`) posed
     by `rotation` (3,) axis-angle in the view frame, its eye midpoint at `distance` metres in
-    front of the camera, shifted by `offset` (x, y) metres."""
+    front of the camera, shifted by `offset` (x, y) metres.
+
+    light: None (flat colours, as the avatar's), or a direction (3,) toward the light in the
+    camera's frame (x right, y down, z forward: e.g. (-0.4, -0.5, -1) from the upper left
+    front): each Gaussian's colour is scaled by ambient + (1 - ambient) max(0, n.l) with n its
+    host triangle's normal, so the shading follows the head's pose like a photo's."""
     import dataclasses
 
     from avatarkit.export.images import to_uint8
@@ -617,6 +623,13 @@ def synthetic_head_view(rotation=(0.0, 0.0, 0.0), distance: float = 0.6, shape=N
     trans = np.array([offset[0], offset[1], -distance]) - axis_angle_to_matrix(rot) @ mid
     cam = view_camera(rot, trans, size, size)
     bald = make_bald(model, rest, n_gaussians, seed)
+    if light is not None:
+        tri = np.asarray(rest, np.float64)[model.faces[bald.extras["binding"]]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        to_light = cam.rotation.T @ (np.asarray(light, np.float64) / np.linalg.norm(light))  # world frame
+        shade = ambient + (1.0 - ambient) * np.clip(n @ to_light, 0.0, None)
+        bald = bald.with_colors(np.clip(bald.colors * shade[:, None], 0.0, 1.0))
     r = render(bald, cam, background=background)
     image = to_uint8(r.rgb)
     labels = np.where(r.alpha > 0.5, SKIN, BACKGROUND).astype(np.uint8)

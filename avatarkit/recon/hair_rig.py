@@ -30,6 +30,8 @@ EAR_LOBE_V = 0.75
 #: hair reaching less than this far below the lobes (IOD) is short
 SHORT_BELOW_EARS = 0.35
 CAGE_VERTICES = 500
+#: grid spacing (m) of the rig's head SDF (`HeadSDF.build`'s default: the simulation's collisions)
+RIG_SDF_SPACING = 0.0025
 
 
 def detect_hair_mode(segmentation, analysis) -> tuple[str, dict]:
@@ -85,9 +87,10 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
 
     mode: "cage" or "rigid" (see the module docstring). sdf: the rest head's `HeadSDF` if
     already built. progress(done, total): follows the cage weights."""
-    from avatarkit.hair_rig import HairRig
+    from avatarkit.hair_rig import HairRig, sdf_from_values
     from avatarkit.cage.build import build_cage
-    from avatarkit.head.sdf_grid import HeadSDF
+    from avatarkit.head.sdf_grid import distance_grid
+    from avatarkit.recon.background import Background
 
     if mode not in HAIR_MODES:
         raise InputError(f"hair mode must be one of {', '.join(HAIR_MODES)}, got {mode!r}")
@@ -97,17 +100,25 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
     rest = np.asarray(fit.rest_vertices, np.float32)
     keep = {k: v for k, v in hair.extras.items() if k != "binding"}
     hair = hair.replace(extras=keep)
-    cage = build_cage(hair, target_vertices=cage_vertices)
+    # The head SDF (a kd-tree query, off the GIL) is computed on the other core while this thread
+    # builds the cage and the scalp binding, which do not need it: the same results, in about
+    # the time of the longer of the two. With the gradients a rig file's load makes, so
+    # `HairRig.build` need not remake them.
+    pending = None
     if sdf is None:
-        sdf = HeadSDF.build(rest, model.faces)
+        pending = Background(lambda: sdf_from_values(*distance_grid(rest, model.faces, RIG_SDF_SPACING),
+                                                     RIG_SDF_SPACING), name="avatarkit-rig-sdf")
+    cage = build_cage(hair, target_vertices=cage_vertices)
+    binding = scalp_binding(hair, model, rest) if mode == "rigid" else None
+    if pending is not None:
+        sdf = pending.result()
     rig = HairRig.build(model, rest, hair, cage, progress=progress, sdf=sdf)
     info = {"cage_vertices": int(cage.n_vertices), "roots": int(len(rig.model.roots))}
-    if mode == "rigid":
-        binding = scalp_binding(hair, model, rest)
+    if binding is not None:
         hair = hair.replace(extras={**hair.extras, "binding": binding.face_ids.astype(np.int32)})
         info["bound_to_scalp"] = int(len(np.unique(binding.face_ids)))
     return HairRigResult(mode, hair, cage, rig, info)
 
 
-__all__ = ["CAGE_VERTICES", "HAIR_MODES", "HairRigResult", "detect_hair_mode", "rig_hair",
+__all__ = ["CAGE_VERTICES", "HAIR_MODES", "RIG_SDF_SPACING", "HairRigResult", "detect_hair_mode", "rig_hair",
            "scalp_binding"]

@@ -144,13 +144,18 @@ class BuiltinLifter:
                                  f"integer, got {value!r}")
         self.n_bald, self.n_hair, self.seed = int(n_bald), int(n_hair), int(seed)
         self.face_density = float(face_density)
-        self.sdf = None  # the rest head's HeadSDF, set by the pipeline to share it
+        # the rest head's HeadSDF (or a `recon.background.Background` computing it), set by the
+        # pipeline to share it
+        self.sdf = None
 
     def lift(self, image, analysis, segmentation, bald, fit: HeadFit) -> LiftResult:
         rng = np.random.default_rng([self.seed, 11])
         bald_set, info = lift_bald(image, analysis, segmentation, bald, fit, self.n_bald, rng,
                                    self.face_density)
-        hair, hinfo = lift_hair(image, analysis, segmentation, fit, self.n_hair, rng, sdf=self.sdf,
+        from avatarkit.recon.background import Background
+
+        sdf = self.sdf.result() if isinstance(self.sdf, Background) else self.sdf
+        hair, hinfo = lift_hair(image, analysis, segmentation, fit, self.n_hair, rng, sdf=sdf,
                                 bald_set=bald_set)
         return LiftResult(bald_set, hair, {**info, **hinfo, "lifter": self.name})
 

@@ -269,6 +269,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.recon.portrait import analyze_portrait
     from avatarkit.recon.segment import segment_portrait
     from avatarkit.head.sdf_grid import HeadSDF
+    from avatarkit.recon.background import Background
 
     options = options or BuildOptions()
     options.check()
@@ -304,8 +305,12 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             fit = fit_head(analysis, segmentation, head_model, embedding=embedding)
         report.info["fit"] = fit.summary()
         report.info["camera"] = fit.camera.to_dict()
-        # a coarse SDF is enough to grow hair on; the rig gets a fine one of the final head
-        sdf = HeadSDF.build(fit.rest_vertices, head_model.faces, spacing=LIFT_SDF_SPACING)
+        # a coarse SDF is enough to grow hair on; the rig gets a fine one of the final head.
+        # Computed on the other core (its kd-tree query is off the GIL) while the bald head is
+        # lifted (Taichi's start and kernel compiles: one thread of Python); the hair lift is
+        # the first to need it
+        pending_sdf = Background(HeadSDF.build, fit.rest_vertices, head_model.faces, spacing=LIFT_SDF_SPACING,
+                                 name="avatarkit-lift-sdf")
     with stage("views"):
         keyviews = []
         if views is not None:
@@ -316,8 +321,9 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         bald_image = make_bald_image(image, segmentation, analysis, scalp_hint(fit))
     with stage("lift"):
         if isinstance(lifter, BuiltinLifter):
-            lifter.sdf = sdf
+            lifter.sdf = pending_sdf
         lifted = lifter.lift(image, analysis, segmentation, bald_image, fit)
+        sdf = pending_sdf.result()
         report.info["lift"] = dict(lifted.info)
     with stage("segment3d"):
         hair = lifted.hair

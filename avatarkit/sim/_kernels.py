@@ -26,9 +26,9 @@ the `ibuf` header, filled by `solver.PackedModel`):
                per substep, a bound on how far inverse LBS puts a point from where the head
                joint alone would (S)
   A distance constraint's record is [rest length l0, k = 1 / (w_a + w_b + alpha~), w_a k, w_b k,
-  multiplier, alpha~, -, -]: one 32-byte aligned block instead of scattered reads and a
-  division (filled per time step; the multiplier reset per substep). Edges and bend pairs, and
-  their records, are adjacent, so one loop sweeps stretch then bending in the usual order.
+  multiplier, alpha~, -, -]: one 32-byte block instead of scattered reads and a division (filled
+  per time step; the multiplier is 0 at each substep's start, see `simulate_frame`). Edges and
+  bend pairs, and their records, are adjacent: one loop sweeps stretch then bending in order.
   sdf (vec4, 3-D): the rest head SDF grid, [distance, unit gradient].
   skin (vec4, 3-D): the skinning weights of up to JMAX joints (joint 0: the head joint) of the
   rest head surface nearest each node of a coarse grid (`sdf.HeadSkin`).
@@ -58,6 +58,9 @@ H_COUNT = 25
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
 LIPSCHITZ = 2.0
+#: squared lengths below SLACK x a squared limit are certainly under the limit (the square root and
+#: its float rounding, ~1e-7, cannot take them over): tests that skip a square root use it
+SLACK = 0.9999
 
 # fbuf parameter slots (compliances already divided by h^2)
 (FP_H, FP_ALPHA_S, FP_ALPHA_B, FP_ALPHA_V, FP_ALPHA_T, FP_ALPHA_C, FP_DAMP, FP_MARGIN,
@@ -121,8 +124,9 @@ def joint_translation(fb: ti.template(), o_trans, s, j):
 
 
 @ti.func
-def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
-    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb.
+def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, first):
+    """XPBD distance constraint; od: offset of its record (see the module docstring) in fb;
+    first: the substep's first sweep, whose multiplier is 0 (not read: see `simulate_frame`).
 
     The correction w_a dl / |d| is rewritten as (r w_a k) / |d| - w_a k with r = l0 - alpha~ lambda
     (dl = (r - |d|) k): the chain from the positions just written by the previous constraint to
@@ -132,7 +136,9 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od):
     len2 = d.dot(d)
     if len2 > 1e-18:
         inv_len = ti.rsqrt(len2)
-        lam = fb[od + 4]
+        lam = 0.0
+        if not first:
+            lam = fb[od + 4]
         r = fb[od] - fb[od + 5] * lam
         wak = fb[od + 2]
         wbk = fb[od + 3]
@@ -204,6 +210,19 @@ def may_touch(floors: ti.template(), q, origin, inv_h, limit):
     (the cell's `HeadSDF.cell_floor` code is at least limit)."""
     c = grid_cell(floors, q, origin, inv_h)
     return ti.cast(floors[c[0], c[1], c[2]], ti.i32) < limit
+
+
+@ti.func
+def update_velocity(xb: ti.template(), fb: ti.template(), i, o_v, o_prev, o_w, h, damp, vmax):
+    """Step 4 for vertex i: v = (x - x_prev) / h, then (free vertices) damping and the clamp."""
+    vi = (xb[i] - xb[o_prev + i]) / h
+    if fb[o_w + i] > 0.0:
+        vi *= damp
+        if vi.dot(vi) > SLACK * vmax * vmax:  # (a square root only near the limit)
+            speed = vi.norm()
+            if speed > vmax:
+                vi *= vmax / speed
+    xb[o_v + i] = vi
 
 
 @ti.func
@@ -295,18 +314,30 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             fb[o_dev + s] = dev
         for s in range(n_sub):
             # 1. kinematic roots (linear between the frame's start and end) and prediction
+            # (x0, the volume's linearisation point below, is the position after this step;
+            # set here rather than in a pass of its own)
             frac = ti.cast(s + 1, ti.f32) / ti.cast(n_sub, ti.f32)
             for i in range(nc):
+                if s > 0:  # step 4 of the previous substep, in this pass to read x once
+                    update_velocity(xb, fb, i, o_v, o_prev, o_w, h, damp, vmax)
                 xb[o_prev + i] = xb[i]
                 if fb[o_w + i] > 0.0:
                     xb[o_v + i] = xb[o_v + i] + h * gravity
                     xb[i] = xb[i] + h * xb[o_v + i]
+                xb[o_x0 + i] = xb[i]
+                xb[o_grad + i] = vec3(0.0)
             for r in range(nr):
-                xb[ib[o_root + r]] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
-            for li in range(1 + 2 * nc):
-                fb[o_lam + li] = 0.0
-            for e in range(ne + nb):
-                fb[o_edata + 8 * e + 4] = 0.0
+                root = ib[o_root + r]
+                xb[root] = (1.0 - frac) * xb[o_ra + r] + frac * xb[o_rb + r]
+                xb[o_x0 + root] = xb[root]
+            # Multipliers start each substep at 0. The first sweep takes them as 0 without reading
+            # them, so with one sweep (the default) there is nothing to reset: ~3,000 stores a
+            # substep, most of them strided through the constraint records.
+            if n_iter > 1:
+                for li in range(1 + 2 * nc):
+                    fb[o_lam + li] = 0.0
+                for e in range(ne + nb):
+                    fb[o_edata + 8 * e + 4] = 0.0
             rs = joint_rotation(fb, o_rot, s, 0)
             ts = joint_translation(fb, o_trans, s, 0)
             # The volume constraint is linearised once per substep at the predicted positions
@@ -317,9 +348,6 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             vol_denom = 0.0
             if nf > 0:
                 centre = xb[ib[o_face]]  # volumes about a nearby point keep float32 precise
-                for i in range(nc):
-                    xb[o_grad + i] = vec3(0.0)
-                    xb[o_x0 + i] = xb[i]
                 for f in range(nf):
                     ia = ib[o_face + 3 * f]
                     ic_b = ib[o_face + 3 * f + 1]
@@ -337,17 +365,21 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                     xb[o_grad + i] = xb[o_grad + i] / 6.0
                     vol_denom += fb[o_w + i] * xb[o_grad + i].norm_sqr()
             # 3. constraint projection
-            for _it in range(n_iter):
+            for it in range(n_iter):
+                first = it == 0
                 for e in range(ne + nb):  # stretch, then bending (adjacent tables)
                     solve_distance(xb, fb, ib[o_edge + 2 * e], ib[o_edge + 2 * e + 1],
-                                   o_edata + 8 * e)
+                                   o_edata + 8 * e, first)
                 dl_vol = 0.0
                 if nf > 0:
                     vol = vol0
                     for i in range(nc):
                         vol += xb[o_grad + i].dot(xb[i] - xb[o_x0 + i])
-                    dl_vol = (rest_volume - vol - a_v * fb[l_vol]) / (vol_denom + a_v + 1e-20)
-                    fb[l_vol] = fb[l_vol] + dl_vol
+                    lam_vol = 0.0
+                    if not first:
+                        lam_vol = fb[l_vol]
+                    dl_vol = (rest_volume - vol - a_v * lam_vol) / (vol_denom + a_v + 1e-20)
+                    fb[l_vol] = lam_vol + dl_vol
                 # Volume and tether updates of vertex i read only x_i and its (kinematic) root,
                 # so one pass per vertex gives exactly what two passes would.
                 for i in range(nc):
@@ -357,14 +389,22 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                         r = ib[o_tether + i]
                         if r >= 0:
                             d = xb[i] - xb[r]
-                            length = d.norm()
                             li = l_tether + i
-                            dl = (length - fb[o_tlen + i] - a_t * fb[li]) / (wi + a_t)
-                            new = ti.max(fb[li] + dl, 0.0)  # a tether only pulls
-                            dl = new - fb[li]
-                            fb[li] = new
-                            if length > 1e-9:
-                                xb[i] = xb[i] - (wi * dl / length) * d
+                            lam = 0.0
+                            if not first:
+                                lam = fb[li]
+                            tlen = fb[o_tlen + i]
+                            # A slack tether with no force yet is left alone (the max below
+                            # would give 0): no square root and no divisions for most of them.
+                            # The factor keeps the test clear of float rounding.
+                            if lam > 0.0 or d.dot(d) > SLACK * tlen * tlen:
+                                length = d.norm()
+                                dl = (length - tlen - a_t * lam) / (wi + a_t)
+                                new = ti.max(lam + dl, 0.0)  # a tether only pulls
+                                dl = new - lam
+                                fb[li] = new
+                                if length > 1e-9:
+                                    xb[i] = xb[i] - (wi * dl / length) * d
                 if mode > 0:
                     for i in range(nc):
                         den = fb[o_w + i]
@@ -376,23 +416,33 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                                 p = proxy_point(xb, ib, fb, o_pidx + i * nk, o_pw + i * nk, nk)
                             q1 = rs.transpose() @ (p - ts)
                             li = l_coll + i
+                            lam = 0.0
+                            if not first:
+                                lam = fb[li]
                             cq = vec3(fb[o_cache + 3 * i], fb[o_cache + 3 * i + 1], fb[o_cache + 3 * i + 2])
                             # Skipping is exact: with no contact force yet (lambda = 0) and the
                             # point provably outside the margin, the update below is zero. The
                             # cache holds the head-joint point q1 of the last lookup and a lower
                             # bound of the distance there (the found one less LIPSCHITZ times
                             # that substep's deviation bound); the true rest point is within
-                            # this substep's deviation bound of q1.
-                            if fb[li] > 0.0 or LIPSCHITZ * ((q1 - cq).norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin:
+                            # this substep's deviation bound of q1. Most points are far: a test on
+                            # squares, 1 um and SLACK short of the bound, clears them without the
+                            # square root; the rest take the test itself.
+                            dq = q1 - cq
+                            reach = (fb[o_cdist + i] - margin) / LIPSCHITZ - fb[o_dev + s] - 1e-6
+                            near = lam > 0.0 or reach <= 0.0 or dq.dot(dq) > SLACK * reach * reach
+                            if near:
+                                near = lam > 0.0 or LIPSCHITZ * (dq.norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin
+                            if near:
                                 hit = posed_sdf(sdf, skin, fb, p, q1, rs, o_rot, o_trans, s, nj, origin, inv_h,
                                                 skin_origin, skin_inv_h, ti.math.inf)
                                 fb[o_cache + 3 * i] = q1[0]
                                 fb[o_cache + 3 * i + 1] = q1[1]
                                 fb[o_cache + 3 * i + 2] = q1[2]
                                 fb[o_cdist + i] = hit[0] - LIPSCHITZ * fb[o_dev + s]
-                                dl = (margin - hit[0] - a_c * fb[li]) / (den + a_c)
-                                new = ti.max(fb[li] + dl, 0.0)  # contact only pushes
-                                dl = new - fb[li]
+                                dl = (margin - hit[0] - a_c * lam) / (den + a_c)
+                                new = ti.max(lam + dl, 0.0)  # contact only pushes
+                                dl = new - lam
                                 fb[li] = new
                                 if dl != 0.0:
                                     n = vec3(hit[1], hit[2], hit[3])
@@ -402,15 +452,10 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                                             xb[j] = xb[j] + (fb[o_w + j] * fb[o_pw + i * nk + k] * dl) * n
                                     else:
                                         xb[i] = xb[i] + (den * dl) * n
-            # 4. velocities from positions, damping, speed clamp
+            # 4. velocities: in the next substep's first pass, after the last one below
+        if n_sub > 0:
             for i in range(nc):
-                vi = (xb[i] - xb[o_prev + i]) / h
-                if fb[o_w + i] > 0.0:
-                    vi *= damp
-                    speed = vi.norm()
-                    if speed > vmax:
-                        vi *= vmax / speed
-                xb[o_v + i] = vi
+                update_velocity(xb, fb, i, o_v, o_prev, o_w, h, damp, vmax)
 
 
 @ti.kernel

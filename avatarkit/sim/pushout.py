@@ -69,9 +69,23 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
         dev = float(pose[8 + 12 * JMAX])
         reach = float(clearance) + _kernels.LIPSCHITZ * dev
         limit = screen_limit(reach) if screen else 0
-        _kernels.push_out_points(out, pose, sdf.values_grad, skin.weights, sdf.cell_floor, nj,
-                                 float(clearance), int(rounds), limit, reach + SCREEN_SLACK)
+        _push_out_call()(out, pose, sdf.values_grad, skin.weights, sdf.cell_floor, nj,
+                         float(clearance), int(rounds), limit, reach + SCREEN_SLACK)
     return out
+
+
+_CALL: list = []
+
+
+def _push_out_call():
+    """`_kernels.push_out_points` through one `KernelCall` (its per-call cost is the bake's,
+    every frame)."""
+    if not _CALL:
+        from avatarkit.sim import _kernels
+        from avatarkit.sim._launch import KernelCall
+
+        _CALL.append(KernelCall(_kernels.push_out_points))
+    return _CALL[0]
 
 
 def push_out_reference(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,

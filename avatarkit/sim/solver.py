@@ -17,11 +17,14 @@ In `static` mode the cage moves rigidly with the head joint (roots still on thei
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from avatarkit.sim.config import SimConfig
+from avatarkit.sim._launch import BoundLaunch
 from avatarkit.sim._skin_math import JMAX
 from avatarkit.sim.model import CageModel, CageState, HeadFrame
 from avatarkit.sim.sdf import HeadSkin
@@ -101,32 +104,54 @@ def joint_substep_transforms(frame_in: HeadFrame, frame_out: HeadFrame, substeps
     of 3x3 matrix products (numpy hands each of those to BLAS on its own, ~2 us apiece: this
     runs every frame). A joint whose turn Rodrigues cannot take from the skew part (a still
     joint, a half turn) goes through `substep_transforms` itself."""
-    a = np.stack([frame_in.transform] + [frame_in.joint_transforms[j] for j in range(1, joints)])
-    b = np.stack([frame_out.transform] + [frame_out.joint_transforms[j] for j in range(1, joints)])
+    a, b = _joint_stack(frame_in, joints), _joint_stack(frame_out, joints)
     rot = np.zeros((substeps, JMAX, 3, 3))
     trans = np.zeros((substeps, JMAX, 3))
     frac = np.arange(1, substeps + 1, dtype=np.float64) / substeps
     r_in, r_out = a[:, :3, :3], b[:, :3, :3]
     rel = np.einsum("jab,jcb->jac", r_out, r_in)                               # R_out R_in^T
-    two_sin = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0],
-                        rel[:, 1, 0] - rel[:, 0, 1]], axis=1)
-    two_cos = rel[:, 0, 0] + rel[:, 1, 1] + rel[:, 2, 2] - 1.0
+    flat = rel.reshape(joints, 9)
+    # the skew part (R21 - R12, R02 - R20, R10 - R01), in C order: einsum sums in another order
+    # for a transposed layout, and the bits must not depend on it
+    two_sin = np.ascontiguousarray(flat[:, [7, 2, 3]] - flat[:, [5, 6, 1]])
+    two_cos = flat[:, 0] + flat[:, 4] + flat[:, 8] - 1.0
     sin_norm = np.sqrt(np.einsum("ja,ja->j", two_sin, two_sin))
-    fast = (two_cos > 0.0) & (sin_norm > 0.0) & ~(r_in == r_out).all(axis=(1, 2))
-    if fast.any():
-        axis = two_sin[fast] / sin_norm[fast, None]
-        angles = frac[:, None] * np.arctan2(sin_norm[fast], two_cos[fast])     # (S, Jf)
-        k = np.zeros((len(axis), 3, 3))
-        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
-        k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
-        kr = np.einsum("jab,jbc->jac", k, r_in[fast])
+    still = (r_in == r_out).all(axis=(1, 2))
+    fast = (two_cos > 0.0) & (sin_norm > 0.0) & ~still
+    every = bool(fast.all())  # the usual case: no boolean selections (each a numpy call)
+    if every or fast.any():
+        sel = slice(None) if every else fast
+        axis = two_sin[sel] / sin_norm[sel, None]
+        angles = frac[:, None] * np.arctan2(sin_norm[sel], two_cos[sel])     # (S, Jf)
+        k = np.zeros((len(axis), 9))
+        # K = [[0, -z, y], [z, 0, -x], [-y, x, 0]] (flat slots 1, 2, 5, 3, 6, 7)
+        k[:, [1, 2, 5, 3, 6, 7]] = axis[:, [2, 1, 0, 2, 1, 0]] * _SKEW_SIGNS
+        k = k.reshape(-1, 3, 3)
+        r_fast = np.ascontiguousarray(r_in) if every else r_in[fast]
+        kr = np.einsum("jab,jbc->jac", k, r_fast)
         kkr = np.einsum("jab,jbc->jac", k, kr)
-        rot[:, np.flatnonzero(fast)] = (r_in[fast] + np.sin(angles)[..., None, None] * kr
-                        + (1.0 - np.cos(angles))[..., None, None] * kkr)
-    for j in np.flatnonzero(~fast):
-        rot[:, j] = substep_transforms(a[j], b[j], substeps)[0]
+        rot[:, slice(0, joints) if every else np.flatnonzero(fast)] = (
+            r_fast + np.sin(angles)[..., None, None] * kr + (1.0 - np.cos(angles))[..., None, None] * kkr)
+    if not every:
+        # a still joint (the jaw and neck of most frames) is R_out at every substep, as
+        # `substep_transforms` gives it, without the call
+        rot[:, np.flatnonzero(still)] = r_out[still]
+        for j in np.flatnonzero(~fast & ~still):
+            rot[:, j] = substep_transforms(a[j], b[j], substeps)[0]
     trans[:, :joints] = a[None, :, :3, 3] + frac[:, None, None] * (b[:, :3, 3] - a[:, :3, 3])[None]
     return rot, trans
+
+
+_SKEW_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+
+
+def _joint_stack(frame: HeadFrame, joints: int) -> np.ndarray:
+    """(joints, 4, 4): the head transform, then joint_transforms[1:joints]."""
+    if joints == 1:
+        return frame.transform[None].copy()
+    out = frame.joint_transforms[:joints].copy()
+    out[0] = frame.transform
+    return out
 
 
 def skin_joints(skin: HeadSkin, frame_in: HeadFrame, frame_out: HeadFrame) -> int:
@@ -206,6 +231,8 @@ class PackedModel:
         # A zero cached distance makes every vertex's first collision test a real lookup.
         self.c, self.r, self.substeps = c, r, substeps
         self.model, self.skin = m, skin
+        #: the frame kernel's launch on these buffers (bound on the first step)
+        self.launch: BoundLaunch | None = None
 
     def set_time_step(self, config: SimConfig, dt: float, substeps: int) -> None:
         """Fill the parameters and the per-constraint data that depend on the substep length."""
@@ -230,7 +257,7 @@ class PackedModel:
 
 def check_step_inputs(model: CageModel, state_in: CageState, frame_in: HeadFrame,
                       frame_out: HeadFrame, dt: float) -> None:
-    if not (np.isfinite(dt) and dt > 0):
+    if not (math.isfinite(dt) and dt > 0):
         raise InputError(f"time step must be > 0 seconds, got {dt}")
     if state_in.positions.shape != model.rest_positions.shape:
         raise InputError(f"state has {len(state_in.positions)} vertices, the cage "
@@ -288,6 +315,9 @@ class XPBDSolver:
         rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
         p.fbuf[p.rot_slice][:9 * JMAX * n_sub] = rotations.ravel()
         p.fbuf[p.trans_slice][:3 * JMAX * n_sub] = translations.ravel()
-        _kernels.simulate_frame(p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
+        arrays = (p.xbuf, p.ibuf, p.fbuf, m.sdf.values_grad, self.skin.weights)
+        if p.launch is None or not p.launch.binds(*arrays):  # a model or skin given new grids
+            p.launch = BoundLaunch(_kernels.simulate_frame, *arrays)
+        p.launch()
         state_out.positions = p.xbuf[:c].copy()
         state_out.velocities = p.xbuf[c:2 * c].copy()

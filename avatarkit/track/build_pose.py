@@ -14,11 +14,18 @@ X -> R_t (D_R X + D_t) + t_t with D_R = R_b^T R_f and D_t = R_b^T (t_f - t_b), a
 the head in its own frame; at the build frame it gives the build's pose exactly, and the
 motion between any two frames (R_s R_t^T in the head's frame) is unchanged.
 
+`align_to_build` applies this and the eyes' counterpart (`gaze.relative_eyes`) to a tracked
+result: `avatarkit evaluate` always, `avatarkit track --avatar` when the avatar's provenance says it
+was built from the tracked video (`recorded_build_frame`).
+
 Clip convention (`track.tracker`): the world is the view frame shifted by o (the tracked
 camera: world_to_camera = [C | C o]) and the head turns about its root joint J0, so the
 clip's translation is tau = t - o - J0 + R J0.
 """
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -56,3 +63,62 @@ def view_transforms(rotation: np.ndarray, translation: np.ndarray, camera_w2c: n
     o = _C @ np.asarray(camera_w2c, np.float64)[:3, 3]
     t = np.asarray(translation, np.float64).reshape(-1, 3) + o + J0 - R @ J0
     return R, t
+
+
+def eyes_from_build_frame(result, frame: int | None) -> bool:
+    """Make the tracked clip's eye rotations relative to the build frame's (`gaze.relative_eyes`:
+    the avatar's eyeballs carry that frame's eyes). False (clip unchanged) when the build frame
+    is unknown or not in the clip."""
+    from avatarkit.track.gaze import relative_eyes
+
+    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
+    if len(rows) == 0:
+        return False
+    eyes = np.asarray(result.clip.eyes)
+    result.clip.eyes = relative_eyes(eyes, eyes[int(rows[0])]).astype(eyes.dtype)
+    return True
+
+
+def pose_from_build(result, avatar_dir: Path, frame: int | None) -> bool:
+    """Re-pose the tracked clip so that the build frame is seen as the avatar's build saw it
+    (`track.build_pose`: the tracked motion kept, the offset between the build's fit and the
+    tracker's removed). False (clip unchanged) when the build frame is unknown or not in the
+    clip, or the avatar's provenance has no build camera."""
+    from avatarkit.avatar import load_avatar_head, read_manifest
+    from avatarkit.head.model import HeadParams
+    from avatarkit.track.build_pose import relative_to_build
+
+    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
+    camera = (read_manifest(avatar_dir).get("provenance", {}).get("build", {}).get("camera") or {})
+    w2c = camera.get("world_to_camera")
+    if len(rows) == 0 or w2c is None or camera.get("convention", "opencv") != "opencv":
+        return False
+    model, shape, _, _ = load_avatar_head(avatar_dir)
+    params = HeadParams(shape=np.asarray(shape, np.float32), expr=np.zeros((1, model.num_expr), np.float32))
+    joint0 = model.rest_joints(params)[0][0]
+    clip = result.clip
+    rot, tau = relative_to_build(clip.rotation, clip.translation, int(rows[0]), result.camera.world_to_camera,
+                                 np.asarray(w2c, np.float64), joint0)
+    clip.rotation = rot.astype(np.asarray(clip.rotation).dtype)
+    clip.translation = tau.astype(np.asarray(clip.translation).dtype)
+    return True
+
+
+def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
+    """The frame of `video` the avatar was built from, when its provenance says so
+    (`build VIDEO --frame`), else None."""
+    from avatarkit.avatar import read_manifest
+
+    src = read_manifest(avatar_dir).get("provenance", {}).get("source_video") or {}
+    same = src.get("video") and os.path.abspath(src["video"]) == os.path.abspath(video)
+    return int(src["frame"]) if same and isinstance(src.get("frame"), int) else None
+
+
+def align_to_build(result, avatar_dir: str | os.PathLike, frame: int | None) -> dict:
+    """Make a clip tracked with an avatar's head model (`track_video(avatar=)`) drive that avatar
+    as its build saw frame `frame` (None: not aligned): eyes relative to that frame's gaze
+    (`eyes_from_build_frame`) and head pose relative to the build's fit (`pose_from_build`).
+    Changes `result.clip` in place. Returns what was applied: {"frame", "eyes", "head_pose"}."""
+    eyes = eyes_from_build_frame(result, frame)
+    pose = pose_from_build(result, Path(avatar_dir), frame)
+    return {"frame": frame if (eyes or pose) else None, "eyes": eyes, "head_pose": pose}

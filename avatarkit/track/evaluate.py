@@ -13,10 +13,11 @@ Steps (`evaluate`):
    the clip's world is the avatar's world, and the tracked camera sees it as the video did.
    Step 1's tracking with the template head (which chose the build frame, or the video build's
    keyframes) lends its face meshes (`meshes=`: the same result, only the fits run again).
-   The clip's eye rotations are made relative to the build frame's (`eyes_from_build_frame`):
-   the avatar's eyeballs carry the build frame's eyes. Its head pose is made relative to the
-   build's fit (`pose_from_build`, `track.build_pose`): the build frame is then seen exactly as
-   the build saw it, and the tracked motion from there drives the avatar.
+   The clip is aligned to the build frame (`track.build_pose.align_to_build`, as `avatarkit
+   track --avatar` does when the avatar was built from this video): eye rotations relative to
+   the build frame's (the avatar's eyeballs carry that frame's eyes), head pose relative to the
+   build's fit (the build frame is then seen exactly as the build saw it, and the tracked
+   motion from there drives the avatar).
 3. Bake the clip on the avatar (hair static unless `simulate_hair`), render every frame with the
    tracked camera at the video's resolution on the constant background.
 4. Per frame: PSNR and SSIM on the person region (`metrics` module docstring: the render's alpha
@@ -46,6 +47,7 @@ import numpy as np
 
 from avatarkit.errors import OutputError
 from avatarkit.track import metrics
+from avatarkit.track.build_pose import align_to_build, recorded_build_frame
 
 REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
 #: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
@@ -221,55 +223,6 @@ def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
     return target, index, tracking
 
 
-def eyes_from_build_frame(result, frame: int | None) -> bool:
-    """Make the tracked clip's eye rotations relative to the build frame's (`gaze.relative_eyes`:
-    the avatar's eyeballs carry that frame's eyes). False (clip unchanged) when the build frame
-    is unknown or not in the clip."""
-    from avatarkit.track.gaze import relative_eyes
-
-    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
-    if len(rows) == 0:
-        return False
-    eyes = np.asarray(result.clip.eyes)
-    result.clip.eyes = relative_eyes(eyes, eyes[int(rows[0])]).astype(eyes.dtype)
-    return True
-
-
-def pose_from_build(result, avatar_dir: Path, frame: int | None) -> bool:
-    """Re-pose the tracked clip so that the build frame is seen as the avatar's build saw it
-    (`track.build_pose`: the tracked motion kept, the offset between the build's fit and the
-    tracker's removed). False (clip unchanged) when the build frame is unknown or not in the
-    clip, or the avatar's provenance has no build camera."""
-    from avatarkit.avatar import load_avatar_head, read_manifest
-    from avatarkit.head.model import HeadParams
-    from avatarkit.track.build_pose import relative_to_build
-
-    rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
-    camera = (read_manifest(avatar_dir).get("provenance", {}).get("build", {}).get("camera") or {})
-    w2c = camera.get("world_to_camera")
-    if len(rows) == 0 or w2c is None or camera.get("convention", "opencv") != "opencv":
-        return False
-    model, shape, _, _ = load_avatar_head(avatar_dir)
-    params = HeadParams(shape=np.asarray(shape, np.float32), expr=np.zeros((1, model.num_expr), np.float32))
-    joint0 = model.rest_joints(params)[0][0]
-    clip = result.clip
-    rot, tau = relative_to_build(clip.rotation, clip.translation, int(rows[0]), result.camera.world_to_camera,
-                                 np.asarray(w2c, np.float64), joint0)
-    clip.rotation = rot.astype(np.asarray(clip.rotation).dtype)
-    clip.translation = tau.astype(np.asarray(clip.translation).dtype)
-    return True
-
-
-def recorded_build_frame(avatar_dir: Path, video: str) -> int | None:
-    """The frame of `video` the avatar was built from, when its provenance says so
-    (`build VIDEO --frame`), else None."""
-    from avatarkit.avatar import read_manifest
-
-    src = read_manifest(avatar_dir).get("provenance", {}).get("source_video") or {}
-    same = src.get("video") and os.path.abspath(src["video"]) == os.path.abspath(video)
-    return int(src["frame"]) if same and isinstance(src.get("frame"), int) else None
-
-
 def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
              avatar: str | os.PathLike | None = None, options: EvalOptions | None = None,
              progress: Progress | None = None) -> EvalReport:
@@ -304,8 +257,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
         result = track_video(video, avatar=avatar_dir, progress=step,
                              meshes=tracking.meshes if tracking is not None else None)
-        relative = eyes_from_build_frame(result, build_frame)
-        posed = pose_from_build(result, avatar_dir, build_frame)
+        aligned = align_to_build(result, avatar_dir, build_frame)
+        relative, posed = aligned["eyes"], aligned["head_pose"]
         timings["track"] = time.perf_counter() - t0
         centres = sorted(set(keyframes) | ({build_frame} if build_frame is not None else set()))
         frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
@@ -322,8 +275,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             single_result = track_video(video, avatar=single_dir,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
                                         if progress else None, meshes=tracking.meshes)
-            eyes_from_build_frame(single_result, build_frame)
-            pose_from_build(single_result, single_dir, build_frame)
+            align_to_build(single_result, single_dir, build_frame)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
             single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
                                                   staged, progress)
