@@ -47,12 +47,11 @@ def test_video_build_beats_the_single_frame_build_away_from_the_front(truth, tur
     ps = novel_view_psnr(load_avatar(tmp_path / "s"), truth)
     side = np.mean([pv[a] - ps[a] for a in pv if a != 0])
     profile = np.mean([pv[a] - ps[a] for a in (90.0, -90.0)])
-    # measured: profile +4.33 dB (+4.41 / +4.24), mean over +-45 and +-90 +2.74 dB, front -0.55
-    # (benchmarks/build_video.py, the same builds); bounds ~1.2-1.3 dB below the gains and
-    # 0.45 dB below the front. With the joint identity fixed in the reference fit the front lost
-    # 1.86 dB (and the profile gained +2.83)
+    # measured: profile +4.21 dB (+4.26 / +4.16), mean over +-45 and +-90 +2.73 dB, front -0.22
+    # (benchmarks/build_video.py, the same builds); bounds ~1.2 dB below the gains and 0.5 dB
+    # below the front. With the joint identity fixed in the reference fit the front lost 1.86 dB
     assert profile > 3.0 and side > 1.5, (pv, ps)
-    assert pv[0.0] > ps[0.0] - 1.0, (pv, ps)
+    assert pv[0.0] > ps[0.0] - 0.7, (pv, ps)
 
 
 @pytest.mark.slow
@@ -113,7 +112,7 @@ def test_video_build_of_a_subject_not_made_of_our_gaussians(tmp_path, capsys):
     pv = view_psnr(load_avatar(tmp_path / "v"), subject)
     ps = view_psnr(load_avatar(tmp_path / "s"), subject)
     profile = np.mean([pv[a] - ps[a] for a in (90.0, -90.0)])
-    # measured (benchmarks/build_video.py --subject mesh, the same builds): profile +2.82 dB
-    # (+3.80 / +1.84), front -0.31 (17.25 -> 16.95); bounds ~1 dB and ~0.7 dB below those
-    assert profile > 1.8, (pv, ps)
-    assert pv[0.0] > ps[0.0] - 1.0, (pv, ps)
+    # measured (benchmarks/build_video.py --subject mesh, the same builds): profile +2.97 dB
+    # (+3.95 / +1.99), front +0.10 (17.27 -> 17.37); bounds ~1 dB and 0.6 dB below those
+    assert profile > 2.0, (pv, ps)
+    assert pv[0.0] > ps[0.0] - 0.5, (pv, ps)
