@@ -70,7 +70,8 @@ def _noise(points: np.ndarray, seed: int, wavelength: float, waves: int = 6) -> 
 class MeshHead:
     """The mesh subject (module docstring): model (the template `HeadModel`); rest (V, 3);
     faces (F, 3) of the head; cap (K,) the scalp vertices the cap is made of and cap_faces
-    (G, 3) indexing into them; regions (V, 4) float: hair-free masks eyes, lips, mouth."""
+    (G, 3) indexing into them; regions (V, 3) float: the template's eyes, lips and mouth-band
+    vertex masks."""
 
     model: object
     rest: np.ndarray
