@@ -2,7 +2,7 @@
 run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--frames 32] [--skip-real] [--quick]
-[--style short|bob|...] [--no-multiview-hair]`
+[--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair]`
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`), built from the
@@ -11,6 +11,10 @@ Prints
     video build's gain (target: profile >= +3 dB); how much hair shell the keyframes grew and how
     many strand directions they set (`--no-multiview-hair` turns both off). Each build runs in its
     own process (`_in_own_process`);
+  - synthetic, mesh subject (`synthetic.mesh_head`: the template mesh with a procedural texture
+    and a hair-cap mesh, drawn by a z-buffer rasteriser, not by our splatting): the same two
+    builds of its turning video and the same views against its own rasterised rest renders
+    (`--subject` picks one of the two synthetic subjects; default both);
   - real clips (../shared/data/videos/*.mp4 beside the checkout, skipped when absent):
     `evaluate --compare-single` (self-reenactment on the held-out frames: keyframes +-5
     excluded for both builds): PSNR / SSIM of the video build and the single-frame build and
@@ -44,7 +48,7 @@ from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its fol
 
 
 def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
-           multiview_hair: bool) -> tuple[dict, dict, float]:
+           multiview_hair: bool, subject: str = "avatar") -> tuple[dict, dict, float]:
     """One build of the synthetic video (kind "video") or of its reference frame ("single") and
     its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
     fresh process: a build made after another one in the same process used to measure
@@ -61,6 +65,10 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     t0 = time.perf_counter()
     avatar = build_video_avatar(path, opts) if kind == "video" else build_avatar(png, opts)
     wall = time.perf_counter() - t0
+    if subject == "mesh":
+        from avatarkit.synthetic.mesh_head import MeshHead, view_psnr
+
+        return view_psnr(avatar, MeshHead.make(), size), avatar.provenance, wall
     truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
     return novel_view_psnr(avatar, truth, size), avatar.provenance, wall
 
@@ -74,22 +82,30 @@ def _in_own_process(*args):
 
 
 def synthetic(size: int, frames: int, counts: tuple[int, int], tmp: str, style: str = "short",
-              multiview_hair: bool = True) -> None:
+              multiview_hair: bool = True, subject: str = "avatar") -> None:
     from avatarkit.export.images import write_png
-    from avatarkit.synthetic.sample_avatar import make_sample_avatar
-    from avatarkit.synthetic.turning_video import write_turning_video
     from avatarkit.video import read_frame
 
-    truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
-    path = os.path.join(tmp, "turn.mp4")
-    write_turning_video(truth, path, size=size, frames=frames)
-    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair)
+    path = os.path.join(tmp, f"turn_{subject}.mp4")
+    if subject == "mesh":
+        from avatarkit.synthetic.mesh_head import MeshHead, turning_video
+
+        turning_video(MeshHead.make(), path, size=size, frames=frames)
+        what = "the mesh subject (textured template mesh + hair cap, rasterised)"
+    else:
+        from avatarkit.synthetic.sample_avatar import make_sample_avatar
+        from avatarkit.synthetic.turning_video import write_turning_video
+
+        truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
+        write_turning_video(truth, path, size=size, frames=frames)
+        what = f"sample avatar with {style} hair"
+    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject)
     ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair)
+    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject)
     keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
-    print(f"synthetic turning video ({frames} frames {size}x{size}, sample avatar with {style} hair; keyframes "
+    print(f"synthetic turning video ({frames} frames {size}x{size}, {what}; keyframes "
           f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair, each in its own process")
     b = prov["build"]
     hull, dirs = b.get("segment3d", {}).get("hull"), b.get("hair_directions")
@@ -160,6 +176,8 @@ def main() -> None:
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="tiny sizes, synthetic only (CI)")
     ap.add_argument("--style", default="short", help="the synthetic subject's hair style (synthetic.HAIR_STYLES)")
+    ap.add_argument("--subject", default="both", choices=("both", "avatar", "mesh"),
+                    help="synthetic subject: the sample avatar (splatted), the mesh subject (rasterised), or both")
     ap.add_argument("--no-multiview-hair", action="store_true",
                     help="video builds without the multi-view hair directions and shell growth (the 'before' "
                          "figures)")
@@ -171,11 +189,13 @@ def main() -> None:
         print("multi-view hair directions and shell growth: off")
     counts = (40_000, 40_000)
     with tempfile.TemporaryDirectory(prefix="bench-video-") as tmp:
+        subjects = ("avatar", "mesh") if a.subject == "both" else (a.subject,)
         if a.quick:
-            synthetic(128, 24, (3000, 1500), tmp, a.style, not a.no_multiview_hair)
+            synthetic(128, 24, (3000, 1500), tmp, a.style, not a.no_multiview_hair, subjects[0])
             return
         if not a.skip_synthetic:
-            synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair)
+            for subject in subjects:
+                synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair, subject)
         if a.time_synthetic:
             from avatarkit.synthetic.sample_avatar import make_sample_avatar
             from avatarkit.synthetic.turning_video import write_turning_video

@@ -47,12 +47,11 @@ def test_video_build_beats_the_single_frame_build_away_from_the_front(truth, tur
     ps = novel_view_psnr(load_avatar(tmp_path / "s"), truth)
     side = np.mean([pv[a] - ps[a] for a in pv if a != 0])
     profile = np.mean([pv[a] - ps[a] for a in (90.0, -90.0)])
-    # measured: profile +2.93 dB (+3.00 / +2.86), mean over +-45 and +-90 +1.57 dB, front -1.37
-    # (the video build loses at the front; not analysed yet). Until GrabCut's RNG was reset per
-    # segmentation the single-frame build here, made second in this process, came out worse:
-    # +3.4 / +2.0 / +0.2 then.
-    assert profile > 2.0 and side > 1.0, (pv, ps)
-    assert pv[0.0] > ps[0.0] - 2.0, (pv, ps)
+    # measured: profile +4.21 dB (+4.26 / +4.16), mean over +-45 and +-90 +2.73 dB, front -0.22
+    # (benchmarks/build_video.py, the same builds); bounds ~1.2 dB below the gains and 0.5 dB
+    # below the front. With the joint identity fixed in the reference fit the front lost 1.86 dB
+    assert profile > 3.0 and side > 1.5, (pv, ps)
+    assert pv[0.0] > ps[0.0] - 0.7, (pv, ps)
 
 
 @pytest.mark.slow
@@ -94,3 +93,26 @@ def test_compare_single_needs_the_video_build(tmp_path, capsys):
                  "--build-frame", "3"])
     err = capsys.readouterr().err
     assert code == 2 and "--compare-single" in err and not (tmp_path / "r").exists()
+
+
+@pytest.mark.slow
+def test_video_build_of_a_subject_not_made_of_our_gaussians(tmp_path, capsys):
+    # the mesh subject (textured template mesh + hair cap, drawn by a z-buffer rasteriser): the
+    # build is not graded on reproducing its own kind of splats
+    from avatarkit.avatar import load_avatar, read_manifest
+    from avatarkit.synthetic.mesh_head import MeshHead, turning_video, view_psnr
+
+    subject = MeshHead.make()
+    video = tmp_path / "mesh.mp4"
+    turning_video(subject, video, size=192, frames=32)
+    assert main(["build", str(video), "-o", str(tmp_path / "v"), *BUILD]) == 0, capsys.readouterr().err
+    src = read_manifest(tmp_path / "v")["provenance"]["source_video"]
+    assert src["mode"] == "video" and len(src["keyframes"]) >= 3
+    assert main(["build", str(video), "-o", str(tmp_path / "s"), "--frame", str(src["frame"]), *BUILD]) == 0
+    pv = view_psnr(load_avatar(tmp_path / "v"), subject)
+    ps = view_psnr(load_avatar(tmp_path / "s"), subject)
+    profile = np.mean([pv[a] - ps[a] for a in (90.0, -90.0)])
+    # measured (benchmarks/build_video.py --subject mesh, the same builds): profile +2.97 dB
+    # (+3.95 / +1.99), front +0.10 (17.27 -> 17.37); bounds ~1 dB and 0.6 dB below those
+    assert profile > 2.0, (pv, ps)
+    assert pv[0.0] > ps[0.0] - 0.5, (pv, ps)

@@ -55,6 +55,8 @@ MIN_COS = 0.35
 EDGE_MARGIN = 0.015
 #: hidden hair takes the mean colour of this many nearest seen hair Gaussians
 HAIR_NEIGHBOURS = 8
+#: a sample's weight is cos(view angle) to this power (x sharpness)
+COS_POWER = 2
 #: the reference keyframe's weight factor (the portrait build's view)
 REFERENCE_WEIGHT = 3.0
 #: the person mask is dilated by this share of the image's longer side before the hull test
@@ -144,7 +146,7 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
         if e > 0:
             region = cv2.erode(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
         seen &= region[ix[:, 1], ix[:, 0]] > 0
-    weight = np.where(seen, np.clip(cos, 0, 1) ** 2 * float(view.sharpness), 0.0)
+    weight = np.where(seen, np.clip(cos, 0, 1) ** COS_POWER * float(view.sharpness), 0.0)
     weight *= REFERENCE_WEIGHT if view.reference else 1.0
     colour = np.zeros((len(gaussians), 3), np.float32)
     if seen.any():
@@ -294,8 +296,10 @@ class Keyframe:
 
 @dataclass
 class VideoViews:
-    """What a video build passes to `build_avatar`: shape (S,) the joint identity; keyframes:
-    the reference first (its image is the portrait being built); info: figures for the report."""
+    """What a video build passes to `build_avatar`: shape (S,) the joint identity (the shape the
+    keyframes' poses were fitted with; the build fits the reference keyframe's own shape);
+    keyframes: the reference first (its image is the portrait being built); info: figures for
+    the report."""
 
     shape: np.ndarray
     keyframes: list[Keyframe]

@@ -17,8 +17,8 @@ Stages (`STAGES`, each timed and reported through the `progress` callback):
     hair_rig    cage + weights + roots, or rigid scalp binding          recon.hair_rig
     previews    front / three-quarter / profile renders                 render
 
-A video build (`track.video_build`) passes `views` (a `multiview.VideoViews`): the identity
-shape is the joint fit's (the fit stage fits the pose only, as with --flame-params); the views
+A video build (`track.video_build`) passes `views` (a `multiview.VideoViews`): the fit stage
+fits the reference keyframe as a single-frame build would (shape included); the views
 stage registers the keyframes to the fitted camera and segments them; segment3d lifts the hair
 labels from every keyframe (votes), removes hair outside any keyframe's silhouette and grows the
 shell where a keyframe shows hair beyond it (`recon.hair_hull`); colours turns the hair strands to
@@ -295,13 +295,13 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     with stage("segment"):
         segmentation = segment_portrait(image, analysis, options.hair_mask, path=path)
     with stage("fit"):
-        if views is not None:
-            fit = fit_head(analysis, segmentation, head_model, shape=np.asarray(views.shape, np.float64),
-                           fit_shape=False, embedding=embedding)
-            fit.source = "video"
-        elif flame is not None:
+        if flame is not None and views is None:
             fit = fit_with_params(analysis, segmentation, head_model, flame, embedding=embedding)
         else:
+            # a video build fits its reference keyframe as the single-frame build does (shape
+            # included): with the joint identity fixed, the pose-only fit matched the reference
+            # worse and cost the front view 1.3-2 dB on the synthetic turning videos
+            # (docs/video-build.md); the joint fit's poses still register the keyframes
             fit = fit_head(analysis, segmentation, head_model, embedding=embedding)
         report.info["fit"] = fit.summary()
         report.info["camera"] = fit.camera.to_dict()

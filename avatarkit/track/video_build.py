@@ -4,9 +4,11 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
 
     track      the video with the template head (or --head-model)      track.video
     keyframes  face sharpness of every frame; keyframes by head pose    track.keyframes
-    identity   one identity shape over the keyframes' landmarks         track.joint_identity
-    (build)    the portrait build of the reference keyframe with that   recon.pipeline
-               shape and the keyframes as extra views                   recon.multiview
+    identity   one identity shape and every keyframe's head pose over   track.joint_identity
+               the keyframes' landmarks
+    (build)    the portrait build of the reference keyframe (its own    recon.pipeline
+               shape fit, as a single-frame build) with the keyframes   recon.multiview
+               as extra views, registered by the joint fit's poses
 
 A video whose head never turns gives one keyframe: the build is then exactly the single-frame
 build of that frame (`build VIDEO --frame N`), and the report says so.
@@ -99,7 +101,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                                             float(kf.sharpness[k]), int(f))
                                    for k, f in enumerate(kf.frame_index)],
                            {"keyframes": [int(f) for f in kf.frame_index],
-                            "identity_median_error_px": [round(float(e), 3) for e in jf.median_error_px]})
+                            "identity_median_error_px": [round(float(e), 3) for e in jf.median_error_px],
+                            "identity_shape": [round(float(c), 4) for c in jf.shape]})
     else:
         source["mode"] = "single frame (the head does not turn: one keyframe)"
     with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp:
