@@ -161,13 +161,7 @@ def test_snug_binning_drops_only_tiles_the_splat_cannot_reach():
     dy = proj.means2d[:, 1, None, None] - py
     alpha = gs.opacities[:, None, None] * np.exp(-0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy)
     dropped_any = 0
-    for t in range(snug.tiles_x * snug.tiles_y):
-        ty, tx = divmod(t, snug.tiles_x)
-        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
-        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
-        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
-                                    tx, ty, cam)
-        np.testing.assert_array_equal(got, all_ids[meets])  # same depth order, a subset
+    for tx, ty, all_ids, meets in _snug_lists_match_numpy(loose, snug, proj, qlims, cam):
         dropped = all_ids[~meets]
         dropped_any += len(dropped)
         tile = alpha[dropped, ty * 16:(ty + 1) * 16, tx * 16:(tx + 1) * 16]
@@ -175,6 +169,19 @@ def test_snug_binning_drops_only_tiles_the_splat_cannot_reach():
     assert 0.1 * len(loose.gaussian_ids) < dropped_any  # the test is not vacuous
     full_lists = rasterize(proj, sh_colors(gs, cam), gs.opacities, loose, cam)[0]
     np.testing.assert_array_equal(render(gs, cam).rgb, full_lists)  # the same image
+
+
+def _snug_lists_match_numpy(loose, snug, proj, qlims, cam):
+    """Per tile: assert the snug list is the loose (3-sigma) list cut by the numpy ellipse test,
+    in the same depth order; yield (tx, ty, loose ids, which of them meet the tile)."""
+    for t in range(snug.tiles_x * snug.tiles_y):
+        ty, tx = divmod(t, snug.tiles_x)
+        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
+        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
+        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
+                                    tx, ty, cam)
+        np.testing.assert_array_equal(got, all_ids[meets])  # same depth order, a subset
+        yield tx, ty, all_ids, meets
 
 
 def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
@@ -187,14 +194,8 @@ def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
     tiles = (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])
     assert (tiles > 63).sum() >= 5 and ((tiles <= 63) & (proj.radii > 0)).sum() >= 50
     loose, snug = bin_gaussians(proj, cam), bin_gaussians(proj, cam, gs.opacities)
-    qlims = tile_q_limits(gs.opacities)
-    for t in range(snug.tiles_x * snug.tiles_y):
-        ty, tx = divmod(t, snug.tiles_x)
-        all_ids = loose.gaussian_ids[loose.tile_offsets[t]:loose.tile_offsets[t + 1]]
-        got = snug.gaussian_ids[snug.tile_offsets[t]:snug.tile_offsets[t + 1]]
-        meets = ellipse_meets_tiles(proj.means2d[all_ids], proj.conics[all_ids], qlims[all_ids],
-                                    tx, ty, cam)
-        np.testing.assert_array_equal(got, all_ids[meets])
+    for _ in _snug_lists_match_numpy(loose, snug, proj, tile_q_limits(gs.opacities), cam):  # every tile
+        pass
     big = np.flatnonzero(tiles > 63)
     assert np.isin(loose.gaussian_ids, big).sum() > np.isin(snug.gaussian_ids, big).sum()
 
