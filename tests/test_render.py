@@ -204,7 +204,7 @@ def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
 def test_binning_sorts_tied_depths_stably_over_many_chunks():
     # the kernel's radix sort against numpy's stable argsort, through the tile lists: 5000
     # splats (many per sort and bin chunk), 40 distinct depths (ties everywhere), a fifth
-    # culled, rects of 1-12 tiles; loose binning, so every tile of a rect is listed
+    # culled, rects of 1-9 tiles; loose binning, so every tile of a rect is listed
     rng = np.random.default_rng(3)
     n, cam = 5000, Camera(60.0, 60.0, 40.0, 40.0, 83, 61)
     tiles_x, tiles_y = 6, 4
