@@ -293,7 +293,7 @@ _BLUR_SIGMAS = (0.0, 1.0, 2.0, 4.0)
 
 def refine_colours(gaussians: GaussianSet, camera, photo: np.ndarray, mask: np.ndarray,
                    iterations: int = 4, step: float = 1.0, min_weight: float = 0.05,
-                   max_side: int = 1024, trust: np.ndarray | None = None) -> tuple[GaussianSet, dict]:
+                   max_side: int = 1024) -> tuple[GaussianSet, dict]:
     """Match the render of `gaussians` from `camera` to `photo` (H, W, 3) uint8 inside `mask`
     (H, W) bool. Each round renders, takes the residual photo - render, and adds `step` times
     the residual at each Gaussian's projection to its DC colour (clamped to [0, 1]), for the
@@ -302,9 +302,6 @@ def refine_colours(gaussians: GaussianSet, camera, photo: np.ndarray, mask: np.n
     pixels. Where the Gaussians covering a pixel have weights summing to its alpha (~1 inside
     the head), adding the same residual to each corrects that pixel exactly (a Jacobi step of
     the linear least-squares problem render(colours) = photo); the rounds mop up the rest.
-    trust: optional (N,) in [0, 1], the share of each round's correction a Gaussian takes (the
-    bald discs seen at a grazing angle, `bald_discs.photo_weight`: the pixels they reach from
-    the camera are the silhouette's edge, and their colour shows from the side).
     Returns the recoloured set and the PSNR inside the mask before and after."""
     import cv2
 
@@ -345,8 +342,6 @@ def refine_colours(gaussians: GaussianSet, camera, photo: np.ndarray, mask: np.n
             if sel.any():
                 e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
                 delta[sel] = sample_image(e, px[shows][sel])
-        if trust is not None:
-            delta *= np.asarray(trust, np.float32)[shows][:, None]
         rgb[shows] = np.clip(rgb[shows] + step * delta, 0.0, 1.0)
         gs = gs.with_colors(rgb)
     return gs, {"psnr_before": round(float(history[0]), 3), "psnr_after": round(float(history[-1]), 3),

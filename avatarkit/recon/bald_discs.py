@@ -85,21 +85,6 @@ def photo_weight(facing: np.ndarray) -> np.ndarray:
     return np.clip((np.asarray(facing, np.float64) - MIN_FACING) / (GRAZING - MIN_FACING), 0.0, 1.0)
 
 
-def disc_photo_weight(bald: GaussianSet, camera) -> np.ndarray:
-    """(N,) `photo_weight` of lifted bald discs (`lift_bald`'s: normal = the second column of
-    each disc's rotation) seen by `camera` (in the discs' frame); 1 for eye and mouth discs."""
-    from avatarkit.rotations import quat_to_matrix
-
-    normals = quat_to_matrix(np.asarray(bald.quats, np.float64))[:, :, 1]
-    view = np.asarray(camera.camera_center, np.float64)[None] - np.asarray(bald.means, np.float64)
-    view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-12)
-    weight = photo_weight(np.einsum("ij,ij->i", view, normals))
-    part = bald.extras.get("part")
-    if part is not None:
-        weight[np.asarray(part) != PART_SKIN] = 1.0
-    return weight
-
-
 def _face_parts(model) -> np.ndarray:
     """(F,) uint8 part of each head face: eye (2 of 3 vertices on an eyeball), mouth interior, skin."""
     f = model.faces
@@ -221,4 +206,4 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
 
 
 __all__ = ["COVERAGE", "FLATNESS", "GRAZING", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald",
-           "disc_photo_weight", "photo_weight", "propagate_colors", "sample_bald"]
+           "photo_weight", "propagate_colors", "sample_bald"]

@@ -274,7 +274,6 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
-    from avatarkit.recon.bald_discs import disc_photo_weight
     from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
     from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, rig_sdf
     from avatarkit.recon.image_io import load_image
@@ -396,11 +395,6 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours_views"] = figures
-        # the lifted discs seen at a grazing angle take the matching's corrections only in part
-        # (as they took the photo in the lift): it would pull them to the silhouette's edge
-        # colour, the pale patch below the ear. Imported splats have no disc normals to judge.
-        lifted_trust = (disc_photo_weight(bald, fit.camera) if isinstance(lifter, BuiltinLifter)
-                        else np.ones(len(bald)))
         if COVER_SILHOUETTE:
             from avatarkit.recon.coverage import cover_silhouette
 
@@ -411,10 +405,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             from avatarkit.gaussians.gaussian_set import GaussianSet
 
             both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-            trust = np.ones(len(both), np.float32)
-            trust[:len(lifted_trust)] = lifted_trust       # the coverage's discs and hair: 1
             both, figures = refine_colours(both, fit.camera, image, head_mask(segmentation),
-                                           options.refine_iterations, trust=trust)
+                                           options.refine_iterations)
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours"] = figures
