@@ -112,23 +112,24 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
     keep = {k: v for k, v in hair.extras.items() if k != "binding"}
     hair = hair.replace(extras=keep)
     # The cage (its distance transforms are off the GIL) is built on this thread while the
-    # other core makes the head SDF unless given (a kd-tree query, off the GIL) and the scalp
-    # binding (numpy), neither of which needs the cage: the same results, in about the time of
-    # the longer of the two (measured under load, CPU s: the cage ~5, the SDF ~2.5, the
-    # binding ~2.8).
-
-    def beside_cage():
-        head_sdf = (sdf.result() if isinstance(sdf, Background) else sdf if sdf is not None
-                    else rig_sdf(rest, model.faces))
-        return head_sdf, (scalp_binding(hair, model, rest) if mode == "rigid" else None)
-
+    # head SDF, unless given (a kd-tree query and a distance transform, off the GIL), and the
+    # scalp binding (numpy) are made on two others: none needs another's result, so the results
+    # are those of one step after the other (threads=1), in about the time of the longest. The
+    # binding has its own thread because the build's SDF (begun during the colours stage) may
+    # still be running: behind it, the binding was the stage's longest path.
     if threads < 2:
-        sdf, binding = beside_cage()
+        sdf = sdf.result() if isinstance(sdf, Background) else sdf if sdf is not None else rig_sdf(rest, model.faces)
+        binding = scalp_binding(hair, model, rest) if mode == "rigid" else None
         cage = build_cage(hair, target_vertices=cage_vertices)
     else:
-        pending = Background(beside_cage, name="avatarkit-rig-sdf")
+        if sdf is None:
+            sdf = Background(rig_sdf, rest, model.faces, name="avatarkit-rig-sdf")
+        pending = (Background(scalp_binding, hair, model, rest, name="avatarkit-scalp-binding")
+                   if mode == "rigid" else None)
         cage = build_cage(hair, target_vertices=cage_vertices)
-        sdf, binding = pending.result()
+        binding = pending.result() if pending is not None else None
+        if isinstance(sdf, Background):
+            sdf = sdf.result()
     rig = HairRig.build(model, rest, hair, cage, progress=progress, sdf=sdf)
     info = {"cage_vertices": int(cage.n_vertices), "roots": int(len(rig.model.roots))}
     if binding is not None:
