@@ -120,6 +120,53 @@ def _signals_held():
             signal.raise_signal(sig)
 
 
+def _frozen_sources_known() -> None:
+    """Taichi decides whether a kernel is defined in a class by reading the source line of a
+    caller's frame (`_inside_class`: `inspect.getframeinfo`). For kernels decorated while a
+    module imports, that frame is importlib's, whose file "<frozen importlib._bootstrap>"
+    `inspect.getmodule` never finds: each call then walks every module in `sys.modules` (twice),
+    ~20-30 ms with torch loaded, 1.0 of the 1.4 CPU s Taichi's import and our kernels' decoration
+    took in a build. Telling inspect's file->module cache which module those files are gives the
+    same answer (frozen modules have no source: still no line, still "not in a class") at once."""
+    import inspect
+
+    cache = getattr(inspect, "modulesbyfile", None)
+    if not isinstance(cache, dict):
+        return
+    for name in ("importlib._bootstrap", "importlib._bootstrap_external"):
+        if name in sys.modules:
+            cache.setdefault(f"<frozen {name}>", name)
+
+
+def _set_environment() -> None:
+    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
+    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+    # With stdout swapped during import Taichi thinks it runs in a GUI shell, logs that on
+    # stderr and flushes a print buffer after every launch; its plain-stdout mode avoids both.
+    os.environ.setdefault("TI_ENABLE_PYBUF", "0")
+    # Taichi asks "is torch (paddle) installed?" by importing it under a bare `except:` the first
+    # time a kernel argument's dtype is converted, i.e. while modules decorate kernels: seconds
+    # of import in which a Ctrl-C was swallowed. Our kernels take numpy arrays only.
+    os.environ.setdefault("TI_ENABLE_TORCH", "0")
+    os.environ.setdefault("TI_ENABLE_PADDLE", "0")
+
+
+def import_taichi() -> None:
+    """Import Taichi (as `ensure_taichi` does) without starting it: for a thread that loads it
+    while the caller's thread does other work (`recon.pipeline`). Prints nothing, so it leaves
+    stdout alone (another thread may be writing to it); off the main thread no Ctrl-C can land
+    in Taichi's bare `except`s."""
+    _set_environment()
+    with _lock:
+        if _ready:
+            return
+        _frozen_sources_known()
+        with _signals_held():
+            import taichi as ti
+
+            _keep_interrupts(ti)
+
+
 def taichi_running() -> bool:
     """Has this process started Taichi? (Callers pick a kernel when its start is already paid.)"""
     return _ready
@@ -131,17 +178,9 @@ def ensure_taichi():
     if _ready:
         import taichi as ti
         return ti
-    os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
-    os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
-    # With stdout swapped during import Taichi thinks it runs in a GUI shell, logs that on
-    # stderr and flushes a print buffer after every launch; its plain-stdout mode avoids both.
-    os.environ.setdefault("TI_ENABLE_PYBUF", "0")
-    # Taichi asks "is torch (paddle) installed?" by importing it under a bare `except:` the first
-    # time a kernel argument's dtype is converted, i.e. while modules decorate kernels: seconds
-    # of import in which a Ctrl-C was swallowed. Our kernels take numpy arrays only.
-    os.environ.setdefault("TI_ENABLE_TORCH", "0")
-    os.environ.setdefault("TI_ENABLE_PADDLE", "0")
+    _set_environment()
     with _lock:
+        _frozen_sources_known()
         with _quiet_stdout():
             with _signals_held():
                 import taichi as ti

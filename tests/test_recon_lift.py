@@ -16,7 +16,7 @@ from avatarkit.recon.image_sampling import sample_image
 from avatarkit.recon.import_lifter import ImportLifter, align_similarity, umeyama
 from avatarkit.recon.lift import BuiltinLifter, lift_hair
 from avatarkit.recon.lifter import Lifter
-from avatarkit.recon.segment import HAIR, Segmentation
+from avatarkit.recon.segment import HAIR, SKIN, Segmentation
 
 
 def test_sample_image_is_bilinear_with_pixel_centres():
@@ -78,6 +78,49 @@ def test_bald_lifting_reproduces_the_photo(view):
     back = bald.means[:, 2] < np.percentile(bald.means[:, 2], 5)
     skin = view.segmentation.skin_model.rgb / 255.0
     assert np.abs(np.median(bald.colors[back], axis=0) - skin).max() < 0.08
+
+
+def test_grazing_discs_take_the_fill_not_the_silhouettes_edge(view):
+    """The pale patch below the ear: discs on the head's side, seen edge-on, sampled the photo's
+    silhouette edge (wall, ear rim). With that edge painted pale, the discs seen at a grazing
+    angle stay skin-coloured (blended toward the fill from the discs seen head-on), and the ones
+    seen head-on keep the photo's colour exactly."""
+    import cv2
+
+    from avatarkit.recon.bald_discs import GRAZING, photo_weight, sample_bald
+    from avatarkit.recon.visibility import MIN_FACING, depth_map, seen_from
+
+    fit = view.truth
+    head = (view.alpha > 0.5).astype(np.uint8)
+    rim = head.astype(bool) & ~cv2.erode(head, np.ones((9, 9), np.uint8)).astype(bool)   # 4 px wide
+    image = view.image.copy()
+    image[rim] = (240, 236, 230)                               # the wall bleeding into the edge
+    n = 20000
+    bald, info = lift_bald(image, view.analysis, view.segmentation,
+                           SimpleNamespace(image=image, labels=view.segmentation.labels), fit, n,
+                           np.random.default_rng(0))
+    # the same discs' visibility, as lift_bald computes it (same seed: same discs)
+    means, quats, scales, ids, normals = sample_bald(fit, n, np.random.default_rng(0))
+    np.testing.assert_allclose(bald.means, means, atol=1e-7)
+    geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
+    depth, _, dcam = depth_map(geo, fit.camera)
+    seen, px, facing = seen_from(means, normals, fit.camera, depth, dcam)
+    skin_part = bald.extras["part"] == 0
+    iy, ix = (np.clip(px[:, k].astype(int), 0, 511) for k in (1, 0))
+    on_skin, on_rim = view.segmentation.labels[iy, ix] == SKIN, rim[iy, ix]
+    edge_on = seen & skin_part & on_rim & (facing < 0.5 * (MIN_FACING + GRAZING))
+    assert info["bald_seen_grazing"] >= edge_on.sum()
+    assert edge_on.sum() > 50                                  # measured 130
+    skin = np.median(bald.colors[seen & skin_part & (facing > 0.8)], axis=0)
+    pale = np.asarray((240, 236, 230)) / 255.0
+    off = np.abs(bald.colors[edge_on] - skin).max(axis=1)
+    # measured: median 0.128 of the pale colour's 0.395 (the old code took the photo: 0.395)
+    assert np.median(off) < 0.5 * np.abs(pale - skin).max(), (np.median(off), np.abs(pale - skin).max())
+    # head-on discs on skin pixels: the photo, as before
+    head_on = seen & skin_part & on_skin & (photo_weight(facing) >= 1.0)
+    assert head_on.sum() > 3000
+    photo = sample_image(image, px[head_on]) / 255.0
+    np.testing.assert_allclose(bald.colors[head_on], np.clip(photo, 0, 1), atol=1e-6)
 
 
 def _hair_view(view_):

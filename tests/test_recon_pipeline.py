@@ -177,6 +177,7 @@ def test_rig_hair_modes(view, monkeypatch):
     from avatarkit.hair_rig import sdf_from_values
     from avatarkit.head.sdf_grid import HeadSDF
     from avatarkit.recon import hair_rig as recon_hair_rig
+    from avatarkit.recon.background import Background
 
     fit = view.truth
     hair = make_test_avatar("short", 1500, 0, 200, head_model=fit.model).hair
@@ -191,6 +192,13 @@ def test_rig_hair_modes(view, monkeypatch):
     assert got.from_values and got.spacing == 0.004
     np.testing.assert_array_equal(got.values_grad, ref.values_grad)
     np.testing.assert_array_equal(got.origin, ref.origin)
+    # one thread, one step after the other (the reference): the same cage, binding and SDF
+    serial = rig_hair(fit, hair, "rigid", cage_vertices=150, threads=1)
+    np.testing.assert_array_equal(serial.cage.vertices, rigid.cage.vertices)
+    np.testing.assert_array_equal(serial.cage.faces, rigid.cage.faces)
+    np.testing.assert_array_equal(serial.hair.extras["binding"], rigid.hair.extras["binding"])
+    np.testing.assert_array_equal(serial.rig.model.sdf.values_grad, got.values_grad)
+    np.testing.assert_array_equal(serial.rig.model.roots, rigid.rig.model.roots)
     assert rigid.mode == "rigid" and "binding" in rigid.hair.extras
     scalp = fit.model.region_mask("scalp")[fit.model.faces].sum(axis=1) >= 2
     assert scalp[rigid.hair.extras["binding"]].all()
@@ -198,8 +206,10 @@ def test_rig_hair_modes(view, monkeypatch):
     # the rigid binding reproduces the hair at rest
     b = scalp_binding(hair, fit.model, fit.rest_vertices)
     np.testing.assert_allclose(b.to_world(fit.rest_vertices).means, hair.means, atol=1e-5)
-    cage = rig_hair(fit, hair, "cage", cage_vertices=150, sdf=sdf)
+    # the SDF may still be in the making on another thread (the build's colours stage)
+    cage = rig_hair(fit, hair, "cage", cage_vertices=150, sdf=Background(lambda: sdf))
     assert "binding" not in cage.hair.extras
+    np.testing.assert_array_equal(cage.rig.model.sdf.values_grad, ref.values_grad)
     # the MVC weights wait for the first deformation, and are then what an eager build computes
     from avatarkit.cage.deform import CageDeformer
 

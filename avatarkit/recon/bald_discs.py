@@ -9,7 +9,9 @@ the renderer's depth map of the discs, facing the camera, and landing on skin in
 image's labels; neck discs also on body pixels). Unseen discs get a screened harmonic fill
 on their k-nearest-neighbour graph: the colour of the nearest seen skin diffuses over the
 surface and fades to the skin model's mean colour a few centimetres away (the back of the
-head). Eyeballs: seen through the lids, the photo; elsewhere iris (the photo's colour at the
+head). Skin discs seen at a grazing angle (facing the camera less than `GRAZING`) take the
+photo only in part, blended toward that fill made from the discs seen head-on (`photo_weight`):
+their pixels are mostly the silhouette's edge. Eyeballs: seen through the lids, the photo; elsewhere iris (the photo's colour at the
 eye landmarks) or sclera. Mouth interior: a dark red. Extras: `binding` (the sampled triangle,
 int32) and `part` (uint8: 0 skin, 1 eye, 2 mouth interior).
 """
@@ -21,12 +23,18 @@ from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.fit import HeadFit
 from avatarkit.recon.image_sampling import lookup, sample_image
-from avatarkit.recon.visibility import depth_map, seen_from
+from avatarkit.recon.visibility import MIN_FACING, depth_map, seen_from
 from avatarkit.rotations import matrix_to_quat
 
 #: bald disc radius = COVERAGE x the radius that would tile its share of the surface
 COVERAGE = 1.5
 FLATNESS = 0.15
+#: a seen skin disc facing the camera less than this (cosine of the angle between its normal and
+#: the way to the camera: 0.5 is 60 degrees) takes the photo only in part: its colour is
+#: blended toward what the fill gives from the discs seen head-on, linearly from all photo at
+#: GRAZING to none at `visibility.MIN_FACING`. Seen that obliquely a disc's pixel is mostly the
+#: silhouette's edge: the ear's rim, the wall behind, the collar (the pale patch below the ear)
+GRAZING = 0.5
 SCLERA_RGB = (0.86, 0.83, 0.8)
 MOUTH_RGB = (0.32, 0.12, 0.12)
 PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
@@ -69,6 +77,12 @@ def propagate_colors(points: np.ndarray, colors: np.ndarray, known: np.ndarray, 
     rhs = -(lap[unknown][:, kn] @ out[kn]) + mu * fb[None]
     out[unknown] = splu(luu.tocsc()).solve(rhs)
     return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def photo_weight(facing: np.ndarray) -> np.ndarray:
+    """(N,) share of the photo in a seen skin disc's colour, from its facing (N,) (`GRAZING`):
+    1 from GRAZING up, 0 at `visibility.MIN_FACING` and below, linear between."""
+    return np.clip((np.asarray(facing, np.float64) - MIN_FACING) / (GRAZING - MIN_FACING), 0.0, 1.0)
 
 
 def _face_parts(model) -> np.ndarray:
@@ -167,7 +181,11 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
 
     skin_rgb = segmentation.skin_model.rgb.astype(np.float64) / 255.0
     skin = part == PART_SKIN
-    rgb[skin] = propagate_colors(means[skin], rgb[skin], known[skin], skin_rgb)
+    trust = photo_weight(facing)
+    head_on = known & (trust >= 1.0)
+    filled = propagate_colors(means[skin], rgb[skin], head_on[skin], skin_rgb)
+    w = np.where(known[skin], trust[skin], 0.0)[:, None]
+    rgb[skin] = w * rgb[skin] + (1.0 - w) * filled
     if eye.any():
         iris_rgb = _eye_colours(image, analysis)
         fill = np.tile(np.asarray(SCLERA_RGB, np.float64), (int(eye.sum()), 1))
@@ -182,9 +200,10 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     out = GaussianSet.from_colors(means, quats, scales, opacity, np.clip(rgb, 0, 1),
                                   extras={"binding": ids, "part": part})
     info = {"bald": n, "bald_seen": int(known.sum()),
-            "bald_seen_share": round(float(known.mean()), 4)}
+            "bald_seen_share": round(float(known.mean()), 4),
+            "bald_seen_grazing": int((known & skin & (trust < 1.0)).sum())}
     return out, info
 
 
-__all__ = ["COVERAGE", "FLATNESS", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald",
-           "propagate_colors", "sample_bald"]
+__all__ = ["COVERAGE", "FLATNESS", "GRAZING", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald",
+           "photo_weight", "propagate_colors", "sample_bald"]

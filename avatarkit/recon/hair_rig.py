@@ -69,6 +69,16 @@ def scalp_binding(hair: GaussianSet, model, rest_vertices: np.ndarray):
     return TriangleBinding.bind(hair, v, faces, face_ids=scalp[ids])
 
 
+def rig_sdf(rest_vertices: np.ndarray, faces: np.ndarray):
+    """The rig's head SDF of the rest head (vertices as float32, as `rig_hair` uses them), with
+    the gradients a rig file's load makes, so `HairRig.build` need not remake them."""
+    from avatarkit.hair_rig import sdf_from_values
+    from avatarkit.head.sdf_grid import distance_grid
+
+    rest = np.asarray(rest_vertices, np.float32)
+    return sdf_from_values(*distance_grid(rest, faces, RIG_SDF_SPACING), RIG_SDF_SPACING)
+
+
 @dataclass(eq=False)
 class HairRigResult:
     """mode: "cage" | "rigid"; hair: the hair (with a `binding` extra in rigid mode); cage: the
@@ -82,14 +92,15 @@ class HairRigResult:
 
 
 def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int = CAGE_VERTICES,
-             progress=None) -> HairRigResult:
+             progress=None, threads: int = 2) -> HairRigResult:
     """Build the hair's cage and rig over the fitted rest head (`fit.rest_vertices`).
 
     mode: "cage" or "rigid" (see the module docstring). sdf: the rest head's `HeadSDF` if
-    already built. progress(done, total): follows the cage weights."""
-    from avatarkit.hair_rig import HairRig, sdf_from_values
+    already built (`rig_sdf`), or a `recon.background.Background` computing it.
+    progress(done, total): follows the cage weights. threads=1: everything on this thread, one
+    step after the other (the reference the second thread must equal)."""
+    from avatarkit.hair_rig import HairRig
     from avatarkit.cage.build import build_cage
-    from avatarkit.head.sdf_grid import distance_grid
     from avatarkit.recon.background import Background
 
     if mode not in HAIR_MODES:
@@ -100,18 +111,25 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
     rest = np.asarray(fit.rest_vertices, np.float32)
     keep = {k: v for k, v in hair.extras.items() if k != "binding"}
     hair = hair.replace(extras=keep)
-    # The head SDF (a kd-tree query, off the GIL) is computed on the other core while this thread
-    # builds the cage and the scalp binding, which do not need it: the same results, in about
-    # the time of the longer of the two. With the gradients a rig file's load makes, so
-    # `HairRig.build` need not remake them.
-    pending = None
-    if sdf is None:
-        pending = Background(lambda: sdf_from_values(*distance_grid(rest, model.faces, RIG_SDF_SPACING),
-                                                     RIG_SDF_SPACING), name="avatarkit-rig-sdf")
-    cage = build_cage(hair, target_vertices=cage_vertices)
-    binding = scalp_binding(hair, model, rest) if mode == "rigid" else None
-    if pending is not None:
-        sdf = pending.result()
+    # The cage (its distance transforms are off the GIL) is built on this thread while the
+    # head SDF, unless given (a kd-tree query and a distance transform, off the GIL), and the
+    # scalp binding (numpy) are made on two others: none needs another's result, so the results
+    # are those of one step after the other (threads=1), in about the time of the longest. The
+    # binding has its own thread because the build's SDF (begun during the colours stage) may
+    # still be running: behind it, the binding was the stage's longest path.
+    if threads < 2:
+        sdf = sdf.result() if isinstance(sdf, Background) else sdf if sdf is not None else rig_sdf(rest, model.faces)
+        binding = scalp_binding(hair, model, rest) if mode == "rigid" else None
+        cage = build_cage(hair, target_vertices=cage_vertices)
+    else:
+        if sdf is None:
+            sdf = Background(rig_sdf, rest, model.faces, name="avatarkit-rig-sdf")
+        pending = (Background(scalp_binding, hair, model, rest, name="avatarkit-scalp-binding")
+                   if mode == "rigid" else None)
+        cage = build_cage(hair, target_vertices=cage_vertices)
+        binding = pending.result() if pending is not None else None
+        if isinstance(sdf, Background):
+            sdf = sdf.result()
     rig = HairRig.build(model, rest, hair, cage, progress=progress, sdf=sdf)
     info = {"cage_vertices": int(cage.n_vertices), "roots": int(len(rig.model.roots))}
     if binding is not None:
@@ -121,4 +139,4 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
 
 
 __all__ = ["CAGE_VERTICES", "HAIR_MODES", "RIG_SDF_SPACING", "HairRigResult", "detect_hair_mode", "rig_hair",
-           "scalp_binding"]
+           "rig_sdf", "scalp_binding"]

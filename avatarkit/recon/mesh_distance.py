@@ -14,9 +14,32 @@ def face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
 
 
-def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray):
+#: closest_points splits at least this many points between two threads
+PARALLEL_POINTS = 4096
+
+
+def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, threads: int = 2):
     """Nearest head triangle of each point (N, 3): (face ids (N,), barycentric (N, 3),
-    closest points (N, 3), distances (N,))."""
+    closest points (N, 3), distances (N,)).
+
+    Each point's answer depends on that point alone, so `threads` (>= 2, from PARALLEL_POINTS
+    points) splits them in halves, one searched on a second thread: numpy's and the kd-tree's
+    work is mostly off the GIL, and the answer is bit for bit the one-thread one
+    (`threads=1`)."""
+    from avatarkit.recon.background import Background
+
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if threads < 2 or len(p) < PARALLEL_POINTS:
+        return _closest_points(p, vertices, faces)
+    half = len(p) // 2
+    other = Background(_closest_points, p[half:], vertices, faces, name="avatarkit-closest-points")
+    first = _closest_points(p[:half], vertices, faces)
+    second = other.result()
+    return tuple(np.concatenate([a, b]) for a, b in zip(first, second))
+
+
+def _closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray):
+    """`closest_points` on one thread."""
     import trimesh
 
     from avatarkit.rig.frames import degenerate_faces

@@ -248,6 +248,19 @@ def render_previews(avatar, size: int = 512, background=(1.0, 1.0, 1.0)) -> dict
             for name, azimuth in PREVIEW_VIEWS.items()}
 
 
+def _preload() -> None:
+    """Import torch and Taichi (`build_avatar` runs this beside its first stages). Only a head
+    start: a failure here is left for the stage that needs the module to report."""
+    from avatarkit._taichi import import_taichi
+
+    try:
+        import torch  # noqa: F401
+
+        import_taichi()
+    except Exception:  # noqa: BLE001 - the fit / lift's own import raises it where it belongs
+        pass
+
+
 def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None = None,
                  progress: Progress | None = None, views=None):
     """Build an `Avatar` from a portrait (module docstring). progress(stage, index, total,
@@ -262,7 +275,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
     from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
-    from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair
+    from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, rig_sdf
     from avatarkit.recon.image_io import load_image
     from avatarkit.recon.import_lifter import ImportLifter
     from avatarkit.recon.lift import BuiltinLifter
@@ -273,6 +286,11 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 
     options = options or BuildOptions()
     options.check()
+    # torch (the fit) and Taichi (the lift's renders) take ~2 CPU s of Python to import. Loaded
+    # on a second thread while this one reads, analyses and segments the photo (OpenCV, LiteRT:
+    # mostly off the GIL), they cost the build little wall time. Those stages import none of
+    # the modules these two load, so the threads never wait on each other's import locks.
+    Background(_preload, name="avatarkit-preload")
     report = BuildReport()
     stage = _Stages(progress, report)
     path = Path(portrait_path)
@@ -354,6 +372,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         assembled = assemble(fit, binding, hair, analysis, screen=sdf)
         report.info["assemble"] = assembled.report
         fit = assembled.fit
+        # the rig's fine head SDF needs only the final head: made on the other core while the
+        # colours are matched (mostly one thread), the hair_rig stage only collects it
+        pending_rig_sdf = (Background(rig_sdf, fit.rest_vertices, fit.model.faces, name="avatarkit-rig-sdf")
+                           if len(assembled.hair) else None)
     with stage("colours"):
         bald, hair = assembled.bald, assembled.hair
         if keyviews and MULTIVIEW_HAIR_DIRECTIONS:
@@ -397,7 +419,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             mode, why = detect_hair_mode(segmentation, analysis)
             if options.hair_mode != "auto":
                 mode = options.hair_mode
-            rigged = rig_hair(fit, hair, mode, cage_vertices=options.cage_vertices)
+            rigged = rig_hair(fit, hair, mode, cage_vertices=options.cage_vertices, sdf=pending_rig_sdf)
             report.info["hair"] = {"mode": mode, "requested": options.hair_mode, **why, **rigged.info}
             hair_out = rigged.hair.replace(extras={k: v for k, v in rigged.hair.extras.items()
                                                    if k == "binding"})
