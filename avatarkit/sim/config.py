@@ -99,6 +99,4 @@ class SimConfig:
     def collision_every(self, dt: float) -> int:
         """k: collision acts in every k-th substep of a dt-second frame (and in its last)."""
         h = dt / self.substeps_for(dt)
-        if not math.isfinite(self.collision_period):
-            return self.substeps_for(dt)
         return max(1, math.floor(self.collision_period / h + 1e-9))
