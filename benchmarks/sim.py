@@ -13,6 +13,9 @@ the default substeps x iterations (40 x 1) per frame at 30 fps on the whip clip:
   - the numpy reference solver's time for one frame, as the simple baseline (speed-up ratio);
   - the solver launched through Taichi's plain kernel call (the default before issue 18's
     session 6), in the same alternation, and how many kernel launches a step and a bake frame make;
+  - the previous frame kernel and packing (`_sim_baseline.py`, main before issue 18's session 7)
+    with that session's settings (collision in every substep), and this kernel with collision in
+    every substep (`collision_period=0`), in the same alternation: the session's two gains apart;
   - the ablation table: static / none / vertex / proxy x whip / nod (penetration, scalp gap).
 Targets (issues 6 and 18): <= 3 ms per frame simulation, <= 15 ms with 50k Gaussians, on 2
 cores; the last block ("targets") prints exactly those two figures, with the machine's CPU and
@@ -156,14 +159,26 @@ def main(argv=None) -> int:
     solver_plain.step(state_plain, state_plain, frames[0], frames[0], dt)
     pp = solver_plain._packed
     pp.launch = BoundLaunch(_kernels.simulate_frame, *pp.launch.arrays, bind=False)
+    # the previous kernel (before session 7) and this kernel with collision in every substep
+    from _sim_baseline import PreviousSolver
+
+    every1 = config.replace(collision_period=0.0)
+    solver_prev = PreviousSolver(m, every1, skin=driver.skin)
+    state_prev = driver.state.copy()
+    solver_prev.step(state_prev, state_prev, frames[0], frames[0], dt)
+    solver_e1 = XPBDSolver(m, every1, skin=driver.skin)
+    state_e1 = driver.state.copy()
+    solver_e1.step(state_e1, state_e1, frames[0], frames[0], dt)
     n = len(frames) - 1
     print("\n== per frame (median over the whip clip, 30 fps; wall / CPU ms; the machine is shared, "
           "CPU time is the steadier figure)")
     launches = count_launches(lambda: solver.step(state.copy(), state.copy(), frames[0], frames[1], dt))
     print(f"Taichi kernel launches per solver step: {launches} (every substep in one launch)")
-    times = {"new": ([], []), "old": ([], []), "plain": ([], [])}
+    times = {key: ([], []) for key in ("new", "old", "plain", "prev", "every1")}
+    runs = (("new", solver, state), ("old", solver32, state32), ("plain", solver_plain, state_plain),
+            ("prev", solver_prev, state_prev), ("every1", solver_e1, state_e1))
     for i in range(1, len(frames)):
-        for key, slv, st in (("new", solver, state), ("old", solver32, state32), ("plain", solver_plain, state_plain)):
+        for key, slv, st in runs:
             w, c = time.perf_counter(), time.process_time()
             slv.step(st, st, frames[i - 1], frames[i], dt)
             times[key][0].append(1e3 * (time.perf_counter() - w))
@@ -171,11 +186,19 @@ def main(argv=None) -> int:
     wall, cpu = (float(np.median(x)) for x in times["new"])
     wall32, cpu32 = (float(np.median(x)) for x in times["old"])
     wallp, cpup = (float(np.median(x)) for x in times["plain"])
+    wallv, cpuv = (float(np.median(x)) for x in times["prev"])
+    walle, cpue = (float(np.median(x)) for x in times["every1"])
     print(f"solver step (XPBD only)                      {wall:7.2f} / {cpu:6.2f} ms   target <= 3")
     print(f"  baseline: proxies of 32 weights            {wall32:7.2f} / {cpu32:6.2f} ms   "
           f"({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU)")
     print(f"  baseline: Taichi's plain kernel call       {wallp:7.2f} / {cpup:6.2f} ms   "
           f"({wallp / wall:.2f}x wall, {cpup / cpu:.2f}x CPU)")
+    print(f"  baseline: previous kernel, collision every substep (main before session 7)\n"
+          f"                                             {wallv:7.2f} / {cpuv:6.2f} ms   "
+          f"({wallv / wall:.2f}x wall, {cpuv / cpu:.2f}x CPU)")
+    print(f"  this kernel, collision every substep       {walle:7.2f} / {cpue:6.2f} ms   "
+          f"({walle / wall:.2f}x wall, {cpue / cpu:.2f}x CPU; previous kernel / this: "
+          f"{wallv / walle:.2f}x wall, {cpuv / cpue:.2f}x CPU)")
     k = iter(range(1, len(frames)))
 
     def driver_step():
@@ -227,7 +250,9 @@ def main(argv=None) -> int:
           f"{wall:7.2f} / {cpu:6.2f} ms   target <= 3: {'met' if wall <= 3 else 'NOT met'} (wall)   "
           f"baselines: numpy reference {ref_ms:.0f} ms ({ref_ms / wall:.0f}x), 32-weight proxies "
           f"{wall32:.2f} / {cpu32:.2f} ms ({wall32 / wall:.2f}x wall, {cpu32 / cpu:.2f}x CPU), Taichi's plain "
-          f"kernel call {wallp:.2f} / {cpup:.2f} ms ({wallp / wall:.2f}x wall, {cpup / cpu:.2f}x CPU)")
+          f"kernel call {wallp:.2f} / {cpup:.2f} ms ({wallp / wall:.2f}x wall, {cpup / cpu:.2f}x CPU), previous "
+          f"kernel with collision every substep {wallv:.2f} / {cpuv:.2f} ms ({wallv / wall:.2f}x wall, "
+          f"{cpuv / cpu:.2f}x CPU)")
     print(f"simulation + {len(hair)} hair Gaussians (bake path) {wall_b:7.2f} / {cpu_b:6.2f} ms   "
           f"target <= 15: {'met' if wall_b <= 15 else 'NOT met'} (wall)   "
           f"baseline one product per frame {wall_f:.2f} / {cpu_f:.2f} ms ({wall_f / wall_b:.1f}x wall, "

@@ -85,11 +85,14 @@ def tips(model):
 def test_config_defaults_and_validation():
     cfg = SimConfig()
     assert cfg.substeps == 40 and cfg.iterations == 1 and cfg.collision == "proxy"
+    assert cfg.collision_every(1 / 30) == 2 and cfg.collision_every(1 / 60) == 4
+    assert cfg.collision_every(0.25) == 1 and cfg.replace(collision_period=0.0).collision_every(1 / 30) == 1
     assert cfg.compliance_stretch == cfg.compliance_volume == 0.0
     assert cfg.gravity == (0.0, -9.81, 0.0) and not cfg.static
     for bad in [dict(substeps=0), dict(iterations=1.5), dict(collision="mesh"),
                 dict(gravity=(0, 1)), dict(compliance_bending=-1.0), dict(damping=float("nan")),
-                dict(max_speed=0.0)]:
+                dict(max_speed=0.0), dict(collision_period=-1.0),
+                dict(collision_period=float("nan"))]:
         with pytest.raises(InputError):
             SimConfig(**bad)
 
@@ -248,6 +251,29 @@ def test_kernel_matches_numpy_reference(scene, mode, substeps):
     assert moved > 0.005  # the step did something worth comparing
     np.testing.assert_allclose(out.positions, ref.positions, atol=2e-5)
     np.testing.assert_allclose(out.velocities, ref.velocities, atol=2e-3)
+
+
+def test_kernel_matches_numpy_reference_with_collision_every(scene):
+    """Collision in every k-th substep and the frame's last (`SimConfig.collision_period`): the
+    kernel and the reference skip the same substeps, for k = 1 and 3, which differ."""
+    model, head, _ = scene
+    rng = np.random.default_rng(7)
+    state = CageState(model.rest_positions + rng.normal(scale=0.003, size=model.rest_positions.shape),
+                      rng.normal(scale=0.3, size=model.rest_positions.shape))
+    state.positions[model.roots] = model.rest_positions[model.roots]
+    f0 = frame(model, head, rigid((0.0, 0.0, 0.0)))
+    f1 = frame(model, head, rigid((-0.35, 0.25, 0.0), (0.0, 0.01, 0.02)))
+    got = {}
+    for k in (1, 3):
+        cfg = SimConfig(collision="proxy", substeps=5, iterations=2, collision_period=k / 150 + 1e-6,
+                        compliance_collision=1e-8, max_speed=0.6)
+        assert cfg.collision_every(1 / 30) == k
+        out = CageState(state.positions, state.velocities)
+        XPBDSolver(model, cfg).step(state, out, f0, f1, 1 / 30)
+        ref = reference_step(model, cfg, state, f0, f1, 1 / 30)
+        np.testing.assert_allclose(out.positions, ref.positions, atol=2e-5)
+        got[k] = out.positions
+    assert np.abs(got[1] - got[3]).max() > 1e-4  # the setting changed the step
 
 
 def test_substep_transforms_interpolate_rotation_and_translation():

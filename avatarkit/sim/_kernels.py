@@ -52,8 +52,8 @@ vec4 = ti.math.vec4
 # ibuf header slots
 (H_SUBSTEPS, H_ITERATIONS, H_MODE, H_NC, H_NE, H_NB, H_NF, H_NR, H_NK, H_EDGES, H_FACES,
  H_TETHER, H_PROXY_IDX, H_ROOTS, H_INV_MASS, H_EDGE_DATA, H_TETHER_LEN, H_PROXY_W,
- H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION) = range(25)
-H_COUNT = 25
+ H_LAMBDA, H_ROT, H_TRANS, H_CACHE, H_PROXY_DEN, H_NJ, H_DEVIATION, H_COLLISION_EVERY) = range(26)
+H_COUNT = 26
 #: a bound on |grad| of the trilinear grid SDF (sqrt(3) for samples of a 1-Lipschitz field, plus
 #: slack for the approximate far field): a point that moved less than (d - margin) / LIPSCHITZ
 #: since it was last found d away from the head cannot touch it, so its lookup is skipped
@@ -61,6 +61,9 @@ LIPSCHITZ = 2.0
 #: squared lengths below SLACK x a squared limit are certainly under the limit (the square root and
 #: its float rounding, ~1e-7, cannot take them over): tests that skip a square root use it
 SLACK = 0.9999
+#: the proxy size (`model.PROXY_K`) the kernel unrolls its proxy sums for; other sizes (rigs
+#: saved with 32 weights) take a plain loop, with the same sum in the same order
+PROXY_UNROLL = 8
 
 # fbuf parameter slots (compliances already divided by h^2)
 (FP_H, FP_ALPHA_S, FP_ALPHA_B, FP_ALPHA_V, FP_ALPHA_T, FP_ALPHA_C, FP_DAMP, FP_MARGIN,
@@ -124,9 +127,11 @@ def joint_translation(fb: ti.template(), o_trans, s, j):
 
 
 @ti.func
-def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, first):
+def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, first, last):
     """XPBD distance constraint; od: offset of its record (see the module docstring) in fb;
-    first: the substep's first sweep, whose multiplier is 0 (not read: see `simulate_frame`).
+    first: the substep's first sweep, whose multiplier is 0 (not read: see `simulate_frame`);
+    last: the substep's last sweep, whose multiplier nothing reads (not written: with the
+    default single sweep that is ~2,200 strided stores a substep).
 
     The correction w_a dl / |d| is rewritten as (r w_a k) / |d| - w_a k with r = l0 - alpha~ lambda
     (dl = (r - |d|) k): the chain from the positions just written by the previous constraint to
@@ -142,7 +147,8 @@ def solve_distance(xb: ti.template(), fb: ti.template(), a, b, od, first):
         r = fb[od] - fb[od + 5] * lam
         wak = fb[od + 2]
         wbk = fb[od + 3]
-        fb[od + 4] = lam + (r - len2 * inv_len) * fb[od + 1]
+        if not last:
+            fb[od + 4] = lam + (r - len2 * inv_len) * fb[od + 1]
         xb[a] = xb[a] + ((r * wak) * inv_len - wak) * d
         xb[b] = xb[b] - ((r * wbk) * inv_len - wbk) * d
 
@@ -230,8 +236,13 @@ def proxy_point(xb: ti.template(), ib: ti.template(), fb: ti.template(), oi, ow,
     """sum_k w_k x_k over a proxy's nk cage vertices (indices at ib[oi:], weights at fb[ow:]),
     one running sum in k order (as `reference.py`; four interleaved sums measured no faster)."""
     p = vec3(0.0)
-    for k in range(nk):
-        p += fb[ow + k] * xb[ib[oi + k]]
+    if nk == PROXY_UNROLL:
+        # the default, unrolled: the 8 index -> position loads of every proxy are independent
+        for k in ti.static(range(PROXY_UNROLL)):
+            p += fb[ow + k] * xb[ib[oi + k]]
+    else:
+        for k in range(nk):
+            p += fb[ow + k] * xb[ib[oi + k]]
     return p
 
 
@@ -251,6 +262,7 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
         nr = ib[H_NR]
         nk = ib[H_NK]
         nj = ib[H_NJ]
+        coll_every = ib[H_COLLISION_EVERY]
         o_edge = ib[H_EDGES]
         o_face = ib[H_FACES]
         o_tether = ib[H_TETHER]
@@ -367,9 +379,10 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
             # 3. constraint projection
             for it in range(n_iter):
                 first = it == 0
+                last = it == n_iter - 1
                 for e in range(ne + nb):  # stretch, then bending (adjacent tables)
                     solve_distance(xb, fb, ib[o_edge + 2 * e], ib[o_edge + 2 * e + 1],
-                                   o_edata + 8 * e, first)
+                                   o_edata + 8 * e, first, last)
                 dl_vol = 0.0
                 if nf > 0:
                     vol = vol0
@@ -405,7 +418,8 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                                 fb[li] = new
                                 if length > 1e-9:
                                     xb[i] = xb[i] - (wi * dl / length) * d
-                if mode > 0:
+                # collision acts in every k-th substep and the last (`SimConfig.collision_period`)
+                if mode > 0 and ((s + 1) % coll_every == 0 or s == n_sub - 1):
                     for i in range(nc):
                         den = fb[o_w + i]
                         if mode == 2:
@@ -434,12 +448,23 @@ def simulate_frame(xb: ti.types.ndarray(dtype=vec3, ndim=1), ib: ti.types.ndarra
                             if near:
                                 near = lam > 0.0 or LIPSCHITZ * (dq.norm() + fb[o_dev + s]) >= fb[o_cdist + i] - margin
                             if near:
+                                # With no contact force yet, a skull piece at least `enough` away
+                                # leaves the jaw and neck pieces unlooked-up: they can be nearer
+                                # only by twice the deviation bound (as in the push-out), so the
+                                # contact stays off, as the full lookup would leave it (1 um for
+                                # rounding). The cached bound then takes off that much more.
+                                enough = ti.math.inf
+                                if lam == 0.0 and (q1 >= lo).all() and (q1 <= hi).all():
+                                    enough = margin + 2.0 * LIPSCHITZ * fb[o_dev + s] + 1e-6
                                 hit = posed_sdf(sdf, skin, fb, p, q1, rs, o_rot, o_trans, s, nj, origin, inv_h,
-                                                skin_origin, skin_inv_h, ti.math.inf)
+                                                skin_origin, skin_inv_h, enough)
                                 fb[o_cache + 3 * i] = q1[0]
                                 fb[o_cache + 3 * i + 1] = q1[1]
                                 fb[o_cache + 3 * i + 2] = q1[2]
-                                fb[o_cdist + i] = hit[0] - LIPSCHITZ * fb[o_dev + s]
+                                bound = hit[0] - LIPSCHITZ * fb[o_dev + s]
+                                if hit[0] >= enough:
+                                    bound -= 2.0 * LIPSCHITZ * fb[o_dev + s]
+                                fb[o_cdist + i] = bound
                                 dl = (margin - hit[0] - a_c * lam) / (den + a_c)
                                 new = ti.max(lam + dl, 0.0)  # contact only pushes
                                 dl = new - lam

@@ -29,6 +29,7 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
     damp = np.exp(-config.damping * h)
     g = np.asarray(config.gravity)
     mode = MODE_CODES[config.collision]
+    every = config.collision_every(dt)  # collision in every k-th substep and the last
     nj = skin_joints(skin, frame_in, frame_out)
     rotations, translations = joint_substep_transforms(frame_in, frame_out, n_sub, nj)
     transforms = np.zeros((n_sub, nj, 4, 4))
@@ -64,6 +65,7 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
         lam_v = 0.0
         lam_t = np.zeros(len(x))
         lam_c = np.zeros(len(x))
+        use_collision = (s + 1) % every == 0 or s == n_sub - 1
         if len(m.faces):
             x0 = x.copy()
             p = x - x[m.faces[0, 0]]
@@ -95,7 +97,7 @@ def reference_step(model: CageModel, config: SimConfig, state: CageState, frame_
                 dl, lam_t[i] = new - lam_t[i], new
                 if length > 1e-9:
                     x[i] -= w[i] * dl * d / length
-            if mode == 0:
+            if mode == 0 or not use_collision:
                 continue
             for i in range(len(x)):
                 if mode == 2:  # the proxy, from the current cage; gradient w_k n for vertex k

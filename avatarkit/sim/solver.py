@@ -10,7 +10,8 @@ Per frame, for each of n substeps of h = dt / n (n = `substeps`, more if h would
      stretch, bending, volume (linearised at the predicted positions), tether and collision
      constraints, multipliers reset per substep;
      collision tests the proxy (or the vertex) against the head SDF placed by this substep's
-     head joint transform (rotation slerped, translation interpolated), and moves the vertex;
+     head joint transform (rotation slerped, translation interpolated), and moves the vertex
+     (in every k-th substep, `SimConfig.collision_every`, and the frame's last);
   4. v = (x - x_prev) / h, then damping and a speed clamp.
 All substeps of a frame run in one Taichi launch (`_kernels.simulate_frame`).
 In `static` mode the cage moves rigidly with the head joint (roots still on their targets).
@@ -304,6 +305,7 @@ class XPBDSolver:
         p = self._packed
         if self._dt != dt:
             p.set_time_step(cfg, dt, n_sub)
+            p.ibuf[_kernels.H_COLLISION_EVERY] = cfg.collision_every(dt)
             self._dt = dt
         c, r = p.c, p.r
         p.xbuf[:c] = state_in.positions
