@@ -177,7 +177,7 @@ def test_reduced_landmark_model_equals_the_vertex_one():
 
 def test_levenberg_marquardt_reaches_the_reference_fit(video):
     """solve.fit_frame against face.fit.fit_landmarks (torch L-BFGS) on one frame."""
-    from avatarkit.face.fit import LandmarkTargets, fit_landmarks
+    from avatarkit.face.fit import DEPTH_WEIGHT, LandmarkTargets, fit_landmarks
     from avatarkit.track.solve import fit_frame
     from avatarkit.track.tracker import FrameTracker
 
@@ -186,8 +186,9 @@ def test_levenberg_marquardt_reaches_the_reference_fit(video):
     ft = FrameTracker(model, np.zeros(model.num_shape), (SIZE, SIZE), TrackOptions())
     mesh = ft.landmarks(frames[6].rgb)
     targets = LandmarkTargets.from_mesh(mesh, ft.embedding, (SIZE, SIZE))
-    ref = fit_landmarks(model, ft.embedding, targets, ft.focal, fit_shape=False,
-                        expr_components=model.num_expr, fit_jaw=True, iterations=200)
+    # the same objective as fit_frame's defaults: the depth term on, the outline at full weight
+    ref = fit_landmarks(model, ft.embedding, targets, ft.focal, fit_shape=False, depth_weight=DEPTH_WEIGHT,
+                        outline_weight=1.0, expr_components=model.num_expr, fit_jaw=True, iterations=200)
     ours = fit_frame(ft.problem, targets, ft.focal, start=None,
                      initial=(ref.rotation + 0.05, ref.translation + 0.01), iterations=60)
     assert _angle_deg(ours.rotation, ref.rotation) < 0.3
