@@ -98,7 +98,7 @@ def test_a_closed_mouth_looks_as_before_and_an_open_one_shows_a_dark_inside(mout
     opening = shading.mouth_opening(dark.rest_area, shading.triangle_areas(v, model.faces), dark.mouth)
     assert opening.max() == 1.0 and 0 < (opening > 0).sum() < 0.5 * dark.mouth.sum()
     px, _ = cam.project(v[np.asarray(model.faces)[opening > 0]].mean(axis=1))
-    # a disc on a stretched triangle grows with it and reaches past it: measured up to 14 px at 128
+    # a disc on a stretched triangle grows with it and reaches past it: measured up to 13 px at 128
     x0, y0 = np.floor(px.min(0)).astype(int) - 16
     x1, y1 = np.ceil(px.max(0)).astype(int) + 16
     changed = np.abs(p[1].astype(int) - d[1]).max(axis=2) > 0
@@ -107,8 +107,8 @@ def test_a_closed_mouth_looks_as_before_and_an_open_one_shows_a_dark_inside(mout
     assert changed.any() and not (changed & ~inside).any()
     dark_p = int((p[1].astype(float).mean(axis=2)[inside] < 40).sum())
     dark_d = int((d[1].astype(float).mean(axis=2)[inside] < 40).sum())
-    # measured at 128 px: 0 dark pixels without the interior, 60 with it (assert >= 25)
-    assert dark_p == 0 and dark_d >= 25, (dark_p, dark_d)
+    # measured at 128 px: 0 dark pixels without the interior, 80 with it (assert half)
+    assert dark_p == 0 and dark_d >= 40, (dark_p, dark_d)
 
 
 def test_shaded_video_frames_are_darker_away_from_the_light(mouth_frames):
