@@ -203,7 +203,7 @@ def main() -> None:
                     help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
     if args.quick:
-        args.cases, args.repeats = 2, 1
+        args.cases, args.repeats, args.no_held_out = 2, 1, True
     from avatarkit.synthetic.shading import LIGHT
 
     print(f"CPU: {cpu_model()}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
