@@ -49,6 +49,7 @@ class HeadVideo:
                  background=(0.47, 0.59, 0.73), light=None, ambient: float | None = None, mouth: bool = False):
         from avatarkit.head.model import HeadModel, HeadParams
         from avatarkit.rig.binding import TriangleBinding
+        from avatarkit.synthetic import shading
         from avatarkit.synthetic.sample_avatar import make_bald
 
         self.model = HeadModel.template()
@@ -58,9 +59,8 @@ class HeadVideo:
         bald = make_bald(self.model, rest, n_gaussians, seed)
         self.binding = TriangleBinding.bind(bald, rest, self.model.faces,
                                             face_ids=bald.extras["binding"].astype(np.int64))
-        from avatarkit.synthetic import shading
-
-        # per Gaussian: its triangle's rest area, and whether it is on the lips / mouth band
+        # the mouth interior: each Gaussian's host triangle, the triangles' rest areas, and
+        # which triangles are the lips / mouth band
         self.host = bald.extras["binding"].astype(np.int64)
         self.rest_area = shading.triangle_areas(rest, self.model.faces)
         self.mouth = shading.mouth_faces(self.model) if mouth else None
@@ -80,7 +80,6 @@ class HeadVideo:
     def frame(self, i: int) -> SyntheticFrame:
         from avatarkit.export.images import to_uint8
         from avatarkit.render import render
-
         from avatarkit.synthetic import shading
 
         v = self.vertices(i)
