@@ -6,16 +6,20 @@
    Target: detection + landmarks + iris <= 30 ms on 2 cores.
 2. Fit accuracy on renders of the template head with known pose and shape (512x512): rotation
    error (degrees) and the fitted head's landmark reprojection error (pixels, median), for the
-   landmark fit alone (`face.fit.fit_landmarks`) next to the closed-form solvePnP start it
-   begins from, and the pose alone fitted with the true shape given. With `--avatar DIR` the
-   same on renders of that avatar (one built from samples/portrait.jpg carries a real face's
-   colours, which the face mesh reads more like a face than the template's painted one).
-   Targets: median rotation error <= 2 degrees; reprojection <= 2 px median (on the flat-coloured
-   renders). `--shaded` adds the same cases rendered with Lambert shading from a light fixed to
-   the camera (the shading moves over the head with its pose, as in a photo): does the face mesh
-   read the template more like a person then? Reported beside the targets' figures, not instead.
+   landmark fit (`face.fit.fit_landmarks`) next to the closed-form solvePnP start it begins
+   from, the pose alone fitted with the true shape given, and the previous fit's settings
+   (depth term 0.05, outline at full weight) run in the same process as the baseline.
+   The target figure is on renders Lambert-shaded by a light fixed to the camera
+   (`synthetic.shading`: the shading moves over the head with its pose, as on a person; the
+   lead's decision of session 7), 12 cases of seed 0; the same on 12 held-out cases each of
+   seeds 1 and 2 (nothing in the fit was set on seed 2; seed 1 checked the choice), pooled with
+   seed 0's, and on the flat-coloured renders the figures of sessions 4-6 were measured on are
+   printed beside it, so both stay visible.
+   With `--avatar DIR` also on renders of that avatar (one built from samples/portrait.jpg
+   carries a real face's colours, baked with the photo's light).
+   Targets: median rotation error <= 2 degrees; reprojection <= 2 px median.
 
-    .venv/bin/python benchmarks/face.py [--cases 8] [--repeats 15] [--avatar DIR] [--shaded]
+    .venv/bin/python benchmarks/face.py [--cases 12] [--repeats 15] [--avatar DIR] [--no-held-out]
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ os.environ.setdefault("TI_SKIP_VERSION_CHECK", "ON")
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _timing import median_time  # noqa: E402
+from _timing import cpu_model, median_time  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,28 +72,29 @@ def detected_targets(image: np.ndarray, emb, missing: str):
     return LandmarkTargets.from_mesh(mesh, emb, image.shape[:2][::-1])
 
 
-#: --shaded: toward the light in the camera's frame (upper left, in front), as a photo is lit
-SHADED_LIGHT = (-0.4, -0.5, -1.0)
-
-
-def accuracy(cases: int, light=None) -> None:
+def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarray:
+    """Rows per case: rotation errors (deg) of the solvePnP start, the fit, the fit with the true
+    shape given, the previous fit (depth term 0.05, outline at full weight), and reprojection
+    errors (px) of the start, the fit, the previous fit, and the face mesh against the truth."""
     from scipy.spatial.transform import Rotation
 
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import LandmarkModel, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.face.fit import DEPTH_WEIGHT, LandmarkModel, fit_landmarks, initial_pose, pixel_errors
     from avatarkit.head.model import HeadModel
     from avatarkit.recon.fit import portrait_focal, synthetic_head_view, view_camera
+    from avatarkit.synthetic.shading import AMBIENT
 
     model = HeadModel.template()
     emb = template_embedding()
     lm = LandmarkModel(model, emb)
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     size = 512
     f = portrait_focal(size, size)
     rows = []
-    lit = "flat colours" if light is None else f"Lambert-shaded, light toward {light} in the camera frame, ambient 0.35"
-    print(f"\n== fit on {cases} template renders ({size}x{size}, {lit}), yaw in [-40, 40], pitch [-12, 12], "
-          "roll [-10, 10] deg")
+    lit = "flat colours" if light is None else \
+        f"Lambert-shaded, light toward {light} in the camera frame, ambient {AMBIENT}"
+    print(f"\n== {title}fit on {cases} template renders of seed {seed} ({size}x{size}, {lit}), yaw in [-40, 40], "
+          "pitch [-12, 12], roll [-10, 10] deg")
     for i in range(cases):
         yaw, pitch, roll = rng.uniform(-40, 40), rng.uniform(-12, 12), rng.uniform(-10, 10)
         shape = rng.normal(size=model.num_shape) * 0.7
@@ -101,26 +106,33 @@ def accuracy(cases: int, light=None) -> None:
             continue
         truth_px = s.truth.camera.project(lm.points_numpy(shape))[0]
         r0, t0 = initial_pose(lm.points_numpy(), targets, f)
-        fit = fit_landmarks(model, emb, targets, f)
-        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False)
+        fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
+        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
+        before = fit_landmarks(model, emb, targets, f, depth_weight=DEPTH_WEIGHT, outline_weight=1.0,
+                               landmark_model=lm)
         err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
         px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
-        rows.append((err(r0), np.median(pixel_errors(px0, targets)), err(fit.rotation), fit.median_error,
-                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1))), err(known.rotation)))
-        print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error "
-              f"{rows[-1][2]:5.2f} deg (start {rows[-1][0]:5.2f}, shape known {rows[-1][5]:5.2f}), reprojection "
-              f"{fit.median_error:5.2f} px (start {rows[-1][1]:5.2f}); true landmarks vs detected {rows[-1][4]:5.2f} px")
-    summarise(np.array(rows))
+        rows.append((err(r0), err(fit.rotation), err(known.rotation), err(before.rotation),
+                     np.median(pixel_errors(px0, targets)), fit.median_error, before.median_error,
+                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1)))))
+        a = rows[-1]
+        print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error {a[1]:5.2f} deg "
+              f"(start {a[0]:5.2f}, shape known {a[2]:5.2f}, previous fit {a[3]:5.2f}), reprojection "
+              f"{a[5]:5.2f} px (previous {a[6]:5.2f}); true landmarks vs detected {a[7]:5.2f} px")
+    a = np.array(rows)
+    summarise(a)
+    return a
 
 
 def summarise(a: np.ndarray) -> None:
-    print(f"median rotation error        {np.median(a[:, 2]):6.2f} deg   (solvePnP start {np.median(a[:, 0]):.2f}; "
-          f"ratio {np.median(a[:, 2]) / np.median(a[:, 0]):.2f})   target <= 2 deg")
-    print(f"median reprojection error    {np.median(a[:, 3]):6.2f} px    (solvePnP start {np.median(a[:, 1]):.2f})   "
+    m = np.median(a, axis=0)
+    print(f"median rotation error        {m[1]:6.2f} deg   (solvePnP start {m[0]:.2f}; previous fit, depth term "
+          f"0.05 and full-weight outline, {m[3]:.2f}: ratio {m[1] / m[3]:.2f})   target <= 2 deg")
+    print(f"median reprojection error    {m[5]:6.2f} px    (solvePnP start {m[4]:.2f}; previous fit {m[6]:.2f})   "
           f"target <= 2 px")
-    print(f"median rotation error, shape known {np.median(a[:, 5]):6.2f} deg   (pose alone fitted: what is left "
+    print(f"median rotation error, shape known {m[2]:6.2f} deg   (pose alone fitted: what is left "
           "once shape and pose cannot trade)")
-    print(f"median detected vs true landmarks {np.median(a[:, 4]):.2f} px "
+    print(f"median detected vs true landmarks {m[7]:.2f} px "
           "(the face mesh's own error on this subject: the floor of the fit)")
 
 
@@ -131,7 +143,7 @@ def accuracy_avatar(cases: int, folder: str) -> None:
 
     from avatarkit.avatar import load_avatar
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import LandmarkModel, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.face.fit import DEPTH_WEIGHT, LandmarkModel, fit_landmarks, initial_pose, pixel_errors
     from avatarkit.head.model import HeadParams
     from avatarkit.motion.clip import MotionClip
     from avatarkit.recon.fit import portrait_focal, view_camera
@@ -166,33 +178,48 @@ def accuracy_avatar(cases: int, folder: str) -> None:
         # rotations compare directly
         r0, t0 = initial_pose(lm.points_numpy(), targets, f)
         px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
-        fit = fit_landmarks(model, emb, targets, f)
-        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False)
-        rows.append((err(r0), np.median(pixel_errors(px0, targets)), err(fit.rotation), fit.median_error,
-                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1))), err(known.rotation)))
+        fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
+        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
+        before = fit_landmarks(model, emb, targets, f, depth_weight=DEPTH_WEIGHT, outline_weight=1.0,
+                               landmark_model=lm)
+        rows.append((err(r0), err(fit.rotation), err(known.rotation), err(before.rotation),
+                     np.median(pixel_errors(px0, targets)), fit.median_error, before.median_error,
+                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1)))))
+        a = rows[-1]
         print(f"  case {i}: yaw {angles[i, 0]:6.1f} pitch {angles[i, 1]:5.1f} roll {angles[i, 2]:5.1f}: rotation "
-              f"error {rows[-1][2]:5.2f} deg (start {rows[-1][0]:5.2f}, shape known {rows[-1][5]:5.2f}), "
-              f"reprojection {fit.median_error:5.2f} px; true landmarks vs detected {rows[-1][4]:5.2f} px")
+              f"error {a[1]:5.2f} deg (start {a[0]:5.2f}, shape known {a[2]:5.2f}, previous fit {a[3]:5.2f}), "
+              f"reprojection {a[5]:5.2f} px; true landmarks vs detected {a[7]:5.2f} px")
     summarise(np.array(rows))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", type=int, default=8)
+    ap.add_argument("--cases", type=int, default=12)
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--avatar", help="also fit renders of this avatar folder (e.g. built from samples/portrait.jpg)")
-    ap.add_argument("--shaded", action="store_true",
-                    help="also fit Lambert-shaded template renders (a light fixed to the camera, so the "
-                         "shading follows the pose), beside the flat-coloured ones the target is set on")
+    ap.add_argument("--no-held-out", action="store_true",
+                    help="skip the held-out shaded cases (seeds 1 and 2)")
     ap.add_argument("--quick", action="store_true",
                     help="tiny sizes, one repeat: only checks that the script runs")
     args = ap.parse_args()
     if args.quick:
-        args.cases, args.repeats = 2, 1
+        args.cases, args.repeats, args.no_held_out = 2, 1, True
+    from avatarkit.synthetic.shading import LIGHT
+
+    print(f"CPU: {cpu_model()}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
     speed(args.repeats)
-    accuracy(args.cases)
-    if args.shaded:
-        accuracy(args.cases, SHADED_LIGHT)
+    shaded = accuracy(args.cases, LIGHT, 0, "TARGET: ")
+    held = [] if args.no_held_out else [accuracy(args.cases, LIGHT, seed, "held-out cases: ") for seed in (1, 2)]
+    flat = accuracy(args.cases, None, 0, "flat colours (the renders of sessions 4-6): ")
+    print("\n== summary (median rotation error deg / reprojection px; previous fit in brackets)")
+    rows = [("shaded, seed 0 (target)", shaded)] + [(f"shaded, seed {i + 1} (held out)", a) for i, a in enumerate(held)]
+    if held:
+        # a median of 12 random poses moves by ~1 deg from one draw to the next: the pooled one is steadier
+        rows.append((f"shaded, seeds 0-{len(held)} pooled", np.concatenate([shaded] + held)))
+    for name, a in rows + [("flat, seed 0", flat)]:
+        m = np.median(a, axis=0)
+        print(f"  {name:28s} {m[1]:5.2f} deg ({m[3]:.2f})   {m[5]:5.2f} px ({m[6]:.2f})")
+    print("  targets <= 2 deg, <= 2 px on the shaded renders")
     if args.avatar:
         accuracy_avatar(args.cases, args.avatar)
 

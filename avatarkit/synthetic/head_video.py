@@ -4,7 +4,9 @@ benchmark, and for the self-reenactment evaluation's end-to-end check.
 The head is the built-in template with `synthetic.sample_avatar.make_bald` skin discs bound to
 its triangles (`rig.TriangleBinding`), posed per frame by the clip (LBS) and rendered with our
 CPU renderer from a fixed camera: the camera a tracker would report for a head of that size at
-`distance` metres with the portrait lens of `recon.fit.portrait_focal`.
+`distance` metres with the portrait lens of `recon.fit.portrait_focal`. `light` and `mouth`
+make the head look more like a person to the face mesh (`synthetic.shading`): Lambert shading
+that moves with the pose, and a dark mouth interior when the jaw opens.
 """
 from __future__ import annotations
 
@@ -38,12 +40,16 @@ def head_video_camera(size: int, distance: float = 0.6, height: float = 0.05) ->
 
 
 class HeadVideo:
-    """Frames of the template head moved by `clip` (a MotionClip), seen by `camera`."""
+    """Frames of the template head moved by `clip` (a MotionClip), seen by `camera`.
+
+    light: None (flat colours) or a direction toward the light in the camera's frame
+    (`shading.LIGHT`); ambient: the unlit share; mouth: add the dark mouth interior."""
 
     def __init__(self, clip, camera: Camera, n_gaussians: int = 30000, seed: int = 0,
-                 background=(0.47, 0.59, 0.73)):
+                 background=(0.47, 0.59, 0.73), light=None, ambient: float | None = None, mouth: bool = False):
         from avatarkit.head.model import HeadModel, HeadParams
         from avatarkit.rig.binding import TriangleBinding
+        from avatarkit.synthetic import shading
         from avatarkit.synthetic.sample_avatar import make_bald
 
         self.model = HeadModel.template()
@@ -53,6 +59,13 @@ class HeadVideo:
         bald = make_bald(self.model, rest, n_gaussians, seed)
         self.binding = TriangleBinding.bind(bald, rest, self.model.faces,
                                             face_ids=bald.extras["binding"].astype(np.int64))
+        # the mouth interior: each Gaussian's host triangle, the triangles' rest areas, and
+        # which triangles are the lips / mouth band
+        self.host = bald.extras["binding"].astype(np.int64)
+        self.rest_area = shading.triangle_areas(rest, self.model.faces)
+        self.mouth = shading.mouth_faces(self.model) if mouth else None
+        self.to_light = None if light is None else shading.light_in_world(camera, light)
+        self.ambient = shading.AMBIENT if ambient is None else float(ambient)
 
     def __len__(self) -> int:
         return self.clip.n_frames
@@ -67,8 +80,15 @@ class HeadVideo:
     def frame(self, i: int) -> SyntheticFrame:
         from avatarkit.export.images import to_uint8
         from avatarkit.render import render
+        from avatarkit.synthetic import shading
 
-        g = self.binding.to_world(self.vertices(i))
+        v = self.vertices(i)
+        g = self.binding.to_world(v)
+        if self.mouth is not None:
+            opening = shading.mouth_opening(self.rest_area, shading.triangle_areas(v, self.model.faces), self.mouth)
+            g = g.with_colors(shading.darken_mouth(g.colors, opening[self.host]))
+        if self.to_light is not None:
+            g = shading.shade_gaussians(g, v, self.model.faces, self.to_light, self.ambient)
         r = render(g, self.camera, background=self.background)
         return SyntheticFrame(i, i / self.clip.fps, to_uint8(r.rgb))
 
