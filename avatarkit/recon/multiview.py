@@ -220,9 +220,10 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     (default skin and hair; None labels in the view: every pixel). min_cos: the facing cut
     (-1: none; the weight is still cos^2, zero for Gaussians facing away).
     hair: (N,) bool, the Gaussians whose visibility is the renderer's (`footprint_visibility`
-    inside the sampled region >= `HAIR_VISIBLE`) instead of the depth and facing test; their
-    weight is that visibility x sharpness. Every sample's weight is multiplied by
-    `person_weight` where the view has labels (background-blended pixels give little)."""
+    on the view's person pixels, `soft_person` >= 0.5, at least `HAIR_VISIBLE`) instead of the
+    depth, facing and label test; their weight is that visibility x sharpness. Where the view
+    has labels every sample's weight is multiplied by `person_weight` (a pixel on the
+    silhouette, half background, gives nothing) and a zero weight is no sample."""
     from avatarkit.recon.image_sampling import sample_image
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.recon.visibility import seen_from
