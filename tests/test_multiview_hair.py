@@ -166,3 +166,27 @@ def test_hair_visibility_needs_a_footprint_share(head):
     # neighbours over it (measured median 0.32), far above the hidden ones
     facing = hair.means[:, 2] > 0.08
     assert np.median(vis[len(bald):][facing]) > 0.2
+
+
+def test_a_hole_in_a_keyframes_segmentation_removes_no_hair_where_the_head_is():
+    """The silhouette bound joins each keyframe's person mask with the fitted head it sees
+    (eroded by the margin): a hole in the segmentation over the face removes nothing there,
+    a point outside both the person and the head is still outside."""
+    from avatarkit.recon.multiview import head_silhouette, silhouette_outside
+
+    cam = Camera.look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+    # the "head": a square 0.3 m wide at z = 0 (two triangles) covers its projection
+    verts = np.array([[-0.15, -0.15, 0.0], [0.15, -0.15, 0.0], [0.15, 0.15, 0.0], [-0.15, 0.15, 0.0]])
+    head = head_silhouette(verts, np.array([[0, 1, 2], [0, 2, 3]]), cam)
+    px, _ = cam.project(verts)
+    x, y = px[:, 0], px[:, 1]
+    area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))   # shoelace
+    assert abs(head.sum() - area) < 0.05 * area
+    labels = np.zeros((SIZE, SIZE), np.int32)
+    labels[head] = SKIN
+    labels[40:56, 40:56] = BACKGROUND                              # a hole in the middle
+    img = np.full((SIZE, SIZE, 3), 200, np.uint8)
+    img[labels == BACKGROUND] = 255
+    pts = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])             # in the hole; outside everything
+    assert silhouette_outside(pts, [View(img, cam, labels)]).tolist() == [1, 1]
+    assert silhouette_outside(pts, [View(img, cam, labels, head=head)]).tolist() == [0, 1]

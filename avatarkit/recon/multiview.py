@@ -43,7 +43,10 @@ Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label 
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
 whose centre projects inside a keyframe's image but outside that keyframe's person mask
 (`soft_person` >= 0.5, dilated by `SILHOUETTE_MARGIN` of the image's longer side to
-absorb the poses' error) is outside the visual hull and is removed.
+absorb the poses' error) is outside the visual hull and is removed. The mask is first joined
+with the fitted head mesh seen by that keyframe (`head_silhouette`, eroded by the same
+margin): the person's silhouette holds the head, so a keyframe whose segmentation has a hole
+there removes nothing through it.
 """
 from __future__ import annotations
 
@@ -88,7 +91,8 @@ _CV = np.diag([1.0, -1.0, -1.0])
 class View:
     """One keyframe seen by the rest avatar: image (H, W, 3) uint8; camera (rest frame ->
     image); labels (H, W) int32 segmentation (None: not segmented); sharpness in [0, 1];
-    frame: the video frame number; reference: the portrait build's view."""
+    frame: the video frame number; reference: the portrait build's view; head (H, W) bool:
+    the fitted head mesh seen by the camera (`head_silhouette`; None: unknown)."""
 
     image: np.ndarray
     camera: Camera
@@ -97,6 +101,7 @@ class View:
     frame: int = -1
     reference: bool = False
     info: dict = field(default_factory=dict)
+    head: np.ndarray | None = None
 
 
 def pose_matrix(rotation, translation) -> np.ndarray:
@@ -126,6 +131,16 @@ def keyframe_cameras(build_camera: Camera, build_pose: np.ndarray, reference_pos
 def camera_centre(camera: Camera) -> np.ndarray:
     """(3,) the camera's position in its world."""
     return np.asarray(camera.camera_center, np.float64)
+
+
+def head_silhouette(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) bool: the pixels a mesh (vertices (V, 3) in the camera's world, faces (F, 3))
+    covers (`synthetic.mesh_raster.rasterise`: pixel centres inside a triangle in front of the
+    camera)."""
+    from avatarkit.synthetic.mesh_raster import rasterise
+
+    v = np.asarray(vertices, np.float64)
+    return rasterise(v, faces, np.zeros((len(v), 1)), camera).covered
 
 
 @dataclass
@@ -375,7 +390,7 @@ def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray,
 def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SILHOUETTE_MARGIN) -> np.ndarray:
     """(P,) int: in how many labelled views the point projects inside the image but outside
     the dilated person mask (module docstring; the mask is `soft_person` >= 0.5, without the
-    background-coloured halo a segmentation may take in)."""
+    background-coloured halo a segmentation may take in, joined with the view's `head`)."""
     import cv2
 
     count = np.zeros(len(points), np.int64)
@@ -384,7 +399,13 @@ def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SI
             continue
         person = (soft_person(v.labels, v.image) >= 0.5).astype(np.uint8)
         r = max(1, int(round(margin * max(person.shape))))
-        person = cv2.dilate(person, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        if v.head is not None:
+            # the person's silhouette holds the fitted head (eroded by the same margin: the
+            # pose's error): a segmentation with a hole there (a keyframe's face partly
+            # labelled background) is no evidence against the hair in it
+            person |= cv2.erode(v.head.astype(np.uint8), disc)
+        person = cv2.dilate(person, disc)
         px, z = v.camera.project(points)
         px = np.asarray(px, np.float64)
         h, w = person.shape
@@ -453,9 +474,12 @@ class VideoViews:
         cams = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), ref.pose,
                                 [k.pose for k in self.keyframes])
         detector = getattr(options, "face_detector", "auto")
-        views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True)]
+        faces = fit.model.faces
+        views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True,
+                      head=head_silhouette(fit.rest_vertices, faces, fit.camera))]
         for k, cam in zip(self.keyframes[1:], cams[1:]):
-            v = View(k.image, cam, None, k.sharpness, k.frame, False)
+            v = View(k.image, cam, None, k.sharpness, k.frame, False,
+                     head=head_silhouette(fit.rest_vertices, faces, cam))
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
@@ -482,5 +506,5 @@ class VideoViews:
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
            "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "keyframe_cameras", "person_weight", "pose_matrix",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "person_weight", "pose_matrix",
            "refine_colours_views", "silhouette_outside", "soft_person", "view_samples"]
