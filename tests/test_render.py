@@ -1,6 +1,7 @@
 """The renderer: fast (Taichi) vs reference (numpy float64) stage by stage, analytic cases,
 culling, compositing rules, SH, determinism and bad input."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,8 +9,8 @@ import pytest
 from avatarkit.errors import InputError
 from avatarkit.gaussians import GaussianSet
 from avatarkit.gaussians.sh import SH_COUNTS, rgb_to_dc, sh_basis
-from avatarkit.render import (Camera, bin_gaussians, project_gaussians, rasterize, render,
-                              sh_colors)
+from avatarkit.render import (Camera, Projection, bin_gaussians, project_gaussians, rasterize,
+                              render, sh_colors)
 from avatarkit.render.pipeline import depth_order, tile_q_limits
 from avatarkit.render.reference import (ellipse_meets_tiles, isotropic_screen_sigma, project_reference,
                                         render_reference, sh_colors_reference)
@@ -198,6 +199,58 @@ def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
         pass
     big = np.flatnonzero(tiles > 63)
     assert np.isin(loose.gaussian_ids, big).sum() > np.isin(snug.gaussian_ids, big).sum()
+
+
+def test_binning_sorts_tied_depths_stably_over_many_chunks():
+    # the kernel's radix sort against numpy's stable argsort, through the tile lists: 5000
+    # splats (many per sort and bin chunk), 40 distinct depths (ties everywhere), a fifth
+    # culled, rects of 1-9 tiles; loose binning, so every tile of a rect is listed
+    rng = np.random.default_rng(3)
+    n, cam = 5000, Camera(60.0, 60.0, 40.0, 40.0, 83, 61)
+    tiles_x, tiles_y = 6, 4
+    x0, y0 = rng.integers(0, tiles_x, n), rng.integers(0, tiles_y, n)
+    rects = np.stack([x0, y0, np.minimum(x0 + rng.integers(1, 4, n), tiles_x),
+                      np.minimum(y0 + rng.integers(1, 4, n), tiles_y)], 1).astype(np.int32)
+    radii = np.where(rng.random(n) < 0.2, 0, 5).astype(np.int32)
+    rects[radii == 0] = 0
+    depths = rng.choice(rng.uniform(0.02, 50.0, 40), n).astype(np.float32)
+    conics = np.tile(np.float32([0.1, 0.0, 0.1]), (n, 1))
+    proj = Projection(rng.uniform(0, 80, (n, 2)).astype(np.float32), depths, conics, radii, rects)
+    bins = bin_gaussians(proj, cam)
+    order = np.flatnonzero(radii > 0)
+    order = order[np.argsort(depths[order], kind="stable")]
+    for t in range(tiles_x * tiles_y):
+        ty, tx = divmod(t, tiles_x)
+        inside = (rects[order, 0] <= tx) & (tx < rects[order, 2]) & (rects[order, 1] <= ty) & (ty < rects[order, 3])
+        got = bins.gaussian_ids[bins.tile_offsets[t]:bins.tile_offsets[t + 1]]
+        np.testing.assert_array_equal(got, order[inside])
+
+
+@pytest.mark.parametrize("case", ["random", "snug_fallback", "cut_edge"])
+def test_binning_slots_are_the_serial_first_sight_order(case):
+    # the scatter hands out the packed records' rows in parallel; the serial `first_sight`
+    # pass over the lists is the definition. The image is the same either way.
+    from avatarkit.render import _kernels as k
+
+    if case == "random":
+        gs, cam = random_scene(600, 12, 0, width=96, height=80)
+    elif case == "snug_fallback":  # rects of more than 63 tiles: the scatter tests again
+        gs, cam = random_scene(200, 9, 0, width=160, height=144)
+        gs = gs.replace(scales=gs.scales * np.where(np.arange(len(gs))[:, None] % 5 == 0, 15.0, 1.0))
+    else:
+        gs, cam = random_scene(400, 13, 0, width=45, height=37)
+    proj = project_gaussians(gs, cam)
+    bins = bin_gaussians(proj, cam, gs.opacities)
+    slot = np.full(len(gs), -1, np.int32)
+    sids = np.empty_like(bins.gaussian_ids)
+    k.first_sight(bins.gaussian_ids, slot, sids)
+    assert (slot >= 0).sum() > 50 and (slot < 0).any()  # listed and unlisted splats
+    np.testing.assert_array_equal(bins.slots, slot)
+    np.testing.assert_array_equal(bins.slot_ids, sids)
+    colors = sh_colors(gs, cam)
+    serial = rasterize(proj, colors, gs.opacities, replace(bins, slots=None, slot_ids=None), cam)
+    for got, want in zip(rasterize(proj, colors, gs.opacities, bins, cam), serial):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_depth_order_is_a_stable_argsort():

@@ -13,7 +13,10 @@ seven_point (GSDeformer-style, for comparison): the centre and the six axis ends
     affine map A takes the rest half-axes to the deformed ones (with symmetric ends it is
     B_deformed B_rest^-1); the covariance A Sigma A^T is split back into rotation and scales by an
     eigendecomposition, eigenvectors matched to the deformed rest axes so that axis order and
-    sign stay continuous; centre = deformed centre.
+    sign stay continuous; centre = deformed centre. Where two scales are nearly equal, that split
+    is ill-conditioned: float32 rounding of the product can turn the pair's eigenvectors in their
+    plane (quaternions differing by ~1e-3 between a batched and a single product), while the
+    covariance, which is what renders, stays within rounding.
 
 `CageDeformer.deferred` makes a deformer that computes its weights on first use (what a loaded
 avatar's rig holds: the weights are not stored in the avatar folder).
@@ -189,8 +192,9 @@ class CageDeformer:
 
     def deform_batch(self, frames: np.ndarray,
                      chunk: int = 16) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """frames (T, C, 3) -> yields deform_arrays per frame. W is read once per `chunk` frames
-        (one (3 chunk, C) x (C, P) product), which is where the per-frame cost goes down."""
+        """frames (T, C, 3) -> yields deform_arrays per frame (to float32 rounding: BLAS may sum the
+        batched product in another order). W is read once per `chunk` frames (one (3 chunk, C) x
+        (C, P) product), which is where the per-frame cost goes down."""
         v = self._check_vertices(frames)
         if v.ndim != 3:
             raise InputError(f"frames must have shape (T, C, 3), got {v.shape}")

@@ -160,6 +160,19 @@ def sh_colors(sh: f32_3, means: f32_2, center_x: ti.f64, center_y: ti.f64, cente
 # is chunk 0's entries, then chunk 1's..., each in depth order, so the lists come out sorted and
 # the same whatever the thread count, and the scatter is no longer one serial loop.
 BIN_CHUNKS = 16
+MASK_TILES = 63  # rects of up to this many tiles keep their hits as bits for the scatter
+i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
+
+# The depth sort: a stable LSD radix sort of the visible splats' depths (positive float32,
+# which order like their bit patterns as int32), RADIX_BITS a pass. Each pass is a chunked
+# counting sort, SORT_CHUNKS tasks a loop, so the result does not depend on the thread count.
+# On 100k splats it costs the CPU time of numpy's stable argsort (`pipeline.depth_order`) but
+# runs on all cores. 11 bits: 8 bits (4 passes) and 2 or 8 chunks measured no faster.
+SORT_CHUNKS = 4
+RADIX_BITS = 11
+RADIX = 1 << RADIX_BITS
+RADIX_PASSES = -(-31 // RADIX_BITS)  # the sign bit is 0
+ORDER_ROW = (RADIX_PASSES - 1) % 2  # the row of `idx` the last pass writes
 
 
 @ti.func
@@ -189,99 +202,177 @@ def touches_tile(mx, my, ca, cb, cc, ra, rc, qlim, px0, py0, px1, py1):
     return hit
 
 
-@ti.kernel
-def sort_bin_data(rank: i32_1, rects: i32_2, means2d: f32_2, conics: f32_2, qlims: f32_1,
-                  s_rects: i32_2, s_geo: f64_2):
-    """The binning's per-splat data in depth order, so that the serial chunk loops below stream
-    through memory: splat i (rank[i] >= 0) goes to row k = rank[i], s_rects[k] = rects[i],
-    s_geo[k] = (mx, my, a, b, c, -b/a, -b/c, q limit). Reads in index order and scatters the
-    writes (stores do not stall as random reads would)."""
-    for i in range(rank.shape[0]):
-        k = rank[i]
-        if k >= 0:
-            for j in ti.static(range(4)):
-                s_rects[k, j] = rects[i, j]
-            ca = ti.cast(conics[i, 0], ti.f64)
-            cb = ti.cast(conics[i, 1], ti.f64)
-            cc = ti.cast(conics[i, 2], ti.f64)
-            s_geo[k, 0] = ti.cast(means2d[i, 0], ti.f64)
-            s_geo[k, 1] = ti.cast(means2d[i, 1], ti.f64)
-            s_geo[k, 2] = ca
-            s_geo[k, 3] = cb
-            s_geo[k, 4] = cc
-            s_geo[k, 5] = -cb / ca
-            s_geo[k, 6] = -cb / cc
-            s_geo[k, 7] = ti.cast(qlims[i], ti.f64)
+RECT_BASE = 65536  # a rect corner (tx, ty) is kept as tx + RECT_BASE ty, exact in float64
 
 
 @ti.func
-def splat_in_tile(s_geo: ti.template(), k, tx, ty, width, height):
-    """1 if depth-ordered splat k belongs in tile (tx, ty)'s list: always when its q limit is
-    negative (plain 3-sigma rects), else when its alpha >= 1/255 ellipse reaches one of the
-    tile's pixel centres."""
+def splat_rect(s_geo: ti.template(), k):
+    """(x0, y0, x1, y1) of depth-ordered splat k's tile rect, from its s_geo row."""
+    lo = ti.cast(s_geo[k, 6], ti.i32)
+    hi = ti.cast(s_geo[k, 7], ti.i32)
+    return lo % RECT_BASE, lo // RECT_BASE, hi % RECT_BASE, hi // RECT_BASE
+
+
+@ti.func
+def splat_in_tile(mx, my, ca, cb, cc, qlim, tx, ty, width, height):
+    """1 if a splat belongs in tile (tx, ty)'s list: always when its q limit is negative
+    (plain 3-sigma rects), else when its alpha >= 1/255 ellipse reaches one of the tile's
+    pixel centres (float64)."""
     hit = 1
-    if s_geo[k, 7] >= 0:
-        hit = touches_tile(s_geo[k, 0], s_geo[k, 1], s_geo[k, 2], s_geo[k, 3], s_geo[k, 4],
-                           s_geo[k, 5], s_geo[k, 6], s_geo[k, 7], tx * TILE + 0.5,
+    if qlim >= 0:
+        hit = touches_tile(mx, my, ca, cb, cc, -cb / ca, -cb / cc, qlim, tx * TILE + 0.5,
                            ty * TILE + 0.5, ti.min(tx * TILE + TILE, width) - 0.5,
                            ti.min(ty * TILE + TILE, height) - 0.5)
     return hit
 
 
-MASK_TILES = 63  # rects of up to this many tiles keep count_tiles' hits as bits for the scatter
-i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
-
-
 @ti.kernel
-def count_tiles(s_rects: i32_2, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32, height: ti.i32,
-                counts: i32_2, hits: i64_1):
-    """counts[c, t] = number of splats of depth-order chunk c in tile t's list (counts start at
-    0). One task per chunk, so no atomics. hits[k] = splat k's tiles as bits, row-major over
-    its rect (bit (ty - y0) * width + tx - x0), or -1 for a rect of more than MASK_TILES tiles,
-    so that `scatter_tiles` need not test the ellipse again."""
-    m = s_rects.shape[0]
-    per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
+def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conics: f32_2,
+                opacities: f32_1, snug: ti.i32, tiles_x: ti.i32, width: ti.i32, height: ti.i32,
+                keys: i32_2, idx: i32_2, hist: i32_2, total: i32_1, rank: i32_1, s_geo: f64_2,
+                counts: i32_2, firsts: i32_2, hits: i64_1):
+    """The binning up to its prefix sums, in one launch (each launch costs ~0.1-0.2 ms of
+    Python and C++ on the calling thread while the other cores wait):
+
+    1. idx[ORDER_ROW, :m] = the m splats with radii > 0 in increasing depth, ties in index
+       order (numpy's stable argsort: `pipeline.depth_order`); total[0] = m; rank[i] = splat
+       i's place in that order, -1 where culled (rank starts at -1). keys, idx: (2, N) and
+       hist: (SORT_CHUNKS, RADIX) scratch.
+    2. Row k = rank[i] of s_geo: splat i's (mx, my, a, b, c, q limit, x0 + RECT_BASE y0,
+       x1 + RECT_BASE y1) in float64, so that the chunk loops stream through memory, one
+       64-byte row a splat; the q limit is `pipeline.tile_q_limits` (computed as there, in
+       float64, then rounded to float32) with `snug`, else -1 (plain 3-sigma rects). Reads in
+       index order and scatters the writes: reading in depth order from the input-ordered
+       arrays instead (no copy) measured 1.4x slower than the copy and the count together.
+    3. counts[c, t] = number of splats of depth-order chunk c (BIN_CHUNKS chunks) in tile t's
+       list; firsts[c, t] = how many of them have t as their first tile (row-major), which
+       sets the records' slots (`scatter_tiles`); both start at 0. One task per chunk, so no
+       atomics. hits[k] = splat k's tiles as bits, row-major over its rect (bit
+       (ty - y0) * width + tx - x0), or -1 for a rect of more than MASK_TILES tiles, so that
+       `scatter_tiles` need not test the ellipse again.
+    """
+    n_in = depths.shape[0]
+    for p in ti.static(range(RADIX_PASSES)):
+        shift = p * RADIX_BITS
+        src = (p + 1) % 2  # pass 0 reads the inputs, then each pass the buffer the last wrote
+        dst = p % 2
+        ti.loop_config(block_dim=1)
+        for c in range(SORT_CHUNKS):
+            for d in range(RADIX):
+                hist[c, d] = 0
+            n = n_in if p == 0 else total[0]
+            per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
+            for k in range(c * per, ti.min(n, (c + 1) * per)):
+                if p > 0 or radii[k] > 0:
+                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    d = (key >> shift) & (RADIX - 1)
+                    hist[c, d] = hist[c, d] + 1
+        # digit d of chunk c goes after all smaller digits and the earlier chunks' digit d
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            run = 0
+            for d in range(RADIX):
+                for c in range(SORT_CHUNKS):
+                    v = hist[c, d]
+                    hist[c, d] = run
+                    run += v
+            total[0] = run
+        ti.loop_config(block_dim=1)
+        for c in range(SORT_CHUNKS):
+            n = n_in if p == 0 else total[0]
+            per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
+            for k in range(c * per, ti.min(n, (c + 1) * per)):
+                if p > 0 or radii[k] > 0:
+                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    i = k if p == 0 else idx[src, k]
+                    d = (key >> shift) & (RADIX - 1)
+                    pos = hist[c, d]
+                    hist[c, d] = pos + 1
+                    keys[dst, pos] = key
+                    idx[dst, pos] = i
+                    if p == RADIX_PASSES - 1:
+                        rank[i] = pos
+    for i in range(n_in):
+        k = rank[i]
+        if k >= 0:
+            s_geo[k, 0] = ti.cast(means2d[i, 0], ti.f64)
+            s_geo[k, 1] = ti.cast(means2d[i, 1], ti.f64)
+            s_geo[k, 2] = ti.cast(conics[i, 0], ti.f64)
+            s_geo[k, 3] = ti.cast(conics[i, 1], ti.f64)
+            s_geo[k, 4] = ti.cast(conics[i, 2], ti.f64)
+            qlim = ti.cast(-1.0, ti.f64)
+            if snug:
+                op = ti.max(ti.cast(opacities[i], ti.f64), ALPHA_MIN)
+                qlim = ti.cast(ti.cast(2.0 * ti.log(op / ALPHA_MIN) * 1.01 + 0.05, ti.f32), ti.f64)
+            s_geo[k, 5] = qlim
+            s_geo[k, 6] = ti.cast(rects[i, 0] + RECT_BASE * rects[i, 1], ti.f64)
+            s_geo[k, 7] = ti.cast(rects[i, 2] + RECT_BASE * rects[i, 3], ti.f64)
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
+        m = total[0]
+        per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
         for k in range(c * per, ti.min(m, (c + 1) * per)):
-            rw = s_rects[k, 2] - s_rects[k, 0]
+            x0, y0, x1, y1 = splat_rect(s_geo, k)
+            mx, my, ca, cb, cc, qlim = (s_geo[k, 0], s_geo[k, 1], s_geo[k, 2], s_geo[k, 3],
+                                        s_geo[k, 4], s_geo[k, 5])
             bits = ti.cast(0, ti.i64)
             j = 0
-            for ty in range(s_rects[k, 1], s_rects[k, 3]):
-                for tx in range(s_rects[k, 0], s_rects[k, 2]):
-                    if splat_in_tile(s_geo, k, tx, ty, width, height):
+            first = -1
+            for ty in range(y0, y1):
+                for tx in range(x0, x1):
+                    if splat_in_tile(mx, my, ca, cb, cc, qlim, tx, ty, width, height):
                         t = ty * tiles_x + tx
                         counts[c, t] = counts[c, t] + 1
+                        if first < 0:
+                            first = t
                         if j < MASK_TILES:
                             bits |= ti.cast(1, ti.i64) << j
                     j += 1
-            hits[k] = bits if rw * (s_rects[k, 3] - s_rects[k, 1]) <= MASK_TILES else -1
+            if first >= 0:
+                firsts[c, first] = firsts[c, first] + 1
+            hits[k] = bits if (x1 - x0) * (y1 - y0) <= MASK_TILES else -1
 
 
 @ti.kernel
-def scatter_tiles(order: i32_1, s_rects: i32_2, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
-                  height: ti.i32, hits: i64_1, cursor: i32_2, ids: i32_1):
+def scatter_tiles(order: i32_1, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
+                  height: ti.i32, hits: i64_1, cursor: i32_2, ids: i32_1, first_cursor: i32_2,
+                  slot: i32_1, sids: i32_1):
     """Walk each chunk's splats front to back and append them to their tiles' lists from
     cursor[c, t] (where chunk c's part of tile t's list starts); every list comes out
-    depth-sorted without a per-tile sort. A splat's tiles are count_tiles' `hits` bits, or
-    tested again where it kept none."""
-    m = s_rects.shape[0]
+    depth-sorted without a per-tile sort. A splat's tiles are `bin_prepare`'s `hits` bits, or
+    tested again where it kept none.
+
+    Also gives each listed splat g its record's row slot[g] (slot starts at -1) and
+    sids[k] = slot[ids[k]]: the slots count up by first tile, and within one first tile in
+    depth order, from first_cursor[c, t] (where chunk c's splats first seen in tile t start).
+    That is the order in which a walk through the lists tile by tile first names the splats
+    (`first_sight`, the serial definition), so a tile's records lie close together."""
+    m = order.shape[0]
     per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
         for k in range(c * per, ti.min(m, (c + 1) * per)):
             bits = hits[k]
+            g = order[k]
+            s = -1
             j = 0
-            for ty in range(s_rects[k, 1], s_rects[k, 3]):
-                for tx in range(s_rects[k, 0], s_rects[k, 2]):
+            x0, y0, x1, y1 = splat_rect(s_geo, k)
+            for ty in range(y0, y1):
+                for tx in range(x0, x1):
                     hit = 0
                     if bits >= 0:
                         hit = ti.cast((bits >> j) & 1, ti.i32)
                     else:
-                        hit = splat_in_tile(s_geo, k, tx, ty, width, height)
+                        hit = splat_in_tile(s_geo[k, 0], s_geo[k, 1], s_geo[k, 2], s_geo[k, 3],
+                                            s_geo[k, 4], s_geo[k, 5], tx, ty, width, height)
                     if hit:
                         t = ty * tiles_x + tx
-                        ids[cursor[c, t]] = order[k]
+                        if s < 0:
+                            s = first_cursor[c, t]
+                            first_cursor[c, t] = s + 1
+                            slot[g] = s
+                        ids[cursor[c, t]] = g
+                        sids[cursor[c, t]] = s
                         cursor[c, t] = cursor[c, t] + 1
                     j += 1
 
@@ -305,7 +396,7 @@ def exp_f32(x):
     its degree-5 P, times 2^n built in the exponent bits), relative error ~1e-7. P is
     evaluated by Estrin's scheme: a shorter dependency chain than Horner's (~14% less
     compositing time). x is clamped below at -87 (exp = 0 for the compositor)."""
-    xc = ti.max(x, -87.0)
+    xc = ti.select(x > -87.0, x, -87.0)  # as a compare-select: one maxps (ti.max adds NaN care)
     n = ti.floor(xc * LOG2E + 0.5)
     r = xc - n * 0.693359375 + n * 2.12194440e-4  # ln 2 in two parts: r stays exact
     r2 = r * r
@@ -343,7 +434,9 @@ def first_sight(ids: i32_1, slot: i32_1, sids: i32_1):
     starts at -1 everywhere), sids[k] = slot[ids[k]]. Packing the records in this order puts
     each tile's splats close together in memory, and the next tile's mostly in cache: the
     lists' depth order over input-ordered records would be a random walk through all of
-    them (~1.5x slower compositing at 100k). One serial pass (~1 ms at 100k)."""
+    them (~1.5x slower compositing at 100k). One serial pass (~3 ms at 100k): the obvious
+    definition of the order `scatter_tiles` gives in parallel, kept for tests and for
+    TileBins made without slots."""
     n = 0
     ti.loop_config(serialize=True)
     for k in range(ids.shape[0]):
@@ -389,7 +482,10 @@ def band_rect(mx, my, ext_x, ext_y, x0, y0, x1, y1):
 def lane_alpha(op, ha, bdy, cdy, dx):
     """min(0.99, opacity exp(-q/2)) at a pixel dx = mean x - pixel centre x of a row whose
     terms in dy are bdy = -b dy and cdy = -c dy^2 / 2 (the INRIA alpha)."""
-    return ti.min(ALPHA_MAX, op * exp_f32((ha * dx + bdy) * dx + cdy))
+    al = op * exp_f32((ha * dx + bdy) * dx + cdy)
+    # a compare-select compiles to one minps; ti.min's NaN handling costs two more vector
+    # instructions per block (~4% of the compositing, measured). alpha is never NaN here.
+    return ti.select(al < ALPHA_MAX, al, ALPHA_MAX)
 
 
 @ti.kernel

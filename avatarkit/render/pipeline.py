@@ -17,13 +17,15 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    and, given the opacities (as `render` does), that its alpha >= 1/255 ellipse
    (d^T conic d <= 2 ln(255 opacity), widened by 1%) reaches with a pixel centre: an exact
    ellipse-rectangle test that drops only tiles the compositor would find nothing to draw in
-   (the image is the same; ~28% fewer pairs on the bench scene). Depths are argsorted once
-   (stable, so ties keep input order); the depth-ordered Gaussians are cut into 16 chunks
-   that are counted and scattered in parallel, chunk after chunk within each tile's list, so
-   the per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted.
+   (the image is the same; ~28% fewer pairs on the bench scene). Depths are sorted once
+   (stable, so ties keep input order: a parallel radix sort, `depth_order` is its numpy
+   twin); the depth-ordered Gaussians are cut into 16 chunks that are counted and scattered
+   in parallel, chunk after chunk within each tile's list, so the per-tile lists
+   (`tile_offsets`, `gaussian_ids`) come out depth-sorted. The same passes number the listed
+   Gaussians in the order the lists, tile by tile, first name them (`TileBins.slots`).
 4. `rasterize`: each splat's record (mean, conic, opacity, colour, depth and the half-extents
-   of its alpha >= 1/255 ellipse) is packed in the order the tile lists first name it, so a
-   tile's records lie close together in memory; per pixel, in list order, d = mean2d - pixel
+   of its alpha >= 1/255 ellipse) is packed in row `slots[g]`, so a tile's records lie close
+   together in memory; per pixel, in list order, d = mean2d - pixel
    centre, alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if
    compositing would bring the transmittance T below 1e-4 the pixel stops *before* that splat
    (INRIA); colour += c alpha T, T *= 1 - alpha. One task per 16x16 tile visits, per splat,
@@ -87,6 +89,11 @@ class TileBins:
     tiles_y: int
     tile_offsets: np.ndarray  # (tiles_y * tiles_x + 1,) int32; tile t's list is ids[off[t]:off[t+1]]
     gaussian_ids: np.ndarray  # (P,) int32, P = Gaussian-tile pairs
+    # Where `rasterize` packs each splat's record: slots (N,) int32, -1 for a splat in no list;
+    # slot_ids (P,) int32 = slots[gaussian_ids]. The order in which the lists, tile by tile,
+    # first name the splats (`_kernels.first_sight`). None: rasterize works them out itself.
+    slots: np.ndarray | None = None
+    slot_ids: np.ndarray | None = None
 
     @property
     def tile_counts(self) -> np.ndarray:
@@ -172,6 +179,8 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
 
     Positive IEEE floats order like their bit patterns, so this is an LSD radix sort on two
     16-bit halves, each numpy's stable radix sort: ~10x faster than argsort(kind="stable").
+    The numpy twin of the binning's own sort (`_kernels.bin_prepare`, parallel, the same
+    order); the tests and the benchmark's baseline use it.
     """
     keys = np.ascontiguousarray(depths, np.float32).view(np.uint32)
     order = np.argsort((keys & 0xFFFF).astype(np.uint16), kind="stable")
@@ -180,7 +189,8 @@ def depth_order(depths: np.ndarray) -> np.ndarray:
 
 
 def tile_q_limits(opacities: np.ndarray) -> np.ndarray:
-    """(N,) float32 bound on q = d^T conic d beyond which a splat's alpha is below 1/255:
+    """(N,) float32 bound on q = d^T conic d beyond which a splat's alpha is below 1/255
+    (the numpy twin of the binning kernel's own, identical computation):
     alpha = opacity exp(-q / 2) >= 1/255 <=> q <= 2 ln(255 opacity); widened by 1% + 0.05 so
     float32 rounding in the compositor (errors ~1e-7 of the largest term of q) can never make
     a pixel the tile test left out pass the alpha test."""
@@ -194,31 +204,34 @@ def bin_gaussians(proj: Projection, camera: Camera, opacities: np.ndarray | None
     `tile_q_limits`): the same image, ~30% fewer pairs on the bench scene."""
     tiles_x, tiles_y = tile_grid(camera)
     n_tiles = tiles_x * tiles_y
-    visible = np.flatnonzero(proj.radii > 0).astype(np.int32)
+    n = len(proj.radii)
     offsets = np.zeros(n_tiles + 1, np.int32)
-    if len(visible) == 0:
-        return TileBins(tiles_x, tiles_y, offsets, np.zeros(0, np.int32))
-    order = visible[depth_order(proj.depths[visible])]
-    if opacities is None:
-        qlims = np.full(len(proj.radii), -1.0, np.float32)
-    else:
-        qlims = tile_q_limits(opacities)
+    slots = np.full(n, -1, np.int32)
+    if not (proj.radii > 0).any():
+        return TileBins(tiles_x, tiles_y, offsets, np.zeros(0, np.int32), slots, np.zeros(0, np.int32))
     k = _kernels()
-    s_rects = np.empty((len(order), 4), np.int32)
-    s_geo = np.empty((len(order), 8), np.float64)
-    rank = np.full(len(proj.radii), -1, np.int32)
-    rank[order] = np.arange(len(order), dtype=np.int32)
-    k.sort_bin_data(rank, proj.tile_rects, proj.means2d, proj.conics, qlims, s_rects, s_geo)
-    args = (s_rects, s_geo, tiles_x, camera.width, camera.height)
-    counts = np.zeros((k.BIN_CHUNKS, n_tiles), np.int32)
-    hits = np.empty(len(order), np.int64)
-    k.count_tiles(*args, counts, hits)
-    np.cumsum(counts.sum(axis=0), out=offsets[1:])
-    # chunk c's entries of tile t start after the earlier chunks' entries of that tile
-    cursor = (np.cumsum(counts, axis=0) - counts + offsets[:-1]).astype(np.int32)
+    snug = opacities is not None
+    ops = np.ascontiguousarray(opacities if snug else np.zeros(n), np.float32)
+    total = np.zeros(1, np.int32)
+    idx = np.empty((2, n), np.int32)
+    s_geo = np.empty((n, 8), np.float64)  # rows [:m] used, m = visible splats
+    counts = np.zeros((2, k.BIN_CHUNKS, n_tiles), np.int32)  # [0]: list entries, [1]: first tiles
+    hits = np.empty(n, np.int64)
+    k.bin_prepare(proj.depths, proj.radii, proj.tile_rects, proj.means2d, proj.conics, ops,
+                  int(snug), tiles_x, camera.width, camera.height, np.empty((2, n), np.int32), idx,
+                  np.empty((k.SORT_CHUNKS, k.RADIX), np.int32), total, np.full(n, -1, np.int32),
+                  s_geo, counts[0], counts[1], hits)
+    # chunk c's entries of tile t start after all earlier tiles' entries and the earlier
+    # chunks' entries of tile t; the same for the slots, counted by first tile
+    before = np.cumsum(counts, axis=1) - counts
+    totals = counts.sum(axis=1)  # (2, n_tiles)
+    np.cumsum(totals[0], out=offsets[1:])
+    cursor = (before + (np.cumsum(totals, axis=1) - totals)[:, None, :]).astype(np.int32)
     ids = np.empty(int(offsets[-1]), np.int32)
-    k.scatter_tiles(order, *args, hits, cursor, ids)
-    return TileBins(tiles_x, tiles_y, offsets, ids)
+    slot_ids = np.empty_like(ids)
+    k.scatter_tiles(idx[k.ORDER_ROW, :int(total[0])], s_geo, tiles_x, camera.width,
+                    camera.height, hits, cursor[0], ids, cursor[1], slots, slot_ids)
+    return TileBins(tiles_x, tiles_y, offsets, ids, slots, slot_ids)
 
 
 def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins: TileBins,
@@ -236,9 +249,11 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
         rgb[:] = bg
         return rgb, np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
     k = _kernels()
-    slot = np.full(len(proj.radii), -1, np.int32)
-    sids = np.empty_like(bins.gaussian_ids)
-    k.first_sight(bins.gaussian_ids, slot, sids)
+    slot, sids = bins.slots, bins.slot_ids
+    if slot is None or sids is None:
+        slot = np.full(len(proj.radii), -1, np.int32)
+        sids = np.empty_like(bins.gaussian_ids)
+        k.first_sight(bins.gaussian_ids, slot, sids)
     packed = np.empty((int(slot.max()) + 1, k.PACK), np.float32)
     k.pack_splats(slot, proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
                   np.ascontiguousarray(colors, np.float32), proj.depths, packed)
