@@ -10,7 +10,8 @@ frame, keyframe k sees the avatar's rest frame through
 so every keyframe is registered to the build's own reference camera (`keyframe_cameras`). The
 head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyframes`).
 
-Visibility (`view_samples`, with `recon.visibility.seen_from`): the union of bald and hair Gaussians is rendered from the keyframe's
+Visibility (`view_samples`, with `recon.visibility.seen_from`): the union of bald and hair
+Gaussians is rendered from the keyframe's
 camera; a Gaussian is seen when its centre projects inside the image onto a pixel with alpha >
 `ALPHA_MIN`, labelled skin or hair in that keyframe's segmentation at least `EDGE_MARGIN` of
 the image away from any other label (a pose a few pixels off would otherwise sample the
@@ -19,8 +20,15 @@ most the rendered depth there + `DEPTH_TOLERANCE` (the render's depth is the alp
 expected depth of the front surface). A seen Gaussian's sample is the keyframe image at its
 projection (bilinear); its weight is cos(angle between the surface normal and the direction to
 the camera)^2 x the keyframe's sharpness, zero below `MIN_COS` (grazing views smear).
-Normals are the head SDF's gradient at the Gaussian: the bald head's surface normal, and for hair
-the direction away from the head (the shell's outward direction).
+Normals are the head SDF's gradient at the Gaussian: the bald head's surface normal. Hair has
+no surface normal to face (the shell's outward direction says little about a strand seen from
+the side): a hair Gaussian is seen when the renderer shows at least `HAIR_VISIBLE` of its own
+footprint inside the person (`footprint_visibility`: its blending weight alpha T summed over
+the pixels of the person mask, over its unoccluded integral), and that share is its weight (x
+sharpness). Every sample's weight is then multiplied by `person_weight`: the soft person mask
+(`soft_person`: the segmentation's person mask without the background-coloured halo a
+segmentation can take in at the silhouette, blurred) mapped so that a pixel on the silhouette,
+half background, gives nothing.
 
 Colour (`blend_colours`): each Gaussian's colour = the weighted mean of its samples over the
 keyframes, the reference view's weight multiplied by `REFERENCE_WEIGHT` (the portrait build's
@@ -34,8 +42,11 @@ left alone: the tracked head turns, the neck and the clothes below it do not.
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
 whose centre projects inside a keyframe's image but outside that keyframe's person mask
-(segmentation label != background, dilated by `SILHOUETTE_MARGIN` of the image's longer side to
-absorb the poses' error) is outside the visual hull and is removed.
+(`soft_person` >= 0.5, dilated by `SILHOUETTE_MARGIN` of the image's longer side to
+absorb the poses' error) is outside the visual hull and is removed. The mask is first joined
+with the fitted head mesh seen by that keyframe (`head_silhouette`, eroded by the same
+margin): the person's silhouette holds the head, so a keyframe whose segmentation has a hole
+there removes nothing through it.
 """
 from __future__ import annotations
 
@@ -61,6 +72,17 @@ COS_POWER = 2
 REFERENCE_WEIGHT = 3.0
 #: the person mask is dilated by this share of the image's longer side before the hull test
 SILHOUETTE_MARGIN = 0.02
+#: a hair Gaussian is seen in a view when at least this share of its own footprint shows there
+#: (`footprint_visibility`)
+HAIR_VISIBLE = 0.1
+#: the soft person mask: the segmentation's person mask blurred by this share of the image's
+#: longer side (about the width of an anti-aliased silhouette at 192..512 px)
+SOFT_MASK_SIGMA = 0.006
+#: person pixels this close to the silhouette (share of the longer side) may be background
+#: the segmentation took in (`soft_person`) ...
+EDGE_BAND = 0.04
+#: ... when their colour is this close (RGB in [0, 1], Euclidean) to the nearest background pixel's
+BACKGROUND_COLOUR = 0.12
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -69,7 +91,8 @@ _CV = np.diag([1.0, -1.0, -1.0])
 class View:
     """One keyframe seen by the rest avatar: image (H, W, 3) uint8; camera (rest frame ->
     image); labels (H, W) int32 segmentation (None: not segmented); sharpness in [0, 1];
-    frame: the video frame number; reference: the portrait build's view."""
+    frame: the video frame number; reference: the portrait build's view; head (H, W) bool:
+    the fitted head mesh seen by the camera (`head_silhouette`; None: unknown)."""
 
     image: np.ndarray
     camera: Camera
@@ -78,6 +101,7 @@ class View:
     frame: int = -1
     reference: bool = False
     info: dict = field(default_factory=dict)
+    head: np.ndarray | None = None
 
 
 def pose_matrix(rotation, translation) -> np.ndarray:
@@ -109,6 +133,16 @@ def camera_centre(camera: Camera) -> np.ndarray:
     return np.asarray(camera.camera_center, np.float64)
 
 
+def head_silhouette(vertices: np.ndarray, faces: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W) bool: the pixels a mesh (vertices (V, 3) in the camera's world, faces (F, 3))
+    covers (`synthetic.mesh_raster.rasterise`: pixel centres inside a triangle in front of the
+    camera)."""
+    from avatarkit.synthetic.mesh_raster import rasterise
+
+    v = np.asarray(vertices, np.float64)
+    return rasterise(v, faces, np.zeros((len(v), 1)), camera).covered
+
+
 @dataclass
 class Samples:
     """One view's samples: seen (N,) bool; weight (N,) float64 (0 where not seen); colour (N, 3)
@@ -119,12 +153,92 @@ class Samples:
     colour: np.ndarray
 
 
+def footprint_visibility(gaussians, camera: Camera, region: np.ndarray | None = None) -> np.ndarray:
+    """(N,) float64 in [0, 1]: the share of each Gaussian's own footprint that the renderer
+    composites into `region` (H, W) bool (None: the whole image): its blending weight
+    alpha_i T_i summed over the region's pixels (`label_lifting.accumulate_view`, the renderer's
+    compositing) over the same sum with nothing in front of it and no edge, opacity_i x 2 pi /
+    sqrt(det conic_i) (the integral of its projected 2D Gaussian). A Gaussian in front of
+    everything, well inside the region, reads ~1; half hidden behind an opaque surface ~0.5;
+    behind the hair's outer layer or outside the region ~0. This is what a hair Gaussian's
+    visibility is judged by: the hair shell's outward direction is no surface normal to face."""
+    from avatarkit.recon.label_lifting import accumulate_view
+    from avatarkit.render import project_gaussians
+
+    h, w = camera.height, camera.width
+    labels = np.ones((h, w), np.int32) if region is None else np.asarray(region, bool).astype(np.int32)
+    weights, _, _ = accumulate_view(gaussians, camera, labels, 2)
+    proj = project_gaussians(gaussians, camera)
+    c = np.asarray(proj.conics, np.float64)
+    det = c[:, 0] * c[:, 2] - c[:, 1] ** 2
+    own = np.asarray(gaussians.opacities, np.float64) * 2.0 * np.pi / np.sqrt(np.maximum(det, 1e-30))
+    vis = np.where((proj.radii > 0) & (det > 0), weights[:, 1] / np.maximum(own, 1e-30), 0.0)
+    return np.clip(vis, 0.0, 1.0)
+
+
+def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float = SOFT_MASK_SIGMA) -> np.ndarray:
+    """(H, W) float32 in [0, 1]: the segmentation's person mask (label != background) blurred
+    by sigma x the longer side: ~0.5 on the silhouette, 1 well inside, 0 well outside.
+    With the image (H, W, 3) uint8, person pixels within `EDGE_BAND` of the silhouette whose
+    colour is within `BACKGROUND_COLOUR` of the nearest background pixel's count as background
+    first: a segmentation whose edge sits a few pixels out in the background (a halo labelled
+    hair) would otherwise pass background colour off as the person's."""
+    import cv2
+    from scipy import ndimage
+
+    from avatarkit.recon.segment import BACKGROUND
+
+    bg = np.asarray(labels) == BACKGROUND
+    person = ~bg
+    if image is not None and bg.any() and person.any():
+        band = max(1.0, EDGE_BAND * max(bg.shape))
+        dist, (iy, ix) = ndimage.distance_transform_edt(person, return_indices=True)
+        img = np.asarray(image, np.float32) / 255.0
+        near = person & (dist <= band)
+        diff = np.linalg.norm(img[near] - img[iy[near], ix[near]], axis=1)
+        looks_bg = np.zeros_like(person)
+        looks_bg[near] = diff < BACKGROUND_COLOUR
+        # only background-coloured pixels connected to the background through such pixels
+        # (a light patch inside the head is not a halo)
+        grown, _ = ndimage.label(bg | looks_bg)
+        touching = np.unique(grown[bg])
+        person = person & ~(looks_bg & np.isin(grown, touching[touching > 0]))
+    s = max(0.5, sigma * max(person.shape))
+    return np.clip(cv2.GaussianBlur(person.astype(np.float32), (0, 0), s), 0.0, 1.0)
+
+
+def person_weight(labels: np.ndarray, px: np.ndarray, image: np.ndarray | None = None) -> np.ndarray:
+    """(N,) float64 in [0, 1]: how much a sample at pixels px (N, 2) is the person's and not
+    the background's: clip(2 p - 1, 0, 1) with p the soft person mask there (`soft_person`),
+    so a pixel on the silhouette (half background) gives nothing and one a few pixels inside
+    gives its full weight. A pixel outside the image or px not finite gives 0. image: the
+    view's image (H, W, 3) uint8, for the background-colour test of `soft_person`."""
+    return _person_weight(soft_person(labels, image), px)
+
+
+def _person_weight(soft: np.ndarray, px: np.ndarray) -> np.ndarray:
+    from avatarkit.recon.image_sampling import lookup
+
+    px = np.asarray(px, np.float64)
+    ok = np.isfinite(px).all(axis=1)
+    p = np.zeros(len(px))
+    if ok.any():
+        p[ok] = lookup(soft, px[ok])
+    return np.clip(2.0 * p - 1.0, 0.0, 1.0)
+
+
 def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
-                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None, min_cos: float = MIN_COS) -> Samples:
+                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None, min_cos: float = MIN_COS,
+                 hair: np.ndarray | None = None) -> Samples:
     """Visibility, weight and colour of every Gaussian in one view (module docstring).
     normals: (N, 3) unit outward normals. sample_labels: labels whose pixels may be sampled
     (default skin and hair; None labels in the view: every pixel). min_cos: the facing cut
-    (-1: none; the weight is still cos^2, zero for Gaussians facing away)."""
+    (-1: none; the weight is still cos^2, zero for Gaussians facing away).
+    hair: (N,) bool, the Gaussians whose visibility is the renderer's (`footprint_visibility`
+    on the view's person pixels, `soft_person` >= 0.5, at least `HAIR_VISIBLE`) instead of the
+    depth, facing and label test; their weight is that visibility x sharpness. Where the view
+    has labels every sample's weight is multiplied by `person_weight` (a pixel on the
+    silhouette, half background, gives nothing) and a zero weight is no sample."""
     from avatarkit.recon.image_sampling import sample_image
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.recon.visibility import seen_from
@@ -141,12 +255,26 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
         import cv2
 
         allowed = (SKIN, HAIR) if sample_labels is None else tuple(sample_labels)
-        region = np.isin(view.labels, allowed).astype(np.uint8)
-        e = int(round(EDGE_MARGIN * max(region.shape)))
+        region_mask = np.isin(view.labels, allowed).astype(np.uint8)
+        e = int(round(EDGE_MARGIN * max(region_mask.shape)))
         if e > 0:
-            region = cv2.erode(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
-        seen &= region[ix[:, 1], ix[:, 0]] > 0
-    weight = np.where(seen, np.clip(cos, 0, 1) ** COS_POWER * float(view.sharpness), 0.0)
+            region_mask = cv2.erode(region_mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * e + 1, 2 * e + 1)))
+        seen &= region_mask[ix[:, 1], ix[:, 0]] > 0
+    weight = np.clip(cos, 0, 1) ** COS_POWER
+    soft = None if view.labels is None else soft_person(view.labels, view.image)
+    if hair is not None and np.any(hair):
+        hair = np.asarray(hair, bool)
+        # hair may show over any part of the person (a turned head's back reads "body" to a
+        # portrait segmentation); the renderer decides whether it is the surface seen there
+        vis = footprint_visibility(gaussians, cam, None if soft is None else soft >= 0.5)
+        inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) \
+            & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
+        seen = np.where(hair, inside & (vis >= HAIR_VISIBLE), seen)
+        weight = np.where(hair, vis, weight)
+    weight = np.where(seen, weight * float(view.sharpness), 0.0)
+    if soft is not None:
+        weight *= _person_weight(soft, px)
+        seen &= weight > 0
     weight *= REFERENCE_WEIGHT if view.reference else 1.0
     colour = np.zeros((len(gaussians), 3), np.float32)
     if seen.any():
@@ -261,18 +389,23 @@ def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray,
 
 def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SILHOUETTE_MARGIN) -> np.ndarray:
     """(P,) int: in how many labelled views the point projects inside the image but outside
-    the dilated person mask (module docstring)."""
+    the dilated person mask (module docstring; the mask is `soft_person` >= 0.5, without the
+    background-coloured halo a segmentation may take in, joined with the view's `head`)."""
     import cv2
-
-    from avatarkit.recon.segment import BACKGROUND
 
     count = np.zeros(len(points), np.int64)
     for v in views:
         if v.labels is None:
             continue
-        person = (v.labels != BACKGROUND).astype(np.uint8)
+        person = (soft_person(v.labels, v.image) >= 0.5).astype(np.uint8)
         r = max(1, int(round(margin * max(person.shape))))
-        person = cv2.dilate(person, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        if v.head is not None:
+            # the person's silhouette holds the fitted head (eroded by the same margin: the
+            # pose's error): a segmentation with a hole there (a keyframe's face partly
+            # labelled background) is no evidence against the hair in it
+            person |= cv2.erode(v.head.astype(np.uint8), disc)
+        person = cv2.dilate(person, disc)
         px, z = v.camera.project(points)
         px = np.asarray(px, np.float64)
         h, w = person.shape
@@ -281,6 +414,30 @@ def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SI
         ix = np.clip(np.floor(np.where(inside[:, None], px, 0)).astype(np.int64), 0, [w - 1, h - 1])
         count += inside & (person[ix[:, 1], ix[:, 0]] == 0)
     return count
+
+
+def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None):
+    """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
+    samples (`view_samples`, hair by the renderer's visibility), their weighted mean
+    (`blend_colours`), then hair no view saw filled from the nearest seen hair
+    (`fill_hidden_hair`). normals: (N_bald + N_hair, 3) outward normals; keep: (N,) bool rows
+    left as they are (the neck). Returns (bald, hair, figures)."""
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+    is_hair = np.zeros(len(both), bool)
+    is_hair[len(bald):] = True
+    samples = [view_samples(both, normals, v, hair=is_hair) for v in views]
+    colours, seen = blend_colours(both.colors, samples, keep)
+    colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
+    seen_by = np.stack([s.seen for s in samples])                  # (V, N)
+    figures = {"seen": int(seen.sum()), "of": len(both),
+               "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
+               "hidden_hair_filled": int(filled),
+               "per_view": [int(s.seen.sum()) for s in samples],
+               "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
+    both = both.with_colors(colours)
+    return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
 
 
 @dataclass
@@ -317,9 +474,12 @@ class VideoViews:
         cams = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), ref.pose,
                                 [k.pose for k in self.keyframes])
         detector = getattr(options, "face_detector", "auto")
-        views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True)]
+        faces = fit.model.faces
+        views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True,
+                      head=head_silhouette(fit.rest_vertices, faces, fit.camera))]
         for k, cam in zip(self.keyframes[1:], cams[1:]):
-            v = View(k.image, cam, None, k.sharpness, k.frame, False)
+            v = View(k.image, cam, None, k.sharpness, k.frame, False,
+                     head=head_silhouette(fit.rest_vertices, faces, cam))
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
@@ -334,29 +494,17 @@ class VideoViews:
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
         figures)."""
-        from avatarkit.gaussians.gaussian_set import GaussianSet
-
-        both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-        _, normals = sdf.query(both.means)
-        keep = np.zeros(len(both), bool)
+        _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
+        keep = np.zeros(len(bald) + len(hair), bool)
         model = fit.model
         if "neck" in model.regions and "binding" in bald.extras:
             neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
             keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
-        samples = [view_samples(both, normals, v) for v in views]
-        colours, seen = blend_colours(both.colors, samples, keep)
-        is_hair = np.zeros(len(both), bool)
-        is_hair[len(bald):] = True
-        colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
-        seen_by = np.stack([s.seen for s in samples])                  # (V, N)
-        figures = {"seen": int(seen.sum()), "of": len(both),
-                   "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
-                   "hidden_hair_filled": int(filled),
-                   "per_view": [int(s.seen.sum()) for s in samples]}
-        both = both.with_colors(colours)
-        return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
+        return colour_from_views(bald, hair, views, normals, keep)
 
 
-__all__ = ["ALPHA_MIN", "DEPTH_TOLERANCE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "EDGE_MARGIN", "HAIR_NEIGHBOURS", "Samples", "fill_hidden_hair", "refine_colours_views",
-           "Keyframe", "VideoViews", "View", "blend_colours", "camera_centre", "keyframe_cameras", "pose_matrix",
-           "silhouette_outside", "view_samples"]
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "person_weight", "pose_matrix",
+           "refine_colours_views", "silhouette_outside", "soft_person", "view_samples"]
