@@ -154,7 +154,7 @@ def _classify(gaussians: GaussianSet, feats: np.ndarray, cand: np.ndarray, hair_
     if cfg.local:
         k = min(cfg.k, len(ref))
         _, nb = cKDTree(gaussians.means[ref].astype(np.float64)).query(
-            gaussians.means[cand].astype(np.float64), k=k)
+            gaussians.means[cand].astype(np.float64), k=k, workers=-1)
         nb = nb.reshape(len(fc), k)
         nh = is_hair[nb]                                  # (M, k)
         cnt_h = nh.sum(axis=1)
