@@ -79,9 +79,9 @@ def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarr
     from scipy.spatial.transform import Rotation
 
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import DEPTH_WEIGHT, LandmarkModel, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.face.fit import LandmarkModel
     from avatarkit.head.model import HeadModel
-    from avatarkit.recon.fit import portrait_focal, synthetic_head_view, view_camera
+    from avatarkit.recon.fit import portrait_focal, synthetic_head_view
     from avatarkit.synthetic.shading import AMBIENT
 
     model = HeadModel.template()
@@ -105,16 +105,7 @@ def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarr
         if targets is None:
             continue
         truth_px = s.truth.camera.project(lm.points_numpy(shape))[0]
-        r0, t0 = initial_pose(lm.points_numpy(), targets, f)
-        fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
-        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
-        before = fit_landmarks(model, emb, targets, f, depth_weight=DEPTH_WEIGHT, outline_weight=1.0,
-                               landmark_model=lm)
-        err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
-        px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
-        rows.append((err(r0), err(fit.rotation), err(known.rotation), err(before.rotation),
-                     np.median(pixel_errors(px0, targets)), fit.median_error, before.median_error,
-                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1)))))
+        rows.append(fit_case(model, emb, lm, targets, f, size, rot, shape, truth_px))
         a = rows[-1]
         print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error {a[1]:5.2f} deg "
               f"(start {a[0]:5.2f}, shape known {a[2]:5.2f}, previous fit {a[3]:5.2f}), reprojection "
@@ -122,6 +113,28 @@ def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarr
     a = np.array(rows)
     summarise(a)
     return a
+
+
+def fit_case(model, emb, lm, targets, f: float, size: int, rot, shape: np.ndarray,
+             truth_px: np.ndarray) -> tuple:
+    """One render's row: rotation errors (deg) of the solvePnP start, the fit, the pose alone with
+    the true shape and the previous fit; reprojection (px) of the start, the fit and the previous
+    fit; the detected landmarks' median distance to the true ones."""
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.face.fit import DEPTH_WEIGHT, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.recon.fit import view_camera
+
+    err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
+    r0, t0 = initial_pose(lm.points_numpy(), targets, f)
+    px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
+    fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
+    known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
+    before = fit_landmarks(model, emb, targets, f, depth_weight=DEPTH_WEIGHT, outline_weight=1.0,
+                           landmark_model=lm)
+    return (err(r0), err(fit.rotation), err(known.rotation), err(before.rotation),
+            np.median(pixel_errors(px0, targets)), fit.median_error, before.median_error,
+            float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1))))
 
 
 def summarise(a: np.ndarray) -> None:
@@ -143,10 +156,10 @@ def accuracy_avatar(cases: int, folder: str) -> None:
 
     from avatarkit.avatar import load_avatar
     from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import DEPTH_WEIGHT, LandmarkModel, fit_landmarks, initial_pose, pixel_errors
+    from avatarkit.face.fit import LandmarkModel
     from avatarkit.head.model import HeadParams
     from avatarkit.motion.clip import MotionClip
-    from avatarkit.recon.fit import portrait_focal, view_camera
+    from avatarkit.recon.fit import portrait_focal
     from avatarkit.synthetic.head_video import avatar_video, head_video_camera
 
     avatar = load_avatar(folder)
@@ -172,19 +185,9 @@ def accuracy_avatar(cases: int, folder: str) -> None:
         params = HeadParams.from_clip(clip, frames=[i])
         params.shape = shape.astype(np.float32)
         truth_px = camera.project(emb.points(model.forward(params)[0][0], model.faces))[0]
-        rot = rots[i]
-        err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
         # the fit's camera looks from the origin; the render's camera is the same pinhole, so
         # rotations compare directly
-        r0, t0 = initial_pose(lm.points_numpy(), targets, f)
-        px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
-        fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
-        known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
-        before = fit_landmarks(model, emb, targets, f, depth_weight=DEPTH_WEIGHT, outline_weight=1.0,
-                               landmark_model=lm)
-        rows.append((err(r0), err(fit.rotation), err(known.rotation), err(before.rotation),
-                     np.median(pixel_errors(px0, targets)), fit.median_error, before.median_error,
-                     float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1)))))
+        rows.append(fit_case(model, emb, lm, targets, f, size, rots[i], shape, truth_px))
         a = rows[-1]
         print(f"  case {i}: yaw {angles[i, 0]:6.1f} pitch {angles[i, 1]:5.1f} roll {angles[i, 2]:5.1f}: rotation "
               f"error {a[1]:5.2f} deg (start {a[0]:5.2f}, shape known {a[2]:5.2f}, previous fit {a[3]:5.2f}), "
