@@ -257,8 +257,14 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
     packed = np.empty((int(slot.max()) + 1, k.PACK), np.float32)
     k.pack_splats(slot, proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
                   np.ascontiguousarray(colors, np.float32), proj.depths, packed)
-    k.rasterize(bins.tile_offsets, sids, packed, float(bg[0]), float(bg[1]), float(bg[2]), rgb,
-                trans, depth)
+    masks = np.empty(len(sids), np.uint32)
+    n_tiles = len(bins.tile_offsets) - 1
+    cell_offsets = np.zeros(n_tiles * k.CELLS + 1, np.int32)
+    k.cell_masks(bins.tile_offsets, sids, packed, w, h, masks, cell_offsets[1:])
+    np.cumsum(cell_offsets, out=cell_offsets)
+    lists = np.empty(int(cell_offsets[-1]), np.int32)
+    k.rasterize(bins.tile_offsets, sids, packed, masks, cell_offsets, lists, float(bg[0]),
+                float(bg[1]), float(bg[2]), rgb, trans, depth)
     return rgb, 1.0 - trans, depth
 
 
