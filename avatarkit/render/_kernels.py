@@ -538,7 +538,7 @@ def cell_masks(offsets: i32_1, ids: i32_1, packed: f32_2, width: ti.i32, height:
 @ti.kernel
 def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, masks: u32_1, cell_offsets: i32_1,
               lists: i32_1, bg_r: ti.f32, bg_g: ti.f32, bg_b: ti.f32, out_rgb: f32_3,
-              out_t: f32_2, out_depth: f32_2):
+              out_alpha: f32_2, out_depth: f32_2):
     """Front-to-back alpha compositing, one task per 16x16 tile, cell by cell.
 
     The task first deals its depth-sorted list (entry k is record ids[k] of `packed`) out
@@ -640,7 +640,7 @@ def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, masks: u32_1, cell_offs
                     iy = by + lane // LANES
                     if ix < x1 and iy < y1:
                         tr = st_t[lane] if st_t[lane] > 0 else final_t[lane]
-                        out_t[iy, ix] = tr
+                        out_alpha[iy, ix] = 1.0 - tr
                         out_rgb[iy, ix, 0] = st_r[lane] + tr * bg_r
                         out_rgb[iy, ix, 1] = st_g[lane] + tr * bg_g
                         out_rgb[iy, ix, 2] = st_b[lane] + tr * bg_b
