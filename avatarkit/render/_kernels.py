@@ -512,42 +512,17 @@ def cell_mask(mx, my, ext_x, ext_y, x0, y0, x1, y1):
 
 
 @ti.kernel
-def cell_masks(offsets: i32_1, ids: i32_1, packed: f32_2, width: ti.i32, height: ti.i32,
-               masks: u32_1, counts: i32_1):
-    """masks[k] = the cells of its tile that list entry k (record ids[k] of `packed`)
-    reaches (`cell_mask`); counts[t * CELLS + c] = how many of tile t's entries reach cell
-    c, the lengths of the per-cell lists `rasterize` composites."""
-    tiles_x = (width + TILE - 1) // TILE
-    ti.loop_config(block_dim=4)
-    for t in range(offsets.shape[0] - 1):
-        x0 = (t % tiles_x) * TILE
-        y0 = (t // tiles_x) * TILE
-        x1 = ti.min(x0 + TILE, width)
-        y1 = ti.min(y0 + TILE, height)
-        cnt = ti.Vector([0] * CELLS, ti.i32)
-        for k in range(offsets[t], offsets[t + 1]):
-            s = ids[k]
-            m = cell_mask(packed[s, 0], packed[s, 1], packed[s, 6], packed[s, 7], x0, y0, x1, y1)
-            masks[k] = m
-            for c in ti.static(range(CELLS)):
-                cnt[c] += ti.cast((m >> c) & 1, ti.i32)
-        for c in ti.static(range(CELLS)):
-            counts[t * CELLS + c] = cnt[c]
-
-
-@ti.kernel
-def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, masks: u32_1, cell_offsets: i32_1,
-              lists: i32_1, bg_r: ti.f32, bg_g: ti.f32, bg_b: ti.f32, out_rgb: f32_3,
-              out_alpha: f32_2, out_depth: f32_2):
+def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, lists: i32_1, bg_r: ti.f32,
+              bg_g: ti.f32, bg_b: ti.f32, out_rgb: f32_3, out_alpha: f32_2, out_depth: f32_2):
     """Front-to-back alpha compositing, one task per 16x16 tile, cell by cell.
 
-    The task first deals its depth-sorted list (entry k is record ids[k] of `packed`) out
-    into one list per cell (8 pixels x 2 rows), in list order: entry k goes to the cells of
-    masks[k] (`cell_masks`), cell c of tile t's list filling lists[cell_offsets[t * CELLS +
-    c]:cell_offsets[t * CELLS + c + 1]]. Then each cell walks its own list with its 16
-    pixels' state in registers, composited as one 16-lane vector (a visit is pure
-    arithmetic: no loads and stores of the state, no tests of which rows and blocks a splat
-    reaches), and stops as soon as all 16 pixels have terminated.
+    The task first deals its depth-sorted list (entry k is record ids[k] of `packed`, n
+    entries) out into one list per cell (8 pixels x 2 rows), in list order: entry k goes to
+    the cells its extents reach (`cell_mask`); cell c's list fills lists[CELLS * offsets[t] +
+    c * n:] (room for all n; `lists` has CELLS x the entries of all tiles). Then each cell
+    walks its own list with its 16 pixels' state in registers, composited as one 16-lane
+    vector (a visit is pure arithmetic: no loads and stores of the state, no tests of which
+    rows and blocks a splat reaches), and stops as soon as all 16 pixels have terminated.
 
     Per cell and splat, branch-free: alpha from its own exponential at every pixel, the
     alpha test, clamping and termination as INRIA's, as selects. Each pixel sees the same
@@ -566,17 +541,17 @@ def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, masks: u32_1, cell_offs
         y0 = (t // tiles_x) * TILE
         x1 = ti.min(x0 + TILE, width)
         y1 = ti.min(y0 + TILE, height)
-        pos = ti.Vector([0] * CELLS, ti.i32)
-        for c in ti.static(range(CELLS)):
-            pos[c] = cell_offsets[t * CELLS + c]
+        n = offsets[t + 1] - offsets[t]
+        base = CELLS * offsets[t]
+        cnt = ti.Vector([0] * CELLS, ti.i32)
         for k in range(offsets[t], offsets[t + 1]):
-            m = masks[k]
             s = ids[k]
+            m = cell_mask(packed[s, 0], packed[s, 1], packed[s, 6], packed[s, 7], x0, y0, x1, y1)
             while m != 0:
                 low = m & (~m + ti.cast(1, ti.u32))
                 c = 31 - ti.cast(ti.math.clz(low), ti.i32)
-                lists[pos[c]] = s
-                pos[c] += 1
+                lists[base + c * n + cnt[c]] = s
+                cnt[c] += 1
                 m ^= low
         for c in range(CELLS):
             bx = x0 + (c // (TILE // CELL_ROWS)) * LANES
@@ -590,7 +565,7 @@ def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, masks: u32_1, cell_offs
                 final_t = ti.Vector([0.0] * CELL_LANES, ti.f32)
                 left = CELL_LANES  # pixels not yet terminated (lanes past the edges count too)
                 xc = ti.cast(bx, ti.f32) + 0.5
-                for e in range(cell_offsets[t * CELLS + c], cell_offsets[t * CELLS + c + 1]):
+                for e in range(base + c * n, base + c * n + cnt[c]):
                     s = lists[e]
                     mx = packed[s, 0]
                     my = packed[s, 1]

@@ -283,14 +283,8 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
     packed = _scratch_array("packed", (int(slot.max()) + 1, k.PACK), np.float32)
     k.pack_splats(slot, proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
                   np.ascontiguousarray(colors, np.float32), proj.depths, packed)
-    masks = _scratch_array("cell_masks", (len(sids),), np.uint32)
-    n_cells = (len(bins.tile_offsets) - 1) * k.CELLS
-    cell_offsets = _scratch_array("cell_offsets", (n_cells + 1,), np.int32)
-    cell_offsets[0] = 0
-    k.cell_masks(bins.tile_offsets, sids, packed, w, h, masks, cell_offsets[1:])
-    np.cumsum(cell_offsets, out=cell_offsets)
-    lists = _scratch_array("cell_lists", (int(cell_offsets[-1]),), np.int32)
-    k.rasterize(bins.tile_offsets, sids, packed, masks, cell_offsets, lists, float(bg[0]),
+    lists = _scratch_array("cell_lists", (k.CELLS * len(sids),), np.int32)
+    k.rasterize(bins.tile_offsets, sids, packed, lists, float(bg[0]),
                 float(bg[1]), float(bg[2]), rgb, alpha, depth)
     return rgb, alpha, depth
 
