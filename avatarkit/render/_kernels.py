@@ -378,12 +378,13 @@ def scatter_tiles(order: i32_1, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
 
 
 SPAN_EPS = 1e-3  # pixels of slack on every extent bound (float rounding)
-# A task composites one band of BAND rows of a 16x16 tile, its pixels' state in local arrays.
-# The whole tile: each splat's record and extents are then read once per tile, not per band
-# (~10% less compositing time than 8-row bands at 100k).
+# Band compositing (one task per BAND rows of a tile, its pixels' state in local arrays, per
+# splat the rows and aligned 8-pixel blocks its extents reach): the label-lifting kernel
+# (`recon/_label_kernels.py`) composites that way with these constants and `band_rect`; the
+# renderer's `rasterize` composites per 8x2 cell instead (below).
 BAND = 16
 NBAND = TILE // BAND
-LANES = 8  # a band row is two aligned blocks of 8 pixels, each composited as one SIMD vector
+LANES = 8  # a tile row is two aligned blocks of 8 pixels
 PACK = 12  # floats per packed splat
 LOG2E = 1.4426950408889634
 assert TILE == 16 and LANES == 8 and BAND in (8, 16)  # the (r << 4) | (blk << 3) | lane indexing

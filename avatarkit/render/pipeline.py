@@ -28,12 +28,15 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    together in memory; per pixel, in list order, d = mean2d - pixel
    centre, alpha = min(0.99, opacity exp(-0.5 d^T conic d)); alpha < 1/255 is skipped; if
    compositing would bring the transmittance T below 1e-4 the pixel stops *before* that splat
-   (INRIA); colour += c alpha T, T *= 1 - alpha. One task per 16x16 tile visits, per splat,
-   only the rows and aligned 8-pixel blocks its extents reach and composites each block as one
-   8-wide SIMD vector, with its own exponential per pixel (an inlined float32 `exp`, Cephes
-   `expf`, ~1e-7 relative error). Output rgb = colour + T background, alpha = 1 - T,
+   (INRIA); colour += c alpha T, T *= 1 - alpha. One task per 16x16 tile deals the tile's
+   list out into one list per cell of 8 pixels x 2 rows (the cells a splat's extents reach,
+   in list order), then composites cell by cell: the cell's 16 pixels are one 16-lane SIMD
+   vector held in registers while the cell walks its list, each with its own exponential (an
+   inlined float32 `exp`, Cephes `expf`, ~1e-7 relative error), and the cell stops when all
+   16 pixels have. Output rgb = colour + T background, alpha = 1 - T,
    depth = the alpha-weighted expected camera-space z (sum z alpha T / (1 - T); 0 where
-   nothing was drawn).
+   nothing was drawn). The stages' working arrays are per-thread buffers kept between
+   calls (`_scratch_array`); what they return is always fresh.
 
 Pixel convention (as gsplat/COLMAP): pixel (i, j) has its centre at (i + 0.5, j + 0.5) and
 means2d = (fx x/z + cx, fy y/z + cy). The result is deterministic: every tile is composited by
