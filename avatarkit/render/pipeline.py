@@ -160,7 +160,8 @@ def _scratch_array(name: str, shape: tuple, dtype) -> np.ndarray:
     one buffer per name and thread, kept between calls and grown when too small. A fresh
     array's pages fault in (and are zeroed by the kernel) on first touch: ~3800 faults,
     ~15 MB, per 100k frame, several ms of CPU; reused buffers skip that for everything but
-    the arrays a stage returns. Holds ~25 MB per rendering thread at 100k splats."""
+    the arrays a stage returns. Holds ~33 MB per rendering thread at 100k splats (18 of them
+    the compositor's cell lists, 16 int32 per splat-tile pair)."""
     arrays = getattr(_scratch, "arrays", None)
     if arrays is None:
         arrays = _scratch.arrays = {}
