@@ -90,6 +90,87 @@ def test_fast_matches_reference_on_large_and_needle_splats():
     assert fast.meta["radii"].max() > 40
 
 
+@pytest.mark.parametrize("width, height", [(37, 29), (16, 17)])
+def test_fast_matches_reference_at_odd_sizes(width, height):
+    # the compositor's cells are 8 pixels x 2 rows: an odd height cuts the last cell row in
+    # half and a width of 37 the last tile column at 5 pixels; lanes past the edges are
+    # composited but must never be written out
+    gs, cam = random_scene(500, 9, 1, width=width, height=height, spread=2.0)
+    fast, ref = render(gs, cam, (0.2, 0.5, 0.9)), render_reference(gs, cam, (0.2, 0.5, 0.9))
+    assert fast.rgb.shape == (height, width, 3)
+    assert np.abs(fast.rgb - ref.rgb).max() < 1e-3
+    assert np.abs(fast.alpha - ref.alpha).max() < 1e-3
+    assert ref.alpha[-1].max() > 0.05 and ref.alpha[:, -1].max() > 0.05  # content at the edges
+
+
+def test_cells_cover_every_pixel_a_splat_draws():
+    # `cell_mask` decides which (splat, 8x2 cell) pairs the compositor visits: every pixel
+    # where a listed splat's alpha (float64, from its packed record) reaches 1/255 must lie in
+    # one of that splat's cells, and the cells must stay within the splat's extents
+    from avatarkit.render import _kernels as k
+
+    ti = k.ti
+
+    @ti.kernel
+    def cell_masks(offsets: k.i32_1, ids: k.i32_1, packed: k.f32_2, width: ti.i32,
+                   height: ti.i32, out: k.u32_1):
+        tiles_x = (width + k.TILE - 1) // k.TILE
+        for t in range(offsets.shape[0] - 1):
+            x0 = (t % tiles_x) * k.TILE
+            y0 = (t // tiles_x) * k.TILE
+            for e in range(offsets[t], offsets[t + 1]):
+                s = ids[e]
+                out[e] = k.cell_mask(packed[s, 0], packed[s, 1], packed[s, 6], packed[s, 7], x0,
+                                     y0, ti.min(x0 + k.TILE, width), ti.min(y0 + k.TILE, height))
+
+    for seed, spread in ((0, 1.0), (1, 0.3)):
+        gs, cam = random_scene(250, 20 + seed, 0, width=53, height=37, spread=spread)
+        gs = gs.replace(scales=gs.scales * np.random.default_rng(seed).uniform(0.3, 3, (len(gs), 1)))
+        proj = project_gaussians(gs, cam)
+        bins = bin_gaussians(proj, cam, gs.opacities)
+        packed = np.zeros((int(bins.slots.max()) + 1, k.PACK), np.float32)
+        k.pack_splats(bins.slots, proj.means2d, proj.conics, gs.opacities,
+                      sh_colors(gs, cam), proj.depths, packed)
+        masks = np.empty(len(bins.slot_ids), np.uint32)
+        cell_masks(bins.tile_offsets, bins.slot_ids, packed, cam.width, cam.height, masks)
+        py, px = np.mgrid[0:cam.height, 0:cam.width] + 0.5
+        drawn = cells = 0
+        for t in range(bins.tiles_x * bins.tiles_y):
+            x0, y0 = (t % bins.tiles_x) * 16, (t // bins.tiles_x) * 16
+            tile = (slice(y0, y0 + 16), slice(x0, x0 + 16))
+            cell_of = ((px[tile] - x0) // 8 * 8 + (py[tile] - y0) // 2).astype(np.uint32)
+            sel = slice(bins.tile_offsets[t], bins.tile_offsets[t + 1])
+            for s, m in zip(bins.slot_ids[sel], masks[sel]):
+                rec = packed[s].astype(np.float64)
+                dx, dy = rec[0] - px[tile], rec[1] - py[tile]
+                q = -2 * (rec[2] * dx * dx + rec[3] * dx * dy + rec[4] * dy * dy)
+                draws = rec[5] * np.exp(-0.5 * q) >= 1 / 255
+                inside = (m >> cell_of) & 1 == 1
+                assert inside[draws].all()
+                drawn += draws.sum()
+                cells += bin(int(m)).count("1")
+                # no cell beyond the extents' rectangle (rows and 8-pixel blocks)
+                near = (np.abs(dx) <= rec[6] + 8) & (np.abs(dy) <= rec[7] + 2)
+                assert not (inside & ~near).any()
+        assert drawn > 1000 and cells < 0.8 * len(masks) * k.CELLS
+
+
+def test_scratch_buffers_carry_nothing_between_frames():
+    # the binning's and compositor's working arrays are reused between calls (per thread):
+    # a small scene rendered after a large one must come out bit for bit as from scratch
+    from avatarkit.render import pipeline
+
+    big, big_cam = random_scene(3000, 30, 1, width=96, height=80, spread=1.5)
+    small, small_cam = random_scene(150, 31, 1, width=40, height=33)
+    pipeline._scratch.arrays = {}
+    fresh = render(small, small_cam)
+    render(big, big_cam)
+    again = render(small, small_cam)
+    for a, b in ((fresh.rgb, again.rgb), (fresh.alpha, again.alpha), (fresh.depth, again.depth)):
+        np.testing.assert_array_equal(a, b)
+    assert pipeline._scratch.arrays["bin_geo"].nbytes >= 3000 * 64  # the buffers did carry over
+
+
 def test_compositor_exp_matches_numpy():
     # the compositor's inlined float32 exp (Cephes expf), over every exponent it meets: alpha
     # >= 1/255 needs x >= ln(1/255) ~ -5.5; far lanes of a block go down to the -87 clamp

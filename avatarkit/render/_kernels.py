@@ -378,12 +378,13 @@ def scatter_tiles(order: i32_1, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
 
 
 SPAN_EPS = 1e-3  # pixels of slack on every extent bound (float rounding)
-# A task composites one band of BAND rows of a 16x16 tile, its pixels' state in local arrays.
-# The whole tile: each splat's record and extents are then read once per tile, not per band
-# (~10% less compositing time than 8-row bands at 100k).
+# Band compositing (one task per BAND rows of a tile, its pixels' state in local arrays, per
+# splat the rows and aligned 8-pixel blocks its extents reach): the label-lifting kernel
+# (`recon/_label_kernels.py`) composites that way with these constants and `band_rect`; the
+# renderer's `rasterize` composites per 8x2 cell instead (below).
 BAND = 16
 NBAND = TILE // BAND
-LANES = 8  # a band row is two aligned blocks of 8 pixels, each composited as one SIMD vector
+LANES = 8  # a tile row is two aligned blocks of 8 pixels
 PACK = 12  # floats per packed splat
 LOG2E = 1.4426950408889634
 assert TILE == 16 and LANES == 8 and BAND in (8, 16)  # the (r << 4) | (blk << 3) | lane indexing
@@ -488,96 +489,139 @@ def lane_alpha(op, ha, bdy, cdy, dx):
     return ti.select(al < ALPHA_MAX, al, ALPHA_MAX)
 
 
-@ti.kernel
-def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, bg_r: ti.f32, bg_g: ti.f32,
-              bg_b: ti.f32, out_rgb: f32_3, out_t: f32_2, out_depth: f32_2):
-    """Front-to-back alpha compositing. One task per band of BAND rows of a 16x16 tile (tasks
-    spread over the cores) walks the tile's depth-sorted list (entry k is record ids[k] of
-    `packed`), its pixels' state in local arrays.
+u32_1 = ti.types.ndarray(dtype=ti.u32, ndim=1)
+# A tile is composited in 16 cells of 8 pixels x 2 rows, each as one 16-lane vector: cell
+# c = blk * 8 + p holds pixels (x0 + 8 blk + lane % 8, y0 + 2 p + lane // 8).
+CELL_ROWS = 2
+CELLS = (TILE // LANES) * (TILE // CELL_ROWS)
+CELL_LANES = LANES * CELL_ROWS
 
-    Per splat only the rows and 8-pixel blocks that its extents reach are visited, and each
-    block is composited branch-free as one vector: alpha from its own exponential at every
-    pixel (no forward differencing), the alpha test, clamping and termination as INRIA's, as
-    selects. A pixel that terminates keeps its transmittance stored negated; rows whose pixels
-    have all terminated are skipped, and the band stops when all its pixels have. (INRIA also
-    skips power > 0, which a positive-definite conic never gives.)
+
+@ti.func
+def cell_mask(mx, my, ext_x, ext_y, x0, y0, x1, y1):
+    """The tile's cells (bit blk * 8 + p) that a splat's extents reach in one of their
+    pixels (`band_rect`); 0: none. Branch-free: the row-pair range becomes a run of bits."""
+    ra, rb, b0, b1 = band_rect(mx, my, ext_x, ext_y, x0, y0, x1, y1)
+    lo = ti.min(ti.max(ra, 0), TILE) // CELL_ROWS
+    hi = (ti.min(ti.max(rb + 1, 0), TILE) + CELL_ROWS - 1) // CELL_ROWS  # cell rows [lo, hi)
+    one = ti.cast(1, ti.u32)
+    pairs = ((one << ti.cast(hi, ti.u32)) - one) & ~((one << ti.cast(lo, ti.u32)) - one)
+    pairs = pairs if ra <= rb else ti.cast(0, ti.u32)
+    m0 = pairs if b0 <= 0 and b1 >= 0 else ti.cast(0, ti.u32)
+    m1 = (pairs << (TILE // CELL_ROWS)) if b0 <= 1 and b1 >= 1 else ti.cast(0, ti.u32)
+    return m0 | m1
+
+
+@ti.kernel
+def rasterize(offsets: i32_1, ids: i32_1, packed: f32_2, lists: i32_1, bg_r: ti.f32,
+              bg_g: ti.f32, bg_b: ti.f32, out_rgb: f32_3, out_alpha: f32_2, out_depth: f32_2):
+    """Front-to-back alpha compositing, one task per 16x16 tile, cell by cell.
+
+    The task first deals its depth-sorted list (entry k is record ids[k] of `packed`, n
+    entries) out into one list per cell (8 pixels x 2 rows), in list order: entry k goes to
+    the cells its extents reach (`cell_mask`); cell c's list fills lists[CELLS * offsets[t] +
+    c * n:] (room for all n; `lists` has CELLS x the entries of all tiles). Then each cell
+    walks its own list with its 16 pixels' state in registers, composited as one 16-lane
+    vector (a visit is pure arithmetic: no loads and stores of the state, no tests of which
+    rows and blocks a splat reaches), and stops as soon as all 16 pixels have terminated.
+
+    Per cell and splat, branch-free: alpha from its own exponential at every pixel, the
+    alpha test, clamping and termination as INRIA's, as selects. Each pixel sees the same
+    splats in the same order, with the same arithmetic, as in a splat-major walk over the
+    rows and 8-pixel blocks the splats' extents reach: a pixel of a cell outside them (the
+    cell's other row) has alpha < 1/255 (`pack_one`), so it draws nothing. Cells cut by the
+    image's right or bottom edge are composited whole; the lanes past the edge are never
+    written out. (INRIA also skips power > 0, which a positive-definite conic never gives.)
     """
     height = out_rgb.shape[0]
     width = out_rgb.shape[1]
     tiles_x = (width + TILE - 1) // TILE
-    ti.loop_config(block_dim=1)  # bands cost very different amounts: hand them out one by one
-    for tb in range((offsets.shape[0] - 1) * NBAND):
-        t = tb // NBAND
+    ti.loop_config(block_dim=1)  # tiles cost very different amounts: hand them out one by one
+    for t in range(offsets.shape[0] - 1):
         x0 = (t % tiles_x) * TILE
-        y0 = (t // tiles_x) * TILE + (tb % NBAND) * BAND
+        y0 = (t // tiles_x) * TILE
         x1 = ti.min(x0 + TILE, width)
-        y1 = ti.min(y0 + BAND, height)  # y1 <= y0 for a band below the image: nothing to do
-        # pixel (x0 + c, y0 + r) is entry (r << 4) | c. A tile cut by the image's right edge is
-        # composited and counted in whole blocks: the lanes past the edge are pixels like any
-        # other (never written out), so `remaining` and `row_left` need no lane mask
-        st_t = ti.Vector([1.0] * (BAND * TILE), ti.f32)
-        st_r = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        st_g = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        st_b = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        st_d = ti.Vector([0.0] * (BAND * TILE), ti.f32)
-        cols = (x1 - x0 + LANES - 1) // LANES * LANES
-        remaining = cols * ti.max(y1 - y0, 0)
-        row_left = ti.Vector([0] * BAND, ti.i32)  # unfinished pixels per row of the band
-        for r in range(y1 - y0):
-            row_left[r] = cols
+        y1 = ti.min(y0 + TILE, height)
+        n = offsets[t + 1] - offsets[t]
+        base = CELLS * offsets[t]
+        cnt = ti.Vector([0] * CELLS, ti.i32)
         for k in range(offsets[t], offsets[t + 1]):
-            if remaining == 0:
-                break
             s = ids[k]
-            mx = packed[s, 0]
-            my = packed[s, 1]
-            ha = packed[s, 2]
-            nb = packed[s, 3]
-            hc = packed[s, 4]
-            op = packed[s, 5]
-            z = packed[s, 8]
-            cr = packed[s, 9]
-            cg = packed[s, 10]
-            cbl = packed[s, 11]
-            ra, rb, b0, b1 = band_rect(mx, my, packed[s, 6], packed[s, 7], x0, y0, x1, y1)
-            for r in range(ra, rb + 1):
-                if row_left[r] > 0:
-                    dy = my - (ti.cast(y0 + r, ti.f32) + 0.5)
-                    bdy = nb * dy
-                    cdy = hc * dy * dy
+            m = cell_mask(packed[s, 0], packed[s, 1], packed[s, 6], packed[s, 7], x0, y0, x1, y1)
+            while m != 0:
+                low = m & (~m + ti.cast(1, ti.u32))
+                c = 31 - ti.cast(ti.math.clz(low), ti.i32)
+                lists[base + c * n + cnt[c]] = s
+                cnt[c] += 1
+                m ^= low
+        for c in range(CELLS):
+            bx = x0 + (c // (TILE // CELL_ROWS)) * LANES
+            by = y0 + (c % (TILE // CELL_ROWS)) * CELL_ROWS
+            if bx < x1 and by < y1:
+                st_t = ti.Vector([1.0] * CELL_LANES, ti.f32)
+                st_r = ti.Vector([0.0] * CELL_LANES, ti.f32)
+                st_g = ti.Vector([0.0] * CELL_LANES, ti.f32)
+                st_b = ti.Vector([0.0] * CELL_LANES, ti.f32)
+                st_d = ti.Vector([0.0] * CELL_LANES, ti.f32)
+                final_t = ti.Vector([0.0] * CELL_LANES, ti.f32)
+                left = CELL_LANES  # pixels not yet terminated (lanes past the edges count too)
+                xc = ti.cast(bx, ti.f32) + 0.5
+                for e in range(base + c * n, base + c * n + cnt[c]):
+                    s = lists[e]
+                    mx = packed[s, 0]
+                    my = packed[s, 1]
+                    ha = packed[s, 2]
+                    nb = packed[s, 3]
+                    hc = packed[s, 4]
+                    op = packed[s, 5]
+                    z = packed[s, 8]
+                    cr = packed[s, 9]
+                    cg = packed[s, 10]
+                    cbl = packed[s, 11]
+                    bdy = ti.Vector([0.0] * CELL_ROWS, ti.f32)
+                    cdy = ti.Vector([0.0] * CELL_ROWS, ti.f32)
+                    for j in ti.static(range(CELL_ROWS)):
+                        dy = my - (ti.cast(by + j, ti.f32) + 0.5)
+                        bdy[j] = nb * dy
+                        cdy[j] = hc * dy * dy
+                    dx0 = mx - xc
                     ended = 0
-                    for blk in ti.static(range(TILE // LANES)):
-                        if b0 <= blk and blk <= b1:
-                            dx0 = mx - (ti.cast(x0 + blk * LANES, ti.f32) + 0.5)
-                            # the masked row index tells LLVM the 8 entries are consecutive
-                            row = ((r & (BAND - 1)) << 4) | (blk << 3)
-                            for lane in ti.static(range(LANES)):
-                                p = row | lane
-                                alpha = lane_alpha(op, ha, bdy, cdy, dx0 - lane)
-                                tr = st_t[p]
-                                draw = (alpha >= ALPHA_MIN) & (tr > 0)
-                                a = alpha if draw else 0.0
-                                test_t = tr * (1.0 - a)
-                                end = draw & (test_t < T_MIN)
-                                w = 0.0 if end else a * tr
-                                st_r[p] += cr * w
-                                st_g[p] += cg * w
-                                st_b[p] += cbl * w
-                                st_d[p] += z * w
-                                st_t[p] = -tr if end else test_t
-                                ended += ti.cast(end, ti.i32)
-                    remaining -= ended
-                    row_left[r] -= ended
-        for iy in range(y0, y1):
-            for ix in range(x0, x1):
-                p = ((iy - y0) << 4) | (ix - x0)
-                tr = ti.abs(st_t[p])
-                out_t[iy, ix] = tr
-                out_rgb[iy, ix, 0] = st_r[p] + tr * bg_r
-                out_rgb[iy, ix, 1] = st_g[p] + tr * bg_g
-                out_rgb[iy, ix, 2] = st_b[p] + tr * bg_b
-                acc = 1.0 - tr
-                d = 0.0
-                if acc > 0:
-                    d = st_d[p] / acc
-                out_depth[iy, ix] = d
+                    for lane in ti.static(range(CELL_LANES)):
+                        # A terminated pixel holds T = 0 (its last T kept in final_t), so that
+                        # no test of T comes before the product: the loop-carried chain per
+                        # splat is one multiply, one compare and one select. With T = 0 every
+                        # later splat adds exactly +0 (colours and depths are >= 0).
+                        alpha = lane_alpha(op, ha, bdy[lane // LANES], cdy[lane // LANES],
+                                           dx0 - (lane % LANES))
+                        draw = alpha >= ALPHA_MIN
+                        a = alpha if draw else 0.0
+                        keep = 1.0 - a
+                        tr = st_t[lane]
+                        test_t = tr * keep
+                        end = draw & (test_t < T_MIN)
+                        w = 0.0 if end else a * tr
+                        st_r[lane] += cr * w
+                        st_g[lane] += cg * w
+                        st_b[lane] += cbl * w
+                        st_d[lane] += z * w
+                        st_t[lane] = 0.0 if end else test_t
+                        first = end & (tr > 0)
+                        final_t[lane] = tr if first else final_t[lane]
+                        ended += ti.cast(first, ti.i32)
+                    left -= ended
+                    if left == 0:
+                        break
+                for lane in ti.static(range(CELL_LANES)):
+                    ix = bx + lane % LANES
+                    iy = by + lane // LANES
+                    if ix < x1 and iy < y1:
+                        tr = st_t[lane] if st_t[lane] > 0 else final_t[lane]
+                        out_alpha[iy, ix] = 1.0 - tr
+                        out_rgb[iy, ix, 0] = st_r[lane] + tr * bg_r
+                        out_rgb[iy, ix, 1] = st_g[lane] + tr * bg_g
+                        out_rgb[iy, ix, 2] = st_b[lane] + tr * bg_b
+                        acc = 1.0 - tr
+                        d = 0.0
+                        if acc > 0:
+                            d = st_d[lane] / acc
+                        out_depth[iy, ix] = d
