@@ -7,8 +7,8 @@ Prints
   - synthetic: the template head driven by a mixed clip (turn, nod, talk: the jaw opens)
     rendered at --size, each tracked as rendered and mirrored: median rotation error (degrees),
     jaw error (rad), landmark error (px); next to each, as baselines in the same process, the
-    previous tracker (the outline at full weight: `TrackOptions(outline_weight=1.0)`) and the
-    tracker without its landmark calibration (`TrackOptions(calibration_frames=0)`), and ratios.
+    previous tracker (session 7's: without the view correction, `TrackOptions(view_correction=False)`)
+    and the tracker without its landmark calibration (`TrackOptions(calibration_frames=0)`), and ratios.
     The target figure is on the template rendered person-like (`synthetic.shading`: Lambert shading
     from a light fixed to the camera, so it moves over the head with the pose, and a dark mouth
     interior as the jaw opens; the lead's decision of session 7); the flat-coloured renders of
@@ -97,8 +97,8 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                                        ("mirrored", mirrored, clip.rotation * np.array([1.0, -1.0, -1.0]))):
             figures = {}
             for label, options in (("tracker", TrackOptions()),
-                                   ("baseline, previous tracker (outline at full weight)",
-                                    TrackOptions(outline_weight=1.0)),
+                                   ("baseline, previous tracker (no view correction)",
+                                    TrackOptions(view_correction=False)),
                                    ("baseline, no landmark calibration", TrackOptions(calibration_frames=0))):
                 t0 = time.perf_counter()
                 r = track_frames(frames_in, model, shape, (size, size), 30.0, options)
@@ -157,13 +157,16 @@ def real(limit: int | None) -> None:
         t0 = time.perf_counter()
         base = track_video(path, end=end, options=TrackOptions(calibration_frames=0))
         t_base = time.perf_counter() - t0
-        prev = track_video(path, end=end, options=TrackOptions(outline_weight=1.0))
+        t0 = time.perf_counter()
+        prev = track_video(path, end=end, options=TrackOptions(view_correction=False))
+        t_prev = time.perf_counter() - t0
         held = r.landmark_error[np.cumsum(r.found) > CALIBRATION_FRAMES]
         print(f"{name}: {r.num_frames} frames, face in {int(r.found.sum())}; landmark error median "
               f"{np.nanmedian(r.landmark_error):.2f} px (p90 {np.nanpercentile(r.landmark_error, 90):.2f}; "
               f"frames after the {CALIBRATION_FRAMES} calibration frames {np.nanmedian(held):.2f})   target <= 3 px")
-        print(f"  baseline, previous tracker (outline at full weight): {np.nanmedian(prev.landmark_error):.2f} px "
-              f"(ratio {np.nanmedian(r.landmark_error) / np.nanmedian(prev.landmark_error):.2f})")
+        print(f"  baseline, previous tracker (no view correction): {np.nanmedian(prev.landmark_error):.2f} px "
+              f"(ratio {np.nanmedian(r.landmark_error) / np.nanmedian(prev.landmark_error):.2f}), "
+              f"{prev.num_frames / t_prev:.1f} frames/s (time ratio tracker/previous {t_track / t_prev:.2f})")
         print(f"  baseline, no landmark calibration: {np.nanmedian(base.landmark_error):.2f} px "
               f"(ratio {np.nanmedian(r.landmark_error) / np.nanmedian(base.landmark_error):.2f}), "
               f"{base.num_frames / t_base:.1f} frames/s (time ratio with/without {t_track / t_base:.2f})")
