@@ -59,9 +59,10 @@ def test_posed_offsets_match_the_per_pose_reference(template):
             t = c.posed_offsets_torch(torch.tensor(R[n]), torch.tensor(trans[n]),
                                       torch.tensor(jaw[n], dtype=torch.float64), centre).numpy()
             np.testing.assert_allclose(t, ref, atol=1e-12)
-    # dynamic: the static offset taken out, at every view
+    # dynamic: the frontal, jaw-closed offset taken out, at every view
     d = c.with_dynamic(False).offsets(0.3, -0.1, 0.2) - c.with_dynamic(True).offsets(0.3, -0.1, 0.2)
-    np.testing.assert_allclose(d, c.static, atol=1e-12)
+    np.testing.assert_allclose(d, c.with_dynamic(False).offsets(0.0, 0.0, 0.0), atol=1e-12)
+    assert np.abs(c.with_dynamic(True).offsets(0.0, 0.0, 0.0)).max() == 0.0
 
 
 def test_view_angles_follow_the_head():
@@ -136,7 +137,8 @@ def test_fits_read_the_pose_through_a_view_correction(template, solver):
 
 def test_the_switch_and_the_shipped_correction(template):
     """`correction_for` finds the shipped correction for the template's embedding only; the
-    tracker's switch turns it off; its offsets over the calibrated views are millimetres."""
+    tracker's switch turns it on (off by default); its offsets over the calibrated views are
+    millimetres."""
     from avatarkit.track.tracker import FrameTracker, TrackOptions
 
     model, emb = template
@@ -148,7 +150,7 @@ def test_the_switch_and_the_shipped_correction(template):
     # measured (the shipped one): median 1 cm (mostly along the rays, where the renders see
     # little and the ridge holds it), 6.5 cm at the corners of the range (yaw 40, pitch 20 deg, jaw 0.3)
     assert np.median(sizes) < 0.02 and np.max(sizes) < 0.1
-    on = FrameTracker(model, np.zeros(model.num_shape), (SIZE, SIZE), TrackOptions())
-    off = FrameTracker(model, np.zeros(model.num_shape), (SIZE, SIZE), TrackOptions(view_correction=False))
+    on = FrameTracker(model, np.zeros(model.num_shape), (SIZE, SIZE), TrackOptions(view_correction=True))
+    off = FrameTracker(model, np.zeros(model.num_shape), (SIZE, SIZE), TrackOptions())
     assert on.problem.view is not None and not on.problem.view.dynamic and off.problem.view is None
     np.testing.assert_array_equal(on.problem.view.coef, c.coef)

@@ -61,8 +61,8 @@ JAW_PRIOR = 1e-2
 #: `fit_landmarks`' view correction (`face.view_correction.resolve`): off. On the shaded template
 #: stills of benchmarks/face.py (seeds 0-2, 36 cases) the full correction brings the reprojection
 #: from 1.98 to 0.78 px but the rotation from 2.25 to 2.51 deg (it over-corrects the pitch there:
-#: signed error -0.15 -> +0.15 x pitch); its dynamic part alone 3.20 deg. The tracker uses it
-#: (`TrackOptions.view_correction`), where it helps (docs/tracking.md).
+#: signed error -0.15 -> +0.15 x pitch), and on the avatar built from samples/portrait.jpg
+#: 10.20 -> 11.41 deg (docs/face.md, Figures).
 FIT_VIEW_CORRECTION = None
 
 

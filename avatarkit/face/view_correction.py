@@ -15,14 +15,19 @@ The view is the camera's direction seen from the head: v = R^T (-(R p + t)) for 
 pitch = atan2(v_y, |v_xz|) (radians; 0, 0 = seen from straight ahead, pitch > 0 = seen from
 above). jaw = the jaw's rotation about x (radians, > 0 open). The offset is
     o_k = sum_b phi_b(yaw, pitch, jaw) c_kb,
-phi = the monomials of `BASIS` (cubic in the view, with jaw terms). `dynamic=True` subtracts
-the best fixed offset over all views (`static`): what is left is only how the face mesh's
-answer moves with the view and jaw, not the template's static misfit (which a different face
-would not share; the tracker calibrates a person's static part).
+phi = the monomials of `BASIS` (cubic in the view, with jaw terms). `dynamic=True` drops the
+constant term: the offsets vanish at the frontal view with the jaw closed, and only how the
+face mesh's answer moves with the view and jaw is kept, not the template's static misfit
+(measured worse than the full correction on the template, and no help elsewhere).
 
-Use: fit the pose, evaluate o at the fitted view and jaw, refit with the model points moved by o,
-repeat (`face.fit.fit_landmarks(..., view_correction=)`; the tracker uses the previous frame's
-fit, `track.tracker`).
+What it is worth (docs/face.md, docs/tracking.md): calibrated on the template, it removes the
+template's bias and puts it on other faces, so neither fit uses it by default.
+
+Use: o is a function of the parameters being fitted (the pose and jaw), evaluated inside the
+objective: `face.fit.fit_landmarks(..., view_correction="full")` (torch, differentiated through)
+and `track.solve` (`FrameProblem.with_view`; `TrackOptions(view_correction=True)`). A fixed-point
+alternative (fit, correct at the fitted pose, refit) was tried first: it diverged in tracking
+(the jaw's correction feeds back into the jaw).
 """
 from __future__ import annotations
 
@@ -79,7 +84,7 @@ def fit_view(rotation: np.ndarray, translation: np.ndarray, points: np.ndarray) 
 class ViewCorrection:
     """coef (K, B, 3) metres: per landmark (row k = `mesh_index[k]` of the face mesh), the
     basis coefficients of its offset; static (K, 3): the best fixed offset over all views (the
-    template's static misfit); dynamic: subtract it (only how the answer moves with the view)."""
+    calibration's first step, kept for inspection); dynamic: drop the constant term."""
 
     mesh_index: np.ndarray
     coef: np.ndarray
@@ -91,12 +96,13 @@ class ViewCorrection:
         return np.einsum("b,kbd->kd", features(yaw, pitch, jaw)[0], self.effective())
 
     def effective(self) -> np.ndarray:
-        """(K, B, 3) the coefficients used: with `dynamic`, the static offset taken out of the
-        constant term's (phi's constant is 1 at every view)."""
+        """(K, B, 3) the coefficients used: with `dynamic`, the constant term's are zero, so the
+        offsets vanish at the frontal view with the jaw closed (phi's constant is 1 at every view,
+        the other monomials 0 there)."""
         if not self.dynamic:
             return self.coef
         c = self.coef.copy()
-        c[:, 0] -= self.static
+        c[:, 0] = 0.0
         return c
 
     def posed_offsets(self, rotation: np.ndarray, translation: np.ndarray, jaw: np.ndarray,
@@ -239,8 +245,8 @@ def solve_coefficients(s: Samples, ridge: float = RIDGE) -> tuple[np.ndarray, np
     """(coef (K, B, 3), static (K, 3)): the best fixed offset per landmark over all views
     first (the static misfit), then all the basis terms on what it leaves; coef's constant
     column holds both constants. Solved in one go, a depth offset and a yaw-linear sideways one
-    trade against each other (both move the point with sin(yaw)), and no part of the solution
-    would mean "static" on its own: `ViewCorrection.dynamic` subtracts `static`."""
+    trade against each other (both move the point with sin(yaw)) and the ridge alone would
+    decide the split; this way the constant term holds the best fixed offset first."""
     assert BASIS[0] == (0, 0, 0)
     static = _solve(s, s.phi[:, :1], s.r, ridge)[:, 0]
     left = s.r - np.einsum("nkij,kj->nki", s.A, static)
@@ -250,7 +256,7 @@ def solve_coefficients(s: Samples, ridge: float = RIDGE) -> tuple[np.ndarray, np
 
 
 def predict(s: Samples, coef: np.ndarray, static: np.ndarray | None = None) -> np.ndarray:
-    """(N, K, 2) predicted pixel residuals (with `static` (K, 3) subtracted: the dynamic part)."""
+    """(N, K, 2) predicted pixel residuals (with `static` (K, 3) subtracted)."""
     o = np.einsum("nb,kbd->nkd", s.phi, coef)
     if static is not None:
         o = o - static[None]
@@ -272,7 +278,7 @@ def fit_correction(s: Samples, mesh_index: np.ndarray, ridge: float = RIDGE) -> 
     base = np.linalg.norm(test.r, axis=-1)[test.ok]
     for dyn in (False, True):
         left = np.linalg.norm(test.r - predict(test, coef, static if dyn else None), axis=-1)[test.ok]
-        lines.append(f"held-out half ({(~half).sum()} cases), dynamic={dyn}: residual median "
+        lines.append(f"held-out half ({(~half).sum()} cases), {'static subtracted' if dyn else 'full'}: residual median "
                      f"{np.median(base):.2f} -> {np.median(left):.2f} px, mean {base.mean():.2f} -> {left.mean():.2f} px")
     coef, static = solve_coefficients(s, ridge)
     return ViewCorrection(np.asarray(mesh_index, np.int64), coef, static), "\n".join(lines)

@@ -64,6 +64,9 @@ class TrackOptions:
     per-landmark calibration uses (`FrameTracker.calibrate`; below CALIBRATION_MIN: none).
     view_correction: the landmarks follow the built-in view- and jaw-dependent correction
     (`face.view_correction`; only with the template's embedding) at the pose being fitted.
+    Off by default: calibrated on renders of the template head, it removes the template's
+    bias (shaded template video: rotation 3.23 -> 2.15 deg, jaw 0.045 -> 0.034 rad) but puts
+    it on other faces (the avatar built from samples/portrait.jpg: 4.15 -> 7.46 deg).
     Tracking departs from the portrait fit's
     defaults, as measured on rendered heads with known motion: the face mesh's relative depth
     biased the pitch (median rotation error 5.0 deg with it, 3.4 without), and a jaw prior
@@ -84,7 +87,7 @@ class TrackOptions:
     jaw_prior: float = 1e-3
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
-    view_correction: bool = True
+    view_correction: bool = False
 
 
 @dataclass(eq=False)
