@@ -113,11 +113,16 @@ def test_fits_read_the_pose_through_a_view_correction(template, solver):
     f = portrait_focal(SIZE, SIZE)
     plain = FrameProblem.from_landmark_model(lm, shape, E)
     truth = plain.with_view(c)
+    centre = lm.points_numpy(shape).mean(0)
     errs = {True: [], False: []}
     for rot, jaw in ((np.array([0.1, 0.4, 0.05]), 0.0), (np.array([-0.15, -0.2, 0.0]), 0.2)):
         trans = np.array([0.01, -0.03, -0.55])
         jaw3 = np.array([jaw, 0.0, 0.0])
-        px = project(truth, rot, trans, jaw3, np.zeros(E), f, (SIZE, SIZE))
+        # the targets from the vertex-level model and the per-pose reference of the offsets
+        X = lm.points_numpy(shape, None, jaw3) + c.offsets(*fit_view(rot, trans, centre[None]), jaw)
+        cam = (X @ Rotation.from_rotvec(rot).as_matrix().T + trans) * np.array([1.0, -1.0, -1.0])
+        px = f * cam[:, :2] / cam[:, 2:] + SIZE / 2
+        np.testing.assert_allclose(project(truth, rot, trans, jaw3, np.zeros(E), f, (SIZE, SIZE)), px, atol=1e-6)
         tg = _targets(px, len(emb))
         for on in (True, False):
             if solver == "torch":
