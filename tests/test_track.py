@@ -187,8 +187,10 @@ def test_levenberg_marquardt_reaches_the_reference_fit(video):
     mesh = ft.landmarks(frames[6].rgb)
     targets = LandmarkTargets.from_mesh(mesh, ft.embedding, (SIZE, SIZE))
     # the same objective as fit_frame's defaults: the depth term on, the outline at full weight
+    # (and the tracker's view correction)
     ref = fit_landmarks(model, ft.embedding, targets, ft.focal, fit_shape=False, depth_weight=DEPTH_WEIGHT,
-                        outline_weight=1.0, expr_components=model.num_expr, fit_jaw=True, iterations=200)
+                        outline_weight=1.0, expr_components=model.num_expr, fit_jaw=True, iterations=200,
+                        view_correction=ft.problem.view)
     ours = fit_frame(ft.problem, targets, ft.focal, start=None,
                      initial=(ref.rotation + 0.05, ref.translation + 0.01), iterations=60)
     assert _angle_deg(ours.rotation, ref.rotation) < 0.3

@@ -58,6 +58,12 @@ OUTLINE_WEIGHT = 0.1
 SHAPE_PRIOR = 1e-3
 EXPR_PRIOR = 1e-3
 JAW_PRIOR = 1e-2
+#: `fit_landmarks`' view correction (`face.view_correction.resolve`): off. On the shaded template
+#: stills of benchmarks/face.py (seeds 0-2, 36 cases) the full correction brings the reprojection
+#: from 1.98 to 0.78 px but the rotation from 2.25 to 2.51 deg (it over-corrects the pitch there:
+#: signed error -0.15 -> +0.15 x pitch), and on the avatar built from samples/portrait.jpg
+#: 10.20 -> 11.41 deg (docs/face.md, Figures).
+FIT_VIEW_CORRECTION = None
 
 
 @dataclass(eq=False)
@@ -267,7 +273,8 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
                   iterations: int = 60, depth_weight: float = FIT_DEPTH_WEIGHT,
                   outline_weight: float = OUTLINE_WEIGHT, shape_prior: float = SHAPE_PRIOR,
                   expr_prior: float = EXPR_PRIOR, jaw_prior: float = JAW_PRIOR,
-                  landmark_model: LandmarkModel | None = None) -> LandmarkFit:
+                  landmark_model: LandmarkModel | None = None,
+                  view_correction=FIT_VIEW_CORRECTION) -> LandmarkFit:
     """Pose (and shape / expression / jaw, as asked) of `model` from landmark targets.
 
     shape: (S,) identity to start from (fit_shape=True) or keep (False); shape_components:
@@ -275,6 +282,12 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     coefficients fitted (0: none); fit_jaw: the jaw's rotation; start: a previous fit to start
     from (a video's previous frame) instead of solvePnP. landmark_model: reuse one across calls
     (video). outline_weight: scales the outline points' weights (1: as the targets say).
+    view_correction: None (off, the default: `FIT_VIEW_CORRECTION`), "full" (the built-in
+    correction, when the embedding is the template's; else none), "dynamic" (its part that
+    moves with the view) or a `face.view_correction.ViewCorrection`: each model landmark is
+    moved by the correction at the pose and jaw being fitted (a function of the parameters,
+    differentiated through), so the model predicts where the face mesh reads the point from
+    this view.
     Returns a `LandmarkFit` (its errors: every point, the outline's across it, unweighted).
     """
     import torch
@@ -282,7 +295,10 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     from avatarkit.lbfgs import LBFGS
     from avatarkit.recon.fit import torch_single_thread
 
+    from avatarkit.face.view_correction import resolve
+
     lm = landmark_model or LandmarkModel(model, embedding)
+    correction = resolve(view_correction, embedding)
     if outline_weight != 1.0:
         targets = with_outline_weight(targets, outline_weight)
     S, E = model.num_shape, model.num_expr
@@ -305,6 +321,7 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     dexpr = torch.zeros(e, dtype=torch.float64, requires_grad=True)
     jaw = f64(jaw0).requires_grad_(True)
     base_shape, base_expr, base_trans = f64(shape0), f64(expr0), f64(trans0)
+    centre = lm.points_numpy(shape0).mean(0)     # the head's centre for the view's direction
 
     def current():
         s = base_shape.clone()
@@ -318,7 +335,12 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     def losses():
         s, x = current()
         pts = lm.points(s, x, jaw if (fit_jaw or np.any(jaw0)) else None)
-        px, z = project_torch(pts, rot, base_trans + depth0 * dtrans, focal, targets.size)
+        trans = base_trans + depth0 * dtrans
+        if correction is not None:
+            from avatarkit.head.lbs import axis_angle_to_matrix_torch
+
+            pts = pts + correction.posed_offsets_torch(axis_angle_to_matrix_torch(rot), trans, jaw[0], centre)
+        px, z = project_torch(pts, rot, trans, focal, targets.size)
         out = landmark_loss(px, z, targets, focal, depth_weight)
         if k:
             out["shape_prior"] = shape_prior * (s[:k] ** 2).sum()

@@ -56,6 +56,8 @@ class FrameProblem:
     jaw_joint: np.ndarray     # (3,) with identity
     jaw_joint_expr: np.ndarray  # (3, E)
     num_expr: int = 0         # the first num_expr coefficients are expressions, the rest shape
+    view: object = None       # a `face.view_correction.ViewCorrection` (None: off)
+    centre: np.ndarray | None = None   # (3,) the rest landmarks' mean, where the view is seen from
 
     @classmethod
     def from_landmark_model(cls, lm, shape: np.ndarray, expr_components: int,
@@ -84,6 +86,21 @@ class FrameProblem:
             jw0 = jw0 + jw_sum[:, None] * lm.offset
         return cls(lm0, (B @ dirs).reshape(K, 3, C), jw0, (Bw @ dirs).reshape(K, 3, C),
                    jw_sum, joint, joint_dirs, E)
+
+    def with_view(self, correction) -> "FrameProblem":
+        """The same problem with a view correction (None: without): every landmark moves by
+        the correction at the pose and jaw being fitted."""
+        import dataclasses
+
+        return dataclasses.replace(self, view=correction, centre=rest_points(self).mean(0))
+
+    def posed_points(self, expr: np.ndarray, jaw: np.ndarray, R: np.ndarray, trans: np.ndarray) -> np.ndarray:
+        """(B, K, 3) rest-frame landmarks with the view correction at each pose: expr (B, C),
+        jaw (B, 3), R (B, 3, 3) head rotations, trans (B, 3)."""
+        pts = self.points(expr, jaw)
+        if self.view is not None:
+            pts = pts + self.view.posed_offsets(R, trans, jaw[:, 0], self.centre)
+        return pts
 
     @property
     def num_coefficients(self) -> int:
@@ -116,8 +133,9 @@ def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth
     projected landmarks (B, K, 2)."""
     E = problem.num_expr
     rot, trans, jaw, expr = _unpack(p, problem.num_coefficients)
-    pts = problem.points(expr, jaw)                                                # (B, K, 3)
-    cam = np.matmul(pts, _rodrigues(rot).transpose(0, 2, 1)) + trans[:, None]
+    R = _rodrigues(rot)
+    pts = problem.posed_points(expr, jaw, R, trans)                                 # (B, K, 3)
+    cam = np.matmul(pts, R.transpose(0, 2, 1)) + trans[:, None]
     cam[..., 1:] *= -1.0                                                           # OpenCV axes
     z = np.maximum(cam[..., 2], 1e-4)
     w, h = targets.size
@@ -146,8 +164,10 @@ def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth
 def project(problem: FrameProblem, rotation, translation, jaw, expr, focal: float,
             size: tuple[int, int]) -> np.ndarray:
     """(K, 2) pixels of one frame's landmarks."""
-    pts = problem.points(np.asarray(expr, np.float64)[None], np.asarray(jaw, np.float64)[None])[0]
-    cam = pts @ _rodrigues(np.asarray(rotation, np.float64)[None])[0].T + np.asarray(translation, np.float64)
+    R = _rodrigues(np.asarray(rotation, np.float64)[None])
+    pts = problem.posed_points(np.asarray(expr, np.float64)[None], np.asarray(jaw, np.float64)[None], R,
+                               np.asarray(translation, np.float64)[None])[0]
+    cam = pts @ R[0].T + np.asarray(translation, np.float64)
     cam[:, 1:] *= -1.0
     z = np.maximum(cam[:, 2], 1e-4)
     return np.stack([focal * cam[:, 0] / z + size[0] / 2, focal * cam[:, 1] / z + size[1] / 2], axis=1)
@@ -220,8 +240,11 @@ def landmark_offsets(problem: FrameProblem, fits: list, targets: list, focal: fl
     steps = []
     for fit, tg in zip(fits, targets):
         w, h = tg.size
-        pts = problem.points(np.asarray(fit.expr, np.float64)[None], np.asarray(fit.jaw, np.float64)[None])[0]
-        R = _rodrigues(np.asarray(fit.rotation, np.float64)[None])[0]
+        Rb = _rodrigues(np.asarray(fit.rotation, np.float64)[None])
+        # the view correction at this frame's pose included: the offsets hold only what it left
+        pts = problem.posed_points(np.asarray(fit.expr, np.float64)[None], np.asarray(fit.jaw, np.float64)[None],
+                                   Rb, np.asarray(fit.translation, np.float64)[None])[0]
+        R = Rb[0]
         cam = pts @ R.T + np.asarray(fit.translation, np.float64)
         cam[:, 1:] *= -1.0                                              # OpenCV axes
         z = np.maximum(cam[:, 2], 1e-4)

@@ -65,6 +65,11 @@ class TrackOptions:
     Levenberg-Marquardt steps per frame (`solve.fit_frame`); depth_weight, expr_prior,
     jaw_prior, outline_weight: the objective's weights (`face.fit`); calibration_frames: frames with a face the
     per-landmark calibration uses (`FrameTracker.calibrate`; below CALIBRATION_MIN: none).
+    view_correction: the landmarks follow the built-in view- and jaw-dependent correction
+    (`face.view_correction`; only with the template's embedding) at the pose being fitted.
+    Off by default: calibrated on renders of the template head, it removes the template's
+    bias (shaded template video: rotation 3.23 -> 2.15 deg, jaw 0.045 -> 0.034 rad) but puts
+    it on other faces (the avatar built from samples/portrait.jpg: 4.15 -> 7.46 deg).
     Tracking departs from the portrait fit's
     defaults, as measured on rendered heads with known motion: the face mesh's relative depth
     biased the pitch (median rotation error 5.0 deg with it, 3.4 without), and a jaw prior
@@ -85,6 +90,7 @@ class TrackOptions:
     jaw_prior: float = 1e-3
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
+    view_correction: bool = False
 
 
 @dataclass(eq=False)
@@ -183,7 +189,11 @@ class FrameTracker:
         self.eye_centres = self.joints[[gaze.LEFT_EYE_JOINT, gaze.RIGHT_EYE_JOINT]]
         from avatarkit.track.solve import FrameProblem
 
-        self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components)
+        from avatarkit.face.view_correction import resolve
+
+        self.correction = resolve("full" if options.view_correction else None, self.embedding)
+        self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components
+                                                        ).with_view(self.correction)
         self.prev_mesh = None
         self.prev_fit = None
         self.last_centre = None
@@ -241,7 +251,8 @@ class FrameTracker:
             offset = offset + landmark_offsets(self.problem, fits, targets, self.focal)
             self.embedding = self.embedding.with_offset(offset)
             self.lm = LandmarkModel(self.model, self.embedding)
-            self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components)
+            self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components
+                                                            ).with_view(self.correction)
         self.prev_fit = None
 
     def _fit_targets(self, targets):
