@@ -36,6 +36,13 @@ MATCH_D2 = 16.0
 #: quantisation would otherwise give a singular covariance
 MIN_STD = 2.0
 WORK_SIZE = 512
+#: how deep (IOD units) the boundary step may move GrabCut's person outline in
+BOUNDARY_BAND = 0.1
+
+
+def boundary_band(iod: float) -> int:
+    """The boundary step's band in px for a face `iod` px wide (at least 2 px)."""
+    return max(2, int(round(BOUNDARY_BAND * iod)))
 
 
 def rgb_to_lab(rgb: np.ndarray) -> np.ndarray:
@@ -204,9 +211,38 @@ def _drop_small(mask: np.ndarray, max_size: int) -> np.ndarray:
     return keep[lab]
 
 
-def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int) -> np.ndarray:
+#: sigma (0-255 levels) of the noise put back into flat pixels for GrabCut
+FLAT_NOISE = 3.0
+
+
+def _renoise_flat(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: `img` with a fixed pattern of Gaussian noise (`FLAT_NOISE`) added to
+    its flat pixels, those whose 3x3 neighbourhood holds one colour.
+
+    A camera's noise never leaves a pixel's neighbourhood exactly one colour; clipping (a
+    blown-out white wall), JPEG's quantisation of a plain wall (it drops the noise) and
+    synthetic renders do. Such a wall gives GrabCut's background mixture a component of almost
+    no spread (OpenCV adds only 0.01 to its diagonal), under which the wall's own pixels a few
+    levels off (JPEG ringing and 8x8 blocks near the person, chroma subsampling, the edge's
+    mixed pixels) are far less likely than under the person's broad components: GrabCut then
+    kept most of the probable-person zone (head ellipse, torso) of wall as person. Noise in
+    the flat pixels gives the component a camera's spread and leaves every other pixel as it
+    was (noise everywhere made dark hair on a dark wall fall to the background)."""
+    import cv2
+
+    k = np.ones((3, 3), np.uint8)
+    flat = (cv2.dilate(img, k) - cv2.erode(img, k)).max(axis=2) == 0
+    if not flat.any():
+        return img
+    noise = np.random.default_rng(0).normal(0.0, FLAT_NOISE, img.shape)
+    return np.clip(img + np.where(flat[..., None], noise, 0.0), 0, 255).astype(np.uint8)
+
+
+def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float) -> np.ndarray:
     import cv2
     from scipy import ndimage
+
+    from avatarkit.recon.boundary import refine_person
 
     sure = reg["face_core"] | reg["neck"]
     gc = np.full(img.shape[:2], cv2.GC_PR_BGD, np.uint8)
@@ -216,9 +252,12 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int) -> np.
     bg_share = np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).mean()
     if bg_share < 0.02:  # the head fills the picture: nothing to learn a background from
         return np.ones(img.shape[:2], bool)
-    person = _grabcut(img, gc, iterations)
+    person = _grabcut(_renoise_flat(img), gc, iterations)
     person = _keep_touching(person, sure) | sure
-    return ndimage.binary_fill_holes(person)
+    person = ndimage.binary_fill_holes(person)
+    # GrabCut's outline takes a few px of a plain light background with it: pull it back.
+    person = refine_person(img, person, boundary_band(iod), keep=sure)
+    return _keep_touching(person, sure) | sure
 
 
 def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod) -> np.ndarray:
@@ -307,7 +346,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     reg = face_regions(u, v)
     lab = rgb_to_lab(img)
 
-    person = _person(img, reg, iterations)
+    person = _person(img, reg, iterations, iod)
     skin_px = reg["skin_sample"] & person
     if skin_px.sum() < 10:
         skin_px = reg["face_core"]
