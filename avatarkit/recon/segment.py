@@ -3,7 +3,13 @@
 Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular distance):
 1. person vs background: `cv2.grabCut` seeded from the face: the face core and neck are sure
    person, a head ellipse (room for hair) and a widening torso below the chin probable person,
-   far left/right of the head sure background, the rest probable background;
+   far left/right of the head sure background, the rest probable background. GrabCut sees the
+   image with camera-size noise put back into its flat pixels (`_renoise_flat`: a clipped or
+   JPEG-flattened wall otherwise gives its background model a zero-spread component, and the
+   wall's pixels near the person join the person); then the outline's band (0.1 IOD) is
+   peeled from the outside where a pixel is mostly wall by a local colour mix
+   (`recon.boundary`). Without the two, a plain light wall left a 1.5-10 px halo in the
+   person, which became the hair label;
 2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
    eyes, above the mouth), outliers (nostrils, shadows) trimmed;
 3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
@@ -238,7 +244,8 @@ def _renoise_flat(img: np.ndarray) -> np.ndarray:
     return np.clip(img + np.where(flat[..., None], noise, 0.0), 0, 255).astype(np.uint8)
 
 
-def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float) -> np.ndarray:
+def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float, boundary: bool = True
+            ) -> np.ndarray:
     import cv2
     from scipy import ndimage
 
@@ -252,10 +259,12 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
     bg_share = np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).mean()
     if bg_share < 0.02:  # the head fills the picture: nothing to learn a background from
         return np.ones(img.shape[:2], bool)
-    person = _grabcut(_renoise_flat(img), gc, iterations)
+    person = _grabcut(_renoise_flat(img) if boundary else img, gc, iterations)
     person = _keep_touching(person, sure) | sure
     person = ndimage.binary_fill_holes(person)
-    # GrabCut's outline takes a few px of a plain light background with it: pull it back.
+    if not boundary:
+        return person
+    # the outline's mixed pixels and what is left of a wall's halo: peel them from the outside
     person = refine_person(img, person, boundary_band(iod), keep=sure)
     return _keep_touching(person, sure) | sure
 
@@ -308,7 +317,7 @@ def _load_hair_mask(hair_mask, shape, path) -> np.ndarray:
 
 
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
-                     work_size: int = WORK_SIZE, iterations: int = 3,
+                     work_size: int = WORK_SIZE, iterations: int = 3, boundary: bool = True,
                      path: str | os.PathLike | None = None) -> Segmentation:
     """Label every pixel of a portrait as background, skin/face, hair or body.
 
@@ -317,6 +326,8 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
         image if the aspect ratio matches, else FormatError. It replaces the built-in hair label.
     work_size: GrabCut runs on a copy whose longer side is at most this many pixels.
     iterations: GrabCut iterations per cut (3 is enough on portraits; 5 is OpenCV's usual).
+    boundary: False gives GrabCut's own person outline on the image as it is (no re-noised
+        flat pixels, no boundary step): the behaviour before them, the benchmark's baseline.
     """
     import cv2
 
@@ -346,7 +357,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     reg = face_regions(u, v)
     lab = rgb_to_lab(img)
 
-    person = _person(img, reg, iterations, iod)
+    person = _person(img, reg, iterations, iod, boundary)
     skin_px = reg["skin_sample"] & person
     if skin_px.sum() < 10:
         skin_px = reg["face_core"]
