@@ -148,3 +148,46 @@ def test_refine_over_the_reference_view_alone_is_refine_colours():
     np.testing.assert_allclose(b.colors, a.colors, atol=1e-5)
     assert fb["psnr_after"] == pytest.approx(fa["psnr_after"], abs=1e-3)
     assert fb["psnr_after"] > fb["psnr_before"]
+
+
+def _noisy(shape, colour, rng):
+    """(shape, 3) uint8 around an RGB colour in [0, 255] (a little noise: the colour models
+    need a spread)."""
+    return np.clip(np.asarray(colour, np.float64) + rng.normal(0, 4, (*shape, 3)), 0, 255).astype(np.uint8)
+
+
+def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
+    """A keyframe whose segmentation called the hair at the back of the head "body" and lost
+    part of it to the background (what a portrait segmentation does to a turned head): within
+    reach of the head the reference's colour models put hair and skin back; the clothes, the
+    wall and everything far from the head keep their labels."""
+    from avatarkit.recon.multiview import relabel_head
+    from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, SKIN
+
+    rng = np.random.default_rng(0)
+    skin_rgb, hair_rgb, wall_rgb, shirt_rgb = (220, 170, 140), (70, 45, 25), (245, 245, 245), (40, 90, 200)
+    n = 96
+    # the reference: skin on the left half, hair on the right half of a band, wall elsewhere
+    ref = _noisy((n, n), wall_rgb, rng)
+    ref_labels = np.full((n, n), BACKGROUND)
+    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
+    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    # the keyframe: face 20:60 x 20:50, hair 20:60 x 50:70 (labelled body, its outer part
+    # background), a shirt below the head (body), the wall; a far dark patch at the corner
+    img = _noisy((n, n), wall_rgb, rng)
+    labels = np.full((n, n), BACKGROUND)
+    img[20:60, 20:50], labels[20:60, 20:50] = _noisy((40, 30), skin_rgb, rng), SKIN
+    img[20:60, 50:70] = _noisy((40, 20), hair_rgb, rng)
+    labels[20:60, 50:62] = BODY
+    img[60:80, 20:70], labels[60:80, 20:70] = _noisy((20, 50), shirt_rgb, rng), BODY
+    img[85:95, 85:95] = _noisy((10, 10), hair_rgb, rng)
+    head = np.zeros((n, n), bool)
+    head[22:58, 22:66] = True
+    out = relabel_head(labels, img, head, ref, ref_labels)
+    assert (out[22:58, 52:68] == HAIR).mean() > 0.95
+    assert (out[22:58, 22:48] == SKIN).mean() > 0.95
+    assert (out[60:80, 20:70] == BODY).all()        # within reach, but neither skin- nor hair-coloured
+    assert (out[:10] == BACKGROUND).all() and (out[85:95, 85:95] == BACKGROUND).all()
+    # a reference without hair (a bald subject) gives no hair model: nothing changes
+    np.testing.assert_array_equal(relabel_head(labels, img, head, ref, np.where(ref_labels == HAIR, BODY, ref_labels)),
+                                  labels)

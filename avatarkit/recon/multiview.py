@@ -75,6 +75,9 @@ SILHOUETTE_MARGIN = 0.02
 #: a hair Gaussian is seen in a view when at least this share of its own footprint shows there
 #: (`footprint_visibility`)
 HAIR_VISIBLE = 0.1
+#: a turned keyframe's person pixels this close to its fitted head (share of the longer side)
+#: are relabelled by the reference view's colour models (`relabel_head`)
+RELABEL_REACH = 0.06
 #: the soft person mask: the segmentation's person mask blurred by this share of the image's
 #: longer side (about the width of an anti-aliased silhouette at 192..512 px)
 SOFT_MASK_SIGMA = 0.006
@@ -83,6 +86,9 @@ SOFT_MASK_SIGMA = 0.006
 EDGE_BAND = 0.04
 #: ... when their colour is this close (RGB in [0, 1], Euclidean) to the nearest background pixel's
 BACKGROUND_COLOUR = 0.12
+
+#: relabel the keyframes' heads by the reference's colour models (`relabel_head`)
+RELABEL_KEYFRAMES = True
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -174,6 +180,50 @@ def footprint_visibility(gaussians, camera: Camera, region: np.ndarray | None = 
     own = np.asarray(gaussians.opacities, np.float64) * 2.0 * np.pi / np.sqrt(np.maximum(det, 1e-30))
     vis = np.where((proj.radii > 0) & (det > 0), weights[:, 1] / np.maximum(own, 1e-30), 0.0)
     return np.clip(vis, 0.0, 1.0)
+
+
+def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, ref_image: np.ndarray,
+                 ref_labels: np.ndarray, reach: float = RELABEL_REACH) -> np.ndarray:
+    """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
+    reference view's colour models. A portrait segmentation finds hair in a zone laid out
+    around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
+    and at the back of the head "body" (or loses it), so that hair is neither sampled nor
+    voted for. The reference view's segmentation is the one made on the picture it is made
+    for; its skin and hair colours (`recon.segment.ColourModel`, Lab) label the keyframe's
+    person pixels within `reach` (share of the longer side) of the fitted head mesh as seen
+    by that keyframe (`head`, (H, W) bool; background pixels there too when their colour is
+    not within `segment.MATCH_D2` of the background's, away from the head): hair where the hair model is the likelier and the
+    colour is within `segment.MATCH_D2` of it, skin likewise; other pixels keep their label.
+    labels, ref_labels: (H, W) int; image, ref_image: (H, W, 3) uint8. Without both models
+    in the reference (a bald subject: no hair) the labels come back unchanged."""
+    import cv2
+
+    from avatarkit.recon.segment import BACKGROUND, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
+
+    labels = np.asarray(labels).copy()
+    ref_labels = np.asarray(ref_labels)
+    ref_lab = rgb_to_lab(np.asarray(ref_image))
+    if (ref_labels == HAIR).sum() < 20 or (ref_labels == SKIN).sum() < 20:
+        return labels
+    hair_m = ColourModel.fit(ref_lab[ref_labels == HAIR])
+    skin_m = ColourModel.fit(ref_lab[ref_labels == SKIN])
+    r = max(1, int(round(reach * max(labels.shape))))
+    near = cv2.dilate(np.asarray(head, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    full = rgb_to_lab(np.asarray(image))
+    zone = near & (labels != BACKGROUND)
+    bg = (labels == BACKGROUND) & ~near
+    if bg.sum() >= 20:
+        # the segmentation's person mask loses dark hair at a turned head's back: a pixel it
+        # calls background by the head is the person's when its colour is not the background's
+        zone |= near & (labels == BACKGROUND) & (ColourModel.fit(full[bg]).distance2(full) > MATCH_D2)
+    lab = full[zone]
+    dh, ds = hair_m.distance2(lab), skin_m.distance2(lab)
+    lh, ls = hair_m.log_likelihood(lab), skin_m.log_likelihood(lab)
+    new = labels[zone]
+    new[(lh > ls) & (dh <= MATCH_D2)] = HAIR
+    new[(ls >= lh) & (ds <= MATCH_D2)] = SKIN
+    labels[zone] = new
+    return labels
 
 
 def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float = SOFT_MASK_SIGMA) -> np.ndarray:
@@ -483,6 +533,8 @@ class VideoViews:
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
+                if RELABEL_KEYFRAMES:
+                    v.labels = relabel_head(v.labels, k.image, v.head, image, labels).astype(np.int32)
             except AvatarKitError as e:
                 v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
             views.append(v)
