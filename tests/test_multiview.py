@@ -181,12 +181,15 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     labels[20:60, 50:62] = BODY
     img[60:80, 20:70], labels[60:80, 20:70] = _noisy((20, 50), shirt_rgb, rng), BODY
     img[85:95, 85:95] = _noisy((10, 10), hair_rgb, rng)
+    # shadowed hair the segmentation lost, like neither model: the person's, of unknown part
+    img[10:20, 40:60] = _noisy((10, 20), (25, 15, 8), rng)
     head = np.zeros((n, n), bool)
     head[22:58, 22:66] = True
     out = relabel_head(labels, img, head, ref, ref_labels)
     assert (out[22:58, 52:68] == HAIR).mean() > 0.95
     assert (out[22:58, 22:48] == SKIN).mean() > 0.95
     assert (out[60:80, 20:70] == BODY).all()        # within reach, but neither skin- nor hair-coloured
+    assert (out[17:20, 42:58] == BODY).all() and (out[10:15, 40:60] == BACKGROUND).all()   # out of reach
     assert (out[:10] == BACKGROUND).all() and (out[85:95, 85:95] == BACKGROUND).all()
     # a reference without hair (a bald subject) gives no hair model: nothing changes
     np.testing.assert_array_equal(relabel_head(labels, img, head, ref, np.where(ref_labels == HAIR, BODY, ref_labels)),

@@ -192,13 +192,14 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, ref_im
     for; its skin and hair colours (`recon.segment.ColourModel`, Lab) label the keyframe's
     person pixels within `reach` (share of the longer side) of the fitted head mesh as seen
     by that keyframe (`head`, (H, W) bool; background pixels there too when their colour is
-    not within `segment.MATCH_D2` of the background's, away from the head): hair where the hair model is the likelier and the
+    not within `segment.MATCH_D2` of the background's, away from the head: those are body at
+    least, the person's for the silhouette bound): hair where the hair model is the likelier and the
     colour is within `segment.MATCH_D2` of it, skin likewise; other pixels keep their label.
     labels, ref_labels: (H, W) int; image, ref_image: (H, W, 3) uint8. Without both models
     in the reference (a bald subject: no hair) the labels come back unchanged."""
     import cv2
 
-    from avatarkit.recon.segment import BACKGROUND, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
+    from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
 
     labels = np.asarray(labels).copy()
     ref_labels = np.asarray(ref_labels)
@@ -215,7 +216,11 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, ref_im
     if bg.sum() >= 20:
         # the segmentation's person mask loses dark hair at a turned head's back: a pixel it
         # calls background by the head is the person's when its colour is not the background's
-        zone |= near & (labels == BACKGROUND) & (ColourModel.fit(full[bg]).distance2(full) > MATCH_D2)
+        lost = near & (labels == BACKGROUND) & (ColourModel.fit(full[bg]).distance2(full) > MATCH_D2)
+        # the person's at least (the silhouette bound keeps the hair there), hair or skin below
+        # when it has their colour (shadowed hair on the turned side may have neither)
+        labels[lost] = BODY
+        zone |= lost
     lab = full[zone]
     dh, ds = hair_m.distance2(lab), skin_m.distance2(lab)
     lh, ls = hair_m.log_likelihood(lab), skin_m.log_likelihood(lab)
