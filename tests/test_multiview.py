@@ -161,7 +161,7 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     part of it to the background (what a portrait segmentation does to a turned head): within
     reach of the head the reference's colour models put hair and skin back; the clothes, the
     wall and everything far from the head keep their labels."""
-    from avatarkit.recon.multiview import relabel_head
+    from avatarkit.recon.multiview import reference_colours, relabel_head
     from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, SKIN
 
     rng = np.random.default_rng(0)
@@ -185,12 +185,12 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     img[10:20, 40:60] = _noisy((10, 20), (25, 15, 8), rng)
     head = np.zeros((n, n), bool)
     head[22:58, 22:66] = True
-    out = relabel_head(labels, img, head, ref, ref_labels)
+    out = relabel_head(labels, img, head, reference_colours(ref, ref_labels))
     assert (out[22:58, 52:68] == HAIR).mean() > 0.95
     assert (out[22:58, 22:48] == SKIN).mean() > 0.95
     assert (out[60:80, 20:70] == BODY).all()        # within reach, but neither skin- nor hair-coloured
     assert (out[17:20, 42:58] == BODY).all() and (out[10:15, 40:60] == BACKGROUND).all()   # out of reach
     assert (out[:10] == BACKGROUND).all() and (out[85:95, 85:95] == BACKGROUND).all()
     # a reference without hair (a bald subject) gives no hair model: nothing changes
-    np.testing.assert_array_equal(relabel_head(labels, img, head, ref, np.where(ref_labels == HAIR, BODY, ref_labels)),
-                                  labels)
+    assert reference_colours(ref, np.where(ref_labels == HAIR, BODY, ref_labels)) is None
+    np.testing.assert_array_equal(relabel_head(labels, img, head, None), labels)

@@ -182,43 +182,56 @@ def footprint_visibility(gaussians, camera: Camera, region: np.ndarray | None = 
     return np.clip(vis, 0.0, 1.0)
 
 
-def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, ref_image: np.ndarray,
-                 ref_labels: np.ndarray, reach: float = RELABEL_REACH) -> np.ndarray:
+def reference_colours(image: np.ndarray, labels: np.ndarray):
+    """(hair, skin) `recon.segment.ColourModel`s (Lab) of the reference view: image (H, W, 3)
+    uint8, labels (H, W) int; None when either label has fewer than 20 pixels (a bald subject:
+    no hair model, so `relabel_head` leaves the keyframes' labels alone)."""
+    from avatarkit.recon.segment import HAIR, SKIN, ColourModel, rgb_to_lab
+
+    labels = np.asarray(labels)
+    hair, skin = labels == HAIR, labels == SKIN
+    if hair.sum() < 20 or skin.sum() < 20:
+        return None
+    lab = rgb_to_lab(np.asarray(image))
+    return ColourModel.fit(lab[hair]), ColourModel.fit(lab[skin])
+
+
+def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
+                 reach: float = RELABEL_REACH) -> np.ndarray:
     """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
     reference view's colour models. A portrait segmentation finds hair in a zone laid out
     around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
-    and at the back of the head "body" (or loses it), so that hair is neither sampled nor
-    voted for. The reference view's segmentation is the one made on the picture it is made
-    for; its skin and hair colours (`recon.segment.ColourModel`, Lab) label the keyframe's
-    person pixels within `reach` (share of the longer side) of the fitted head mesh as seen
-    by that keyframe (`head`, (H, W) bool; background pixels there too when their colour is
-    not within `segment.MATCH_D2` of the background's, away from the head: those are body at
-    least, the person's for the silhouette bound): hair where the hair model is the likelier and the
+    and at the back of the head "body" (or loses it to the background), so that hair is
+    neither sampled nor voted for, and the silhouette bound removes hair through it. The
+    reference view's segmentation is the one made on the picture it is made for; its skin and
+    hair colours (`colours`: `reference_colours`, None: labels unchanged) label the keyframe's
+    person pixels within `reach` (share of the longer side) of the fitted head mesh as seen by
+    that keyframe (`head`, (H, W) bool): hair where the hair model is the likelier and the
     colour is within `segment.MATCH_D2` of it, skin likewise; other pixels keep their label.
-    labels, ref_labels: (H, W) int; image, ref_image: (H, W, 3) uint8. Without both models
-    in the reference (a bald subject: no hair) the labels come back unchanged."""
+    Background-labelled pixels there whose colour is not within `segment.MATCH_D2` of the
+    background's (away from the head) are the person's too: body at least (shadowed hair on
+    the turned side may match neither model), hair or skin when they match.
+    labels: (H, W) int; image: (H, W, 3) uint8."""
     import cv2
 
     from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
 
     labels = np.asarray(labels).copy()
-    ref_labels = np.asarray(ref_labels)
-    ref_lab = rgb_to_lab(np.asarray(ref_image))
-    if (ref_labels == HAIR).sum() < 20 or (ref_labels == SKIN).sum() < 20:
+    if colours is None:
         return labels
-    hair_m = ColourModel.fit(ref_lab[ref_labels == HAIR])
-    skin_m = ColourModel.fit(ref_lab[ref_labels == SKIN])
+    hair_m, skin_m = colours
     r = max(1, int(round(reach * max(labels.shape))))
     near = cv2.dilate(np.asarray(head, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
     full = rgb_to_lab(np.asarray(image))
     zone = near & (labels != BACKGROUND)
     bg = (labels == BACKGROUND) & ~near
-    if bg.sum() >= 20:
+    candidates = near & (labels == BACKGROUND)
+    if bg.sum() >= 20 and candidates.any():
         # the segmentation's person mask loses dark hair at a turned head's back: a pixel it
         # calls background by the head is the person's when its colour is not the background's
-        lost = near & (labels == BACKGROUND) & (ColourModel.fit(full[bg]).distance2(full) > MATCH_D2)
-        # the person's at least (the silhouette bound keeps the hair there), hair or skin below
-        # when it has their colour (shadowed hair on the turned side may have neither)
+        # (the model from every 4th background pixel: the same fit, a quarter of the work)
+        lost = np.zeros_like(candidates)
+        lost[candidates] = ColourModel.fit(full[bg][::4]).distance2(full[candidates]) > MATCH_D2
         labels[lost] = BODY
         zone |= lost
     lab = full[zone]
@@ -530,6 +543,7 @@ class VideoViews:
                                 [k.pose for k in self.keyframes])
         detector = getattr(options, "face_detector", "auto")
         faces = fit.model.faces
+        colours = reference_colours(image, labels) if RELABEL_KEYFRAMES else None
         views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True,
                       head=head_silhouette(fit.rest_vertices, faces, fit.camera))]
         for k, cam in zip(self.keyframes[1:], cams[1:]):
@@ -538,8 +552,8 @@ class VideoViews:
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
-                if RELABEL_KEYFRAMES:
-                    v.labels = relabel_head(v.labels, k.image, v.head, image, labels).astype(np.int32)
+                if colours is not None:
+                    v.labels = relabel_head(v.labels, k.image, v.head, colours).astype(np.int32)
             except AvatarKitError as e:
                 v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
             views.append(v)
@@ -561,7 +575,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "person_weight", "pose_matrix",
-           "refine_colours_views", "silhouette_outside", "soft_person", "view_samples"]
+           "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
