@@ -53,7 +53,10 @@ def test_video_build_is_no_worse_than_the_single_frame_build_away_from_the_front
     # at +-45, -0.06 at the front (benchmarks/build_video.py, the same builds): this video's
     # keyframes turn at most ~33 degrees (the tracker loses the face past that), and the
     # profile's errors lie behind the ear, where no keyframe looks (docs/video-build.md). The
-    # bounds say the extra views cost nothing anywhere: the issue's +3 dB is not met.
+    # bounds say the extra views cost nothing anywhere: the issue's +3 dB is not met. On this
+    # subject the views hardly matter any more: every keyframe but the reference misregistered
+    # by 15 degrees of yaw measured -0.18 / -0.16 / +0.15 / -0.03 / -0.06 dB and passes too; the
+    # mesh subject's test below is the one that catches the keyframes' labels going wrong.
     assert all(g > -0.5 for g in gains.values()), (pv, ps)
     assert np.mean([gains[90.0], gains[-90.0]]) > -0.25, (pv, ps)
 
