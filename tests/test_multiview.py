@@ -194,3 +194,33 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     # a reference without hair (a bald subject) gives no hair model: nothing changes
     assert reference_colours(ref, np.where(ref_labels == HAIR, BODY, ref_labels)) is None
     np.testing.assert_array_equal(relabel_head(labels, img, head, None), labels)
+
+
+def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refine():
+    """`VideoViews.keep_view_colours`: the Gaussians the blend coloured from other keyframes
+    only get those colours back, found by their centres in sets that gained and lost rows in
+    between (the silhouette cover); every other row keeps what the refine gave it."""
+    from avatarkit.recon.multiview import VideoViews
+
+    rng = np.random.default_rng(1)
+    bald = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    hair = _plane(0.05, (-0.1, 0.0), (0.2, 0.2, 0.2))
+    vv = VideoViews(np.zeros(3), [])
+    both = GaussianSet.concat([bald, hair])
+    pick = rng.random(len(both)) < 0.3
+    target = rng.random((int(pick.sum()), 3)).astype(np.float32)
+    bald_c, hair_c, _ = vv.keep_view_colours(bald, hair)          # nothing stored yet: unchanged
+    np.testing.assert_array_equal(bald_c.sh, bald.sh)
+    vv._only_others = (both.means[pick], target)
+    # in between: the refine changed every colour, the cover dropped the first bald row and
+    # appended a new one
+    refined_bald = bald.with_colors(np.full((len(bald), 3), 0.9, np.float32)).subset(np.arange(1, len(bald)))
+    refined_bald = GaussianSet.concat([refined_bald, _plane(0.2, (0.0, 0.0), (0.9, 0.9, 0.9))])
+    refined_hair = hair.with_colors(np.full((len(hair), 3), 0.9, np.float32))
+    out_bald, out_hair, n = vv.keep_view_colours(refined_bald, refined_hair)
+    expect = np.full((len(both), 3), 0.9, np.float32)
+    expect[pick] = target
+    got = np.concatenate([out_bald.colors[:len(bald) - 1], out_hair.colors])
+    np.testing.assert_allclose(got, np.concatenate([expect[1:len(bald)], expect[len(bald):]]), atol=1e-5)
+    assert n == int(pick[1:].sum())
+    np.testing.assert_allclose(out_bald.colors[len(bald) - 1:], 0.9, atol=1e-5)

@@ -499,12 +499,14 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     colours, seen = blend_colours(both.colors, samples, keep)
     colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
     seen_by = np.stack([s.seen for s in samples])                  # (V, N)
+    only_others = seen & ~seen_by[0]
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
     both = both.with_colors(colours)
+    figures["_only_others"] = (np.asarray(both.means, np.float64)[only_others], colours[only_others])
     return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
 
 
@@ -559,6 +561,31 @@ class VideoViews:
             views.append(v)
         return views
 
+    def keep_view_colours(self, bald, hair):
+        """Bald and hair with the colours `colour` gave the Gaussians only the other keyframes
+        saw (not the reference view) put back: the reference photo's colour matching comes
+        after the blend (`recon.pipeline`), and it reaches Gaussians the reference view sees
+        only at a grazing angle or past the silhouette (the side of the jaw, the shadowed side
+        of a turned head) and pulls them to the photo there, which is the background or the
+        lit front. Rows are matched by their centres (the silhouette cover in between adds and
+        drops Gaussians, it moves none). Returns (bald, hair, rows restored)."""
+        means, colours = getattr(self, "_only_others", (np.zeros((0, 3)), np.zeros((0, 3), np.float32)))
+        if not len(means):
+            return bald, hair, 0
+        where = {m.tobytes(): i for i, m in enumerate(np.asarray(means, np.float64))}
+        out, n = [], 0
+        for g in (bald, hair):
+            rows = [(r, where.get(m.tobytes())) for r, m in enumerate(np.asarray(g.means, np.float64))]
+            rows = [(r, i) for r, i in rows if i is not None]
+            if rows:
+                rgb = g.colors.astype(np.float32).copy()
+                r, i = np.array(rows).T
+                rgb[r] = colours[i]
+                g = g.with_colors(rgb)
+                n += len(rows)
+            out.append(g)
+        return out[0], out[1], n
+
     def summary(self, views: list[View]) -> dict:
         return {**self.info, "views": len(views), "segmented": int(sum(v.labels is not None for v in views))}
 
@@ -571,7 +598,9 @@ class VideoViews:
         if "neck" in model.regions and "binding" in bald.extras:
             neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
             keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
-        return colour_from_views(bald, hair, views, normals, keep)
+        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep)
+        self._only_others = figures.pop("_only_others")
+        return bald, hair, figures
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
