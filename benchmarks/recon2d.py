@@ -4,7 +4,9 @@ Prints, per image size: seconds per stage (median of `--repeat` runs) next to a 
 baseline run in the same process (a bare Haar detection; one plain rect-initialised GrabCut;
 OpenCV's Telea inpainting of the hair), the share of filled scalp pixels whose colour is closer
 to the skin model than to the hair model (ours vs Telea), the exact-vs-two-level harmonic fill
-time and error, and segmentation IoU on synthetic portraits with known labels.
+time and error, and segmentation IoU and the person outline's mean outward / inward offset (px)
+on synthetic portraits and the video benchmarks' mesh subject with known labels, with the
+outline step and without it (GrabCut's own outline, the baseline).
 
     .venv/bin/python benchmarks/recon2d.py [--repeat 3]
 """
@@ -98,20 +100,68 @@ def bench_fill(repeat: int) -> None:
           f"error mean {err.mean():.3f}, max {err.max():.2f} (of 255)")
 
 
+def jpeg(image: np.ndarray, quality: int = 90) -> np.ndarray:
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(image[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    return cv2.imdecode(buf, cv2.IMREAD_COLOR)[:, :, ::-1].copy()
+
+
+def outline(person: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """(wall pixels taken per true outline pixel, person pixels lost per outline pixel): mean
+    outward / inward offsets of the person outline in px."""
+    from scipy import ndimage
+
+    perimeter = max(1, (truth & ~ndimage.binary_erosion(truth)).sum())
+    return (person & ~truth).sum() / perimeter, (truth & ~person).sum() / perimeter
+
+
+def mesh_subject_front(size: int = 192):
+    """The video benchmarks' mesh subject at rest on white, as a JPEG: (image, person, hair)."""
+    from avatarkit.synthetic.head_video import head_video_camera
+    from avatarkit.synthetic.mesh_head import SUPERSAMPLE, MeshHead
+    from avatarkit.synthetic.mesh_raster import downsample, rasterise
+
+    subject = MeshHead.make()
+    camera = head_video_camera(size, distance=0.5)
+    rgb, alpha = subject.render(camera)
+    pts, faces, attrs = subject.meshes(subject.rest)
+    r = rasterise(pts, faces, attrs, camera.with_size(size * SUPERSAMPLE, size * SUPERSAMPLE))
+    hair = downsample((r.covered & (r.attributes[..., 6] > 0.5)).astype(np.float64), SUPERSAMPLE)
+    return jpeg(np.round(rgb * 255).astype(np.uint8)), alpha > 0.5, hair > 0.5
+
+
 def bench_synthetic() -> None:
-    print("\n== segmentation IoU on synthetic portraits (known labels)")
+    """Labels and the person outline on subjects with known labels, with the outline step
+    (re-noised flat pixels + the boundary peel) and without it (GrabCut's own outline, the
+    baseline: `segment_portrait(boundary=False)`), in the same process."""
+    print("\n== segmentation on synthetic portraits (known labels): with the outline step | GrabCut's own outline")
+    print(f"{'':30s} {'hair IoU':>8s} {'skin IoU':>8s} {'out px':>6s} {'in px':>6s} | "
+          f"{'hair IoU':>8s} {'skin IoU':>8s} {'out px':>6s} {'in px':>6s}")
     cases = {"brown hair": dict(blur=1.0, noise=4), "blond hair": dict(blur=1.5, noise=6, hair_rgb=(196, 164, 108)),
              "dark background": dict(blur=1.0, noise=4, background_rgb=(62, 50, 44)),
-             "soft edges (blur 2)": dict(blur=2.0, noise=4)}
+             "soft edges (blur 2)": dict(blur=2.0, noise=4),
+             "JPEG, white wall": dict(blur=1.0, noise=0, background_rgb=(255, 255, 255)),
+             "JPEG, light grey wall": dict(blur=1.5, noise=2, background_rgb=(245, 245, 245)),
+             "JPEG, black hair, black wall": dict(blur=1.0, noise=0, background_rgb=(20, 20, 20), hair_rgb=(35, 28, 25))}
     for name, kw in cases.items():
         sp = synthetic_portrait(**kw)
         a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
-        seg = segment_portrait(sp.image, a)
-        ious = []
-        for c in (HAIR, SKIN):
-            p, t = seg.labels == c, sp.labels == c
-            ious.append((p & t).sum() / max(1, (p | t).sum()))
-        print(f"{name:22s} hair IoU {ious[0]:.3f}  skin IoU {ious[1]:.3f}")
+        image = jpeg(sp.image) if name.startswith("JPEG") else sp.image
+        row = []
+        for boundary in (True, False):
+            seg = segment_portrait(image, a, boundary=boundary)
+            ious = [((seg.labels == c) & (sp.labels == c)).sum() / max(1, ((seg.labels == c) | (sp.labels == c)).sum())
+                    for c in (HAIR, SKIN)]
+            out, lost = outline(seg.person, sp.labels != 0)
+            row.append(f"{ious[0]:8.3f} {ious[1]:8.3f} {out:6.2f} {lost:6.2f}")
+        print(f"{name:30s} {row[0]} | {row[1]}")
+    image, person, hair = mesh_subject_front()
+    a = analyze_portrait(image)
+    row = []
+    for boundary in (True, False):
+        seg = segment_portrait(image, a, boundary=boundary)
+        out, lost = outline(seg.person, person)
+        row.append(f"{(seg.hair & hair).sum() / max(1, (seg.hair | hair).sum()):8.3f} {'':8s} {out:6.2f} {lost:6.2f}")
+    print(f"{'mesh subject, front, JPEG':30s} {row[0]} | {row[1]}")
 
 
 def main(argv=None) -> int:

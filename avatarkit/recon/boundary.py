@@ -14,11 +14,13 @@ the part more than `band` px inside, read at the nearest interior pixel) and a l
 background colour B (a smoothed mean of the background more than 1 px outside, read at the
 nearest such pixel); a = (C - B).(F - B) / |F - B|^2. Pixels with a < 0.5 are mostly
 background. They are removed only where F and B differ clearly (dark hair on a dark wall keeps
-GrabCut's outline: the mix says nothing there) and only from the outside in (the removed
-pixels must connect to the background), so a background-coloured patch inside the person (a
-grey shirt on a grey wall) stays.
+GrabCut's outline: the mix says nothing there), only where C is nearer B than any interior
+colour within 2 `band` px (a smoothed mean F is no person colour at a textured hair edge: a
+dark strand against a dark wall reads as mostly wall by the mix, but finds its like inside),
+and only from the outside in (the removed pixels must connect to the background), so a
+background-coloured patch inside the person (a grey shirt on a grey wall) stays.
 
-`refine_person` is the vectorised form; `refine_person_reference` loops over the band's pixels
+`drop_mask` is the vectorised rule; `drop_mask_reference` loops over the band's pixels
 with brute-force nearest-pixel searches (the test compares the two).
 """
 from __future__ import annotations
@@ -54,20 +56,42 @@ def _cores(person: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray, np.nd
     return interior, clean_bg, person & ~interior
 
 
-def person_share(img: np.ndarray, person: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _nearest_interior_colour2(f: np.ndarray, interior: np.ndarray, ring: np.ndarray, reach: int) -> np.ndarray:
+    """(H, W) float32: for each `ring` pixel the smallest squared colour distance to an
+    `interior` pixel at most `reach` px away (inf where none is; 0 off the ring)."""
+    H, W = interior.shape
+    best = np.full((H, W), np.inf, np.float32)
+    pad = np.pad(f, ((reach, reach), (reach, reach), (0, 0)))
+    ipad = np.pad(interior, reach)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if dy * dy + dx * dx > reach * reach:
+                continue
+            g = pad[reach + dy:reach + dy + H, reach + dx:reach + dx + W]
+            ok = ipad[reach + dy:reach + dy + H, reach + dx:reach + dx + W] & ring
+            d2 = np.einsum("ijk,ijk->ij", f - g, f - g)
+            best = np.where(ok & (d2 < best), d2, best)
+    return np.where(ring, best, 0.0).astype(np.float32)
+
+
+def person_share(img: np.ndarray, person: np.ndarray, band: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The mixing test's numbers for the band pixels.
 
     img: (H, W, 3) uint8 RGB; person: (H, W) bool; band: px.
     Returns (band (H, W) bool, alpha (H, W) float32 (1 off the band), contrast (H, W) float32
-    |F - B| (0 off the band))."""
+    |F - B| (0 off the band), wall2 (H, W) float32 |C - B|^2, person2 (H, W) float32: the
+    smallest |C - P|^2 over the interior pixels P within 2 `band` px (inf where none))."""
     from scipy import ndimage
 
     f = np.asarray(img, np.float32)
     interior, clean_bg, ring = _cores(person, band)
     alpha = np.ones(person.shape, np.float32)
     contrast = np.zeros(person.shape, np.float32)
+    wall2 = np.zeros(person.shape, np.float32)
+    person2 = np.zeros(person.shape, np.float32)
     if not interior.any() or not clean_bg.any() or not ring.any():
-        return ring, alpha, contrast
+        return ring, alpha, contrast, wall2, person2
     sigma = max(1.0, band / 2)
     fg_mean, bg_mean = _local_mean(f, interior, sigma), _local_mean(f, clean_bg, sigma)
     _, (fy, fx) = ndimage.distance_transform_edt(~interior, return_indices=True)
@@ -79,7 +103,10 @@ def person_share(img: np.ndarray, person: np.ndarray, band: int) -> tuple[np.nda
     n2 = np.einsum("ij,ij->i", d, d)
     alpha[ys, xs] = np.einsum("ij,ij->i", f[ys, xs] - B, d) / np.maximum(n2, 1e-6)
     contrast[ys, xs] = np.sqrt(n2)
-    return ring, alpha, contrast
+    c = f[ys, xs] - B
+    wall2[ys, xs] = np.einsum("ij,ij->i", c, c)
+    person2 = _nearest_interior_colour2(f, interior, ring, 2 * band)
+    return ring, alpha, contrast, wall2, person2
 
 
 def _peel(person: np.ndarray, drop: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -97,6 +124,19 @@ def _peel(person: np.ndarray, drop: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return person & ~(drop & outside[lab])
 
 
+def _decide(alpha, contrast, wall2, person2):
+    """The boundary step's rule (arrays or scalars): mostly wall by the mix, the mix
+    trustworthy, and nearer the local wall colour than any nearby person colour (a dark
+    strand at a textured hair edge finds its like inside and stays)."""
+    return (alpha < ALPHA_CUT) & (contrast >= MIN_CONTRAST) & (wall2 < person2)
+
+
+def drop_mask(img: np.ndarray, person: np.ndarray, band: int) -> np.ndarray:
+    """(H, W) bool: the band pixels the rule calls wall (before the outside-in peel)."""
+    ring, alpha, contrast, wall2, person2 = person_share(img, np.asarray(person, bool), band)
+    return ring & _decide(alpha, contrast, wall2, person2)
+
+
 def refine_person(img: np.ndarray, person: np.ndarray, band: int, keep: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: `person` with the band pixels that are mostly background removed.
 
@@ -104,33 +144,38 @@ def refine_person(img: np.ndarray, person: np.ndarray, band: int, keep: np.ndarr
     in; keep: (H, W) bool pixels that stay person whatever their colour (the sure face)."""
     person = np.asarray(person, bool)
     keep = np.zeros_like(person) if keep is None else np.asarray(keep, bool)
-    ring, alpha, contrast = person_share(img, person, band)
-    drop = ring & (alpha < ALPHA_CUT) & (contrast >= MIN_CONTRAST)
-    return _peel(person, drop, keep)
+    return _peel(person, drop_mask(img, person, band), keep)
 
 
-def refine_person_reference(img: np.ndarray, person: np.ndarray, band: int,
-                            keep: np.ndarray | None = None) -> np.ndarray:
-    """`refine_person` pixel by pixel: brute-force nearest interior / clean-background pixel
-    (ties to the first in row-major order, as the distance transform's), the same local means
-    and the same peel."""
+def drop_mask_reference(img: np.ndarray, person: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
+    """`drop_mask` pixel by pixel, with brute-force searches for the nearest interior and
+    clean-background pixels and for the nearest person colour. Returns (drop (H, W) bool,
+    tied (H, W) bool): where several pixels are nearest and they disagree, the decision
+    depends on which one a search picks (`drop` holds the first's); the test skips those."""
     person = np.asarray(person, bool)
-    keep = np.zeros_like(person) if keep is None else np.asarray(keep, bool)
     f = np.asarray(img, np.float32)
     interior, clean_bg, ring = _cores(person, band)
+    drop, tied = np.zeros_like(person), np.zeros_like(person)
     if not interior.any() or not clean_bg.any():
-        return person
+        return drop, tied
     sigma = max(1.0, band / 2)
     fg_mean, bg_mean = _local_mean(f, interior, sigma), _local_mean(f, clean_bg, sigma)
     iy, ix = np.nonzero(interior)
     cy, cx = np.nonzero(clean_bg)
-    drop = np.zeros_like(person)
     for y, x in zip(*np.nonzero(ring)):
-        i = int(np.argmin((iy - y) ** 2 + (ix - x) ** 2))
-        j = int(np.argmin((cy - y) ** 2 + (cx - x) ** 2))
-        F, B = fg_mean[iy[i], ix[i]], bg_mean[cy[j], cx[j]]
-        d = F - B
-        n2 = float(d @ d)
-        a = float((f[y, x] - B) @ d) / max(n2, 1e-6)
-        drop[y, x] = a < ALPHA_CUT and np.sqrt(n2) >= MIN_CONTRAST
-    return _peel(person, drop, keep)
+        di = (iy - y) ** 2 + (ix - x) ** 2
+        dc = (cy - y) ** 2 + (cx - x) ** 2
+        near = di <= (2 * band) ** 2
+        p2 = float(((f[iy[near], ix[near]] - f[y, x]) ** 2).sum(axis=1).min()) if near.any() else np.inf
+        votes = set()
+        for i in np.flatnonzero(di == di.min()):
+            for j in np.flatnonzero(dc == dc.min()):
+                F, B = fg_mean[iy[i], ix[i]], bg_mean[cy[j], cx[j]]
+                d = F - B
+                n2 = float(d @ d)
+                a = float((f[y, x] - B) @ d) / max(n2, 1e-6)
+                w2 = float(((f[y, x] - B) ** 2).sum())
+                votes.add(bool(_decide(a, np.sqrt(n2), w2, p2)))
+        drop[y, x] = votes == {True}
+        tied[y, x] = len(votes) > 1
+    return drop, tied

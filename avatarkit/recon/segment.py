@@ -3,7 +3,13 @@
 Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular distance):
 1. person vs background: `cv2.grabCut` seeded from the face: the face core and neck are sure
    person, a head ellipse (room for hair) and a widening torso below the chin probable person,
-   far left/right of the head sure background, the rest probable background;
+   far left/right of the head sure background, the rest probable background. GrabCut sees the
+   image with camera-size noise put back into its flat pixels (`_renoise_flat`: a clipped or
+   JPEG-flattened wall otherwise gives its background model a zero-spread component, and the
+   wall's pixels near the person join the person); then the outline's band (0.1 IOD) is
+   peeled from the outside where a pixel is mostly wall by a local colour mix
+   (`recon.boundary`). Without the two, a plain light wall left a 1.5-10 px halo in the
+   person, which became the hair label;
 2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
    eyes, above the mouth), outliers (nostrils, shadows) trimmed;
 3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
@@ -213,11 +219,14 @@ def _drop_small(mask: np.ndarray, max_size: int) -> np.ndarray:
 
 #: sigma (0-255 levels) of the noise put back into flat pixels for GrabCut
 FLAT_NOISE = 3.0
+#: only flat pixels with every channel at least this light get it (see `_renoise_flat`)
+FLAT_LIGHT = 128
 
 
 def _renoise_flat(img: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint8: `img` with a fixed pattern of Gaussian noise (`FLAT_NOISE`) added to
-    its flat pixels, those whose 3x3 neighbourhood holds one colour.
+    its light flat pixels, those whose 3x3 neighbourhood holds one colour with every channel
+    at least `FLAT_LIGHT`.
 
     A camera's noise never leaves a pixel's neighbourhood exactly one colour; clipping (a
     blown-out white wall), JPEG's quantisation of a plain wall (it drops the noise) and
@@ -227,18 +236,23 @@ def _renoise_flat(img: np.ndarray) -> np.ndarray:
     mixed pixels) are far less likely than under the person's broad components: GrabCut then
     kept most of the probable-person zone (head ellipse, torso) of wall as person. Noise in
     the flat pixels gives the component a camera's spread and leaves every other pixel as it
-    was (noise everywhere made dark hair on a dark wall fall to the background)."""
+    was (noise everywhere made dark hair on a dark wall fall to the background). Dark flat
+    pixels keep their values: with them re-noised, the sample composited onto black lost an
+    8 px notch of dark hair to the wall (dark strands on a black wall are GrabCut's own
+    ambiguity), and the halo this step is for is a light wall's."""
     import cv2
 
     k = np.ones((3, 3), np.uint8)
     flat = (cv2.dilate(img, k) - cv2.erode(img, k)).max(axis=2) == 0
+    flat &= img.min(axis=2) >= FLAT_LIGHT
     if not flat.any():
         return img
     noise = np.random.default_rng(0).normal(0.0, FLAT_NOISE, img.shape)
     return np.clip(img + np.where(flat[..., None], noise, 0.0), 0, 255).astype(np.uint8)
 
 
-def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float) -> np.ndarray:
+def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float, boundary: bool = True
+            ) -> np.ndarray:
     import cv2
     from scipy import ndimage
 
@@ -252,10 +266,12 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
     bg_share = np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).mean()
     if bg_share < 0.02:  # the head fills the picture: nothing to learn a background from
         return np.ones(img.shape[:2], bool)
-    person = _grabcut(_renoise_flat(img), gc, iterations)
+    person = _grabcut(_renoise_flat(img) if boundary else img, gc, iterations)
     person = _keep_touching(person, sure) | sure
     person = ndimage.binary_fill_holes(person)
-    # GrabCut's outline takes a few px of a plain light background with it: pull it back.
+    if not boundary:
+        return person
+    # the outline's mixed pixels and what is left of a wall's halo: peel them from the outside
     person = refine_person(img, person, boundary_band(iod), keep=sure)
     return _keep_touching(person, sure) | sure
 
@@ -308,7 +324,7 @@ def _load_hair_mask(hair_mask, shape, path) -> np.ndarray:
 
 
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
-                     work_size: int = WORK_SIZE, iterations: int = 3,
+                     work_size: int = WORK_SIZE, iterations: int = 3, boundary: bool = True,
                      path: str | os.PathLike | None = None) -> Segmentation:
     """Label every pixel of a portrait as background, skin/face, hair or body.
 
@@ -317,6 +333,8 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
         image if the aspect ratio matches, else FormatError. It replaces the built-in hair label.
     work_size: GrabCut runs on a copy whose longer side is at most this many pixels.
     iterations: GrabCut iterations per cut (3 is enough on portraits; 5 is OpenCV's usual).
+    boundary: False gives GrabCut's own person outline on the image as it is (no re-noised
+        flat pixels, no boundary step): the behaviour before them, the benchmark's baseline.
     """
     import cv2
 
@@ -346,7 +364,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     reg = face_regions(u, v)
     lab = rgb_to_lab(img)
 
-    person = _person(img, reg, iterations, iod)
+    person = _person(img, reg, iterations, iod, boundary)
     skin_px = reg["skin_sample"] & person
     if skin_px.sum() < 10:
         skin_px = reg["face_core"]
