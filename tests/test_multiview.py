@@ -148,3 +148,79 @@ def test_refine_over_the_reference_view_alone_is_refine_colours():
     np.testing.assert_allclose(b.colors, a.colors, atol=1e-5)
     assert fb["psnr_after"] == pytest.approx(fa["psnr_after"], abs=1e-3)
     assert fb["psnr_after"] > fb["psnr_before"]
+
+
+def _noisy(shape, colour, rng):
+    """(shape, 3) uint8 around an RGB colour in [0, 255] (a little noise: the colour models
+    need a spread)."""
+    return np.clip(np.asarray(colour, np.float64) + rng.normal(0, 4, (*shape, 3)), 0, 255).astype(np.uint8)
+
+
+def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
+    """A keyframe whose segmentation called the hair at the back of the head "body" and lost
+    part of it to the background (what a portrait segmentation does to a turned head): within
+    reach of the head the reference's colour models put hair and skin back; the clothes, the
+    wall and everything far from the head keep their labels."""
+    from avatarkit.recon.multiview import reference_colours, relabel_head
+    from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, SKIN
+
+    rng = np.random.default_rng(0)
+    skin_rgb, hair_rgb, wall_rgb, shirt_rgb = (220, 170, 140), (70, 45, 25), (245, 245, 245), (40, 90, 200)
+    n = 96
+    # the reference: skin on the left half, hair on the right half of a band, wall elsewhere
+    ref = _noisy((n, n), wall_rgb, rng)
+    ref_labels = np.full((n, n), BACKGROUND)
+    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
+    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    # the keyframe: face 20:60 x 20:50, hair 20:60 x 50:70 (labelled body, its outer part
+    # background), a shirt below the head (body), the wall; a far dark patch at the corner
+    img = _noisy((n, n), wall_rgb, rng)
+    labels = np.full((n, n), BACKGROUND)
+    img[20:60, 20:50], labels[20:60, 20:50] = _noisy((40, 30), skin_rgb, rng), SKIN
+    img[20:60, 50:70] = _noisy((40, 20), hair_rgb, rng)
+    labels[20:60, 50:62] = BODY
+    img[60:80, 20:70], labels[60:80, 20:70] = _noisy((20, 50), shirt_rgb, rng), BODY
+    img[85:95, 85:95] = _noisy((10, 10), hair_rgb, rng)
+    # shadowed hair the segmentation lost, like neither model: the person's, of unknown part
+    img[10:20, 40:60] = _noisy((10, 20), (25, 15, 8), rng)
+    head = np.zeros((n, n), bool)
+    head[22:58, 22:66] = True
+    out = relabel_head(labels, img, head, reference_colours(ref, ref_labels))
+    assert (out[22:58, 52:68] == HAIR).mean() > 0.95
+    assert (out[22:58, 22:48] == SKIN).mean() > 0.95
+    assert (out[60:80, 20:70] == BODY).all()        # within reach, but neither skin- nor hair-coloured
+    assert (out[17:20, 42:58] == BODY).all() and (out[10:15, 40:60] == BACKGROUND).all()   # out of reach
+    assert (out[:10] == BACKGROUND).all() and (out[85:95, 85:95] == BACKGROUND).all()
+    # a reference without hair (a bald subject) gives no hair model: nothing changes
+    assert reference_colours(ref, np.where(ref_labels == HAIR, BODY, ref_labels)) is None
+    np.testing.assert_array_equal(relabel_head(labels, img, head, None), labels)
+
+
+def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refine():
+    """`VideoViews.keep_view_colours`: the Gaussians the blend coloured from other keyframes
+    only get those colours back, found by their centres in sets that gained and lost rows in
+    between (the silhouette cover); every other row keeps what the refine gave it."""
+    from avatarkit.recon.multiview import VideoViews
+
+    rng = np.random.default_rng(1)
+    bald = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    hair = _plane(0.05, (-0.1, 0.0), (0.2, 0.2, 0.2))
+    vv = VideoViews(np.zeros(3), [])
+    both = GaussianSet.concat([bald, hair])
+    pick = rng.random(len(both)) < 0.3
+    target = rng.random((int(pick.sum()), 3)).astype(np.float32)
+    bald_c, hair_c, _ = vv.keep_view_colours(bald, hair)          # nothing stored yet: unchanged
+    np.testing.assert_array_equal(bald_c.sh, bald.sh)
+    vv._only_others = (both.means[pick], target)
+    # in between: the refine changed every colour, the cover dropped the first bald row and
+    # appended a new one
+    refined_bald = bald.with_colors(np.full((len(bald), 3), 0.9, np.float32)).subset(np.arange(1, len(bald)))
+    refined_bald = GaussianSet.concat([refined_bald, _plane(0.2, (0.0, 0.0), (0.9, 0.9, 0.9))])
+    refined_hair = hair.with_colors(np.full((len(hair), 3), 0.9, np.float32))
+    out_bald, out_hair, n = vv.keep_view_colours(refined_bald, refined_hair)
+    expect = np.full((len(both), 3), 0.9, np.float32)
+    expect[pick] = target
+    got = np.concatenate([out_bald.colors[:len(bald) - 1], out_hair.colors])
+    np.testing.assert_allclose(got, np.concatenate([expect[1:len(bald)], expect[len(bald):]]), atol=1e-5)
+    assert n == int(pick[1:].sum())
+    np.testing.assert_allclose(out_bald.colors[len(bald) - 1:], 0.9, atol=1e-5)

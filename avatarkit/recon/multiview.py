@@ -75,6 +75,9 @@ SILHOUETTE_MARGIN = 0.02
 #: a hair Gaussian is seen in a view when at least this share of its own footprint shows there
 #: (`footprint_visibility`)
 HAIR_VISIBLE = 0.1
+#: a turned keyframe's person pixels this close to its fitted head (share of the longer side)
+#: are relabelled by the reference view's colour models (`relabel_head`)
+RELABEL_REACH = 0.06
 #: the soft person mask: the segmentation's person mask blurred by this share of the image's
 #: longer side (about the width of an anti-aliased silhouette at 192..512 px)
 SOFT_MASK_SIGMA = 0.006
@@ -83,6 +86,9 @@ SOFT_MASK_SIGMA = 0.006
 EDGE_BAND = 0.04
 #: ... when their colour is this close (RGB in [0, 1], Euclidean) to the nearest background pixel's
 BACKGROUND_COLOUR = 0.12
+
+#: relabel the keyframes' heads by the reference's colour models (`relabel_head`)
+RELABEL_KEYFRAMES = True
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -174,6 +180,68 @@ def footprint_visibility(gaussians, camera: Camera, region: np.ndarray | None = 
     own = np.asarray(gaussians.opacities, np.float64) * 2.0 * np.pi / np.sqrt(np.maximum(det, 1e-30))
     vis = np.where((proj.radii > 0) & (det > 0), weights[:, 1] / np.maximum(own, 1e-30), 0.0)
     return np.clip(vis, 0.0, 1.0)
+
+
+def reference_colours(image: np.ndarray, labels: np.ndarray):
+    """(hair, skin) `recon.segment.ColourModel`s (Lab) of the reference view: image (H, W, 3)
+    uint8, labels (H, W) int; None when either label has fewer than 20 pixels (a bald subject:
+    no hair model, so `relabel_head` leaves the keyframes' labels alone)."""
+    from avatarkit.recon.segment import HAIR, SKIN, ColourModel, rgb_to_lab
+
+    labels = np.asarray(labels)
+    hair, skin = labels == HAIR, labels == SKIN
+    if hair.sum() < 20 or skin.sum() < 20:
+        return None
+    lab = rgb_to_lab(np.asarray(image))
+    return ColourModel.fit(lab[hair]), ColourModel.fit(lab[skin])
+
+
+def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
+                 reach: float = RELABEL_REACH) -> np.ndarray:
+    """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
+    reference view's colour models. A portrait segmentation finds hair in a zone laid out
+    around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
+    and at the back of the head "body" (or loses it to the background), so that hair is
+    neither sampled nor voted for, and the silhouette bound removes hair through it. The
+    reference view's segmentation is the one made on the picture it is made for; its skin and
+    hair colours (`colours`: `reference_colours`, None: labels unchanged) label the keyframe's
+    person pixels within `reach` (share of the longer side) of the fitted head mesh as seen by
+    that keyframe (`head`, (H, W) bool): hair where the hair model is the likelier and the
+    colour is within `segment.MATCH_D2` of it, skin likewise; other pixels keep their label.
+    Background-labelled pixels there whose colour is not within `segment.MATCH_D2` of the
+    background's (away from the head) are the person's too: body at least (shadowed hair on
+    the turned side may match neither model), hair or skin when they match.
+    labels: (H, W) int; image: (H, W, 3) uint8."""
+    import cv2
+
+    from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
+
+    labels = np.asarray(labels).copy()
+    if colours is None:
+        return labels
+    hair_m, skin_m = colours
+    r = max(1, int(round(reach * max(labels.shape))))
+    near = cv2.dilate(np.asarray(head, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    full = rgb_to_lab(np.asarray(image))
+    zone = near & (labels != BACKGROUND)
+    bg = (labels == BACKGROUND) & ~near
+    candidates = near & (labels == BACKGROUND)
+    if bg.sum() >= 20 and candidates.any():
+        # the segmentation's person mask loses dark hair at a turned head's back: a pixel it
+        # calls background by the head is the person's when its colour is not the background's
+        # (the model from every 4th background pixel: the same fit, a quarter of the work)
+        lost = np.zeros_like(candidates)
+        lost[candidates] = ColourModel.fit(full[bg][::4]).distance2(full[candidates]) > MATCH_D2
+        labels[lost] = BODY
+        zone |= lost
+    lab = full[zone]
+    dh, ds = hair_m.distance2(lab), skin_m.distance2(lab)
+    lh, ls = hair_m.log_likelihood(lab), skin_m.log_likelihood(lab)
+    new = labels[zone]
+    new[(lh > ls) & (dh <= MATCH_D2)] = HAIR
+    new[(ls >= lh) & (ds <= MATCH_D2)] = SKIN
+    labels[zone] = new
+    return labels
 
 
 def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float = SOFT_MASK_SIGMA) -> np.ndarray:
@@ -431,12 +499,18 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     colours, seen = blend_colours(both.colors, samples, keep)
     colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
     seen_by = np.stack([s.seen for s in samples])                  # (V, N)
+    # ... and only where the reference view looks at a grazing angle or from behind: what it
+    # faces (the brows, say) the reference photo's matching colours best
+    to_ref = camera_centre(views[0].camera)[None] - np.asarray(both.means, np.float64)
+    to_ref /= np.maximum(np.linalg.norm(to_ref, axis=1, keepdims=True), 1e-12)
+    only_others = seen & ~seen_by[0] & (np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_ref) < MIN_COS)
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
     both = both.with_colors(colours)
+    figures["_only_others"] = (np.asarray(both.means, np.float64)[only_others], colours[only_others])
     return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
 
 
@@ -475,6 +549,7 @@ class VideoViews:
                                 [k.pose for k in self.keyframes])
         detector = getattr(options, "face_detector", "auto")
         faces = fit.model.faces
+        colours = reference_colours(image, labels) if RELABEL_KEYFRAMES else None
         views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True,
                       head=head_silhouette(fit.rest_vertices, faces, fit.camera))]
         for k, cam in zip(self.keyframes[1:], cams[1:]):
@@ -483,10 +558,40 @@ class VideoViews:
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
+                if colours is not None:
+                    v.labels = relabel_head(v.labels, k.image, v.head, colours).astype(np.int32)
             except AvatarKitError as e:
                 v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
             views.append(v)
         return views
+
+    def keep_view_colours(self, bald, hair):
+        """Bald and hair with the colours `colour` gave the Gaussians only the other keyframes
+        saw (not the reference view) put back: the reference photo's colour matching comes
+        after the blend (`recon.pipeline`), and it reaches Gaussians the reference view sees
+        only at a grazing angle or past the silhouette (the side of the jaw, the shadowed side
+        of a turned head) and pulls them to the photo there, which is the background or the
+        lit front. Rows are matched by their centres (the silhouette cover in between adds and
+        drops Gaussians, it moves none). Only Gaussians the reference view faces at a grazing
+        angle or from behind (cos < `MIN_COS`) are kept: putting back the blend's colours of
+        those it faces (the brows) cost the sample avatar 0.8 dB at +45 degrees. Returns
+        (bald, hair, rows restored)."""
+        means, colours = getattr(self, "_only_others", (np.zeros((0, 3)), np.zeros((0, 3), np.float32)))
+        if not len(means):
+            return bald, hair, 0
+        where = {m.tobytes(): i for i, m in enumerate(np.asarray(means, np.float64))}
+        out, n = [], 0
+        for g in (bald, hair):
+            rows = [(r, where.get(m.tobytes())) for r, m in enumerate(np.asarray(g.means, np.float64))]
+            rows = [(r, i) for r, i in rows if i is not None]
+            if rows:
+                rgb = g.colors.astype(np.float32).copy()
+                r, i = np.array(rows).T
+                rgb[r] = colours[i]
+                g = g.with_colors(rgb)
+                n += len(rows)
+            out.append(g)
+        return out[0], out[1], n
 
     def summary(self, views: list[View]) -> dict:
         return {**self.info, "views": len(views), "segmented": int(sum(v.labels is not None for v in views))}
@@ -500,11 +605,13 @@ class VideoViews:
         if "neck" in model.regions and "binding" in bald.extras:
             neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
             keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
-        return colour_from_views(bald, hair, views, normals, keep)
+        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep)
+        self._only_others = figures.pop("_only_others")
+        return bald, hair, figures
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "person_weight", "pose_matrix",
-           "refine_colours_views", "silhouette_outside", "soft_person", "view_samples"]
+           "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]

@@ -65,6 +65,9 @@ MULTIVIEW_REFINE = False
 #: (`recon.hair_directions`) and grows the hair shell where keyframes show more hair
 #: (`recon.hair_hull`); measured in docs/video-build.md
 MULTIVIEW_HAIR_DIRECTIONS = True
+#: a video build keeps the colours of the Gaussians only the other keyframes saw after the
+#: reference photo's colour matching (`multiview.VideoViews.keep_view_colours`)
+KEEP_VIEW_COLOURS = True
 GROW_HAIR_HULL = True
 #: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
 #: (`recon.coverage`), before the colour matching
@@ -410,6 +413,9 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
             report.info["colours"] = figures
+        if keyviews and KEEP_VIEW_COLOURS:
+            # what only the other keyframes saw keeps their colours (`VideoViews.keep_view_colours`)
+            bald, hair, report.info["multiview_colours"]["kept_after_refine"] = views.keep_view_colours(bald, hair)
     with stage("hair_rig"):
         if len(hair) == 0:  # a bald person: nothing to cage or rig
             mode = "none"
