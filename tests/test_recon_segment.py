@@ -183,15 +183,12 @@ def mesh_subject_front(size: int = 192):
     """The mesh subject of the video benchmarks at rest, on white, as a JPEG: (image, person
     truth, hair truth), both (H, W) bool (pixel more than half covered)."""
     from avatarkit.synthetic.head_video import head_video_camera
-    from avatarkit.synthetic.mesh_head import SUPERSAMPLE, MeshHead
-    from avatarkit.synthetic.mesh_raster import downsample, rasterise
+    from avatarkit.synthetic.mesh_head import MeshHead
 
     subject = MeshHead.make()
     camera = head_video_camera(size, distance=0.5)
     rgb, alpha = subject.render(camera)
-    pts, faces, attrs = subject.meshes(subject.rest)
-    r = rasterise(pts, faces, attrs, camera.with_size(size * SUPERSAMPLE, size * SUPERSAMPLE))
-    hair = downsample((r.covered & (r.attributes[..., 6] > 0.5)).astype(np.float64), SUPERSAMPLE)
+    hair = subject.hair_coverage(camera)
     return jpeg(np.round(rgb * 255).astype(np.uint8)), alpha > 0.5, hair > 0.5
 
 

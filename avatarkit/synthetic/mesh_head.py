@@ -176,6 +176,16 @@ class MeshHead:
         img[r.covered] = self.shade(r.attributes[r.covered])
         return downsample(img, k), downsample(r.covered.astype(np.float64), k)
 
+    def hair_coverage(self, camera: Camera, vertices: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) float in [0, 1]: the share of each pixel the hair cap covers (as `render`
+        sees it, `SUPERSAMPLE`d): the segmentation tests' and benchmark's hair truth."""
+        from avatarkit.synthetic.mesh_raster import downsample, rasterise
+
+        k = SUPERSAMPLE
+        pts, faces, attrs = self.meshes(self.rest if vertices is None else np.asarray(vertices, np.float64))
+        r = rasterise(pts, faces, attrs, camera.with_size(camera.width * k, camera.height * k))
+        return downsample((r.covered & (r.attributes[..., 6] > 0.5)).astype(np.float64), k)
+
     def bounds(self):
         """(lo, hi) of the rest head: what the comparison cameras frame."""
         return self.rest.min(axis=0), self.rest.max(axis=0)
