@@ -525,6 +525,12 @@ class Keyframe:
     frame: int
 
 
+def _row_keys(points) -> np.ndarray:
+    """(N,) opaque keys of (N, 3) points, equal exactly when the float64 rows are bit for bit."""
+    p = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
+    return p.view(np.dtype((np.void, p.dtype.itemsize * 3))).ravel()
+
+
 @dataclass
 class VideoViews:
     """What a video build passes to `build_avatar`: shape (S,) the joint identity (the shape the
@@ -579,17 +585,19 @@ class VideoViews:
         means, colours = getattr(self, "_only_others", (np.zeros((0, 3)), np.zeros((0, 3), np.float32)))
         if not len(means):
             return bald, hair, 0
-        where = {m.tobytes(): i for i, m in enumerate(np.asarray(means, np.float64))}
+        keys = _row_keys(means)
+        order = np.argsort(keys, kind="stable")          # equal centres: the last one counts
         out, n = [], 0
         for g in (bald, hair):
-            rows = [(r, where.get(m.tobytes())) for r, m in enumerate(np.asarray(g.means, np.float64))]
-            rows = [(r, i) for r, i in rows if i is not None]
-            if rows:
+            gk = _row_keys(g.means)
+            at = np.searchsorted(keys[order], gk, side="right") - 1
+            hit = at >= 0
+            hit[hit] = keys[order[at[hit]]] == gk[hit]
+            if hit.any():
                 rgb = g.colors.astype(np.float32).copy()
-                r, i = np.array(rows).T
-                rgb[r] = colours[i]
+                rgb[hit] = colours[order[at[hit]]]
                 g = g.with_colors(rgb)
-                n += len(rows)
+                n += int(hit.sum())
             out.append(g)
         return out[0], out[1], n
 
