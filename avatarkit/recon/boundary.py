@@ -58,20 +58,27 @@ def _cores(person: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def _nearest_interior_colour2(f: np.ndarray, interior: np.ndarray, ring: np.ndarray, reach: int) -> np.ndarray:
     """(H, W) float32: for each `ring` pixel the smallest squared colour distance to an
-    `interior` pixel at most `reach` px away (inf where none is; 0 off the ring)."""
+    `interior` pixel at most `reach` px away (inf where none is; 0 off the ring). Only the
+    ring's pixels are visited, once per offset in the disc."""
     H, W = interior.shape
-    best = np.full((H, W), np.inf, np.float32)
-    pad = np.pad(f, ((reach, reach), (reach, reach), (0, 0)))
-    ipad = np.pad(interior, reach)
+    out = np.zeros((H, W), np.float32)
+    ys, xs = np.nonzero(ring)
+    if not len(ys):
+        return out
+    c = f[ys, xs]                                        # (N, 3)
+    best = np.full(len(ys), np.inf, np.float32)
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
             if dy * dy + dx * dx > reach * reach:
                 continue
-            g = pad[reach + dy:reach + dy + H, reach + dx:reach + dx + W]
-            ok = ipad[reach + dy:reach + dy + H, reach + dx:reach + dx + W] & ring
-            d2 = np.einsum("ijk,ijk->ij", f - g, f - g)
-            best = np.where(ok & (d2 < best), d2, best)
-    return np.where(ring, best, 0.0).astype(np.float32)
+            y2, x2 = ys + dy, xs + dx
+            ok = (y2 >= 0) & (y2 < H) & (x2 >= 0) & (x2 < W)
+            ok[ok] = interior[y2[ok], x2[ok]]
+            e = c[ok] - f[y2[ok], x2[ok]]
+            d2 = np.einsum("ij,ij->i", e, e)
+            best[ok] = np.minimum(best[ok], d2)
+    out[ys, xs] = best
+    return out
 
 
 def person_share(img: np.ndarray, person: np.ndarray, band: int
