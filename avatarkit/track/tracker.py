@@ -91,6 +91,7 @@ class TrackOptions:
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
     view_correction: bool = False
+    mirror_landmarks: bool = False
 
 
 @dataclass(eq=False)
@@ -205,13 +206,13 @@ class FrameTracker:
         o = self.options
         mesh = None
         if self.prev_mesh is not None:
-            mesh = face_landmarks(rgb, roi_from_mesh(self.prev_mesh.points))
+            mesh = face_landmarks(rgb, roi_from_mesh(self.prev_mesh.points), mirror=o.mirror_landmarks)
             if mesh.presence < o.min_presence:
                 mesh = None
         if mesh is None:
             face = _pick_face(detect_faces(rgb), o.face_index, self.last_centre)
             if face is not None:
-                mesh = face_landmarks(rgb, face)
+                mesh = face_landmarks(rgb, face, mirror=o.mirror_landmarks)
                 if mesh.presence < o.min_presence:
                     mesh = None
         self.prev_mesh = mesh
