@@ -153,7 +153,8 @@ def fit_case(model, emb, lm, both_targets, f: float, size: int, rot, shape: np.n
             np.median(pixel_errors(px0, targets)), fit.median_error, corrected.median_error,
             float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1))),
             float(np.median(pixel_errors(plain, targets))), *signed(fit.rotation), *signed(corrected.rotation),
-            err(base.rotation), base.median_error, float(np.median(np.linalg.norm(truth_px - plain_targets.xy, axis=1))))
+            err(base.rotation), base.median_error,
+            float(np.median(np.linalg.norm(truth_px - plain_targets.xy, axis=1))))
 
 
 def summarise(a: np.ndarray) -> None:

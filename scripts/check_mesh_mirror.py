@@ -3,7 +3,8 @@ with the one `avatarkit.face.landmarks.mirror_pairs` builds from the canonical m
 
 The template head is rendered facing the camera (`recon.fit.synthetic_head_view`, flat colours)
 and averaged with its mirror image, so the picture is exactly left/right symmetric about the
-image's centre column; the face mesh runs on it, and each point is paired with the point
+image's centre column; the plain face mesh (`mirror=False`: the averaged one is symmetric
+under whatever pairing it is averaged with) runs on it, and each point is paired with the point
 nearest its mirror image (x -> W - x), one-to-one (Hungarian assignment on the pixel
 distances). Prints whether that pairing is an involution, how many points it fixes, where it
 differs from `mirror_pairs`, and how far the points sit from their partners' mirror images.
@@ -54,7 +55,8 @@ def main() -> None:
     image = synthetic_head_view(size=512, n_gaussians=40000, seed=3).image.astype(np.float32)
     image = np.round((image + image[:, ::-1]) / 2).astype(np.uint8)
     W = image.shape[1]
-    p = face_landmarks(image, max(detect_faces(image), key=lambda f: f.score)).points.astype(np.float64)
+    p = face_landmarks(image, max(detect_faces(image), key=lambda f: f.score), mirror=False).points
+    p = p.astype(np.float64)
     eye = float(np.linalg.norm(p[33, :2] - p[263, :2]))
     m = p.copy()
     m[:, 0] = W - m[:, 0]
@@ -63,9 +65,11 @@ def main() -> None:
     root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
     image = read_image(os.path.join(root, "samples", "portrait.jpg"))
     W = image.shape[1]
-    p = face_landmarks(image, max(detect_faces(image), key=lambda f: f.score)).points.astype(np.float64)
+    p = face_landmarks(image, max(detect_faces(image), key=lambda f: f.score), mirror=False).points
+    p = p.astype(np.float64)
     flipped = np.ascontiguousarray(image[:, ::-1])
-    q = face_landmarks(flipped, max(detect_faces(flipped), key=lambda f: f.score)).points.astype(np.float64)
+    q = face_landmarks(flipped, max(detect_faces(flipped), key=lambda f: f.score), mirror=False).points
+    q = q.astype(np.float64)
     q[:, 0] = W - q[:, 0]
     eye = float(np.linalg.norm(p[33, :2] - p[263, :2]))
     report("sample portrait vs its mirror image", *nearest_pairing(p, q), eye)
