@@ -117,14 +117,15 @@ def test_mirror_averaging_gives_the_mirrored_landmarks_of_a_mirrored_image():
 
 @needs_models
 def test_the_tracker_switch_reaches_the_face_mesh():
-    """`TrackOptions(mirror_landmarks=...)` decides the tracker's face mesh, whatever the stills'
-    default (`MIRROR_AVERAGE`); off by default (docs/tracking.md)."""
+    """`TrackOptions(mirror_landmarks=...)` decides the tracker's face mesh, whatever
+    `face_landmarks`' default (`MIRROR_AVERAGE`); off by default (docs/face.md)."""
     from avatarkit.face import detect_faces
     from avatarkit.head.model import HeadModel
     from avatarkit.recon.image_io import read_image
+    from avatarkit.face import landmarks
     from avatarkit.track.tracker import FrameTracker, TrackOptions
 
-    assert TrackOptions().mirror_landmarks is False
+    assert TrackOptions().mirror_landmarks is False and landmarks.MIRROR_AVERAGE is False
     image = read_image(SAMPLE)
     face = max(detect_faces(image), key=lambda f: f.score)
     model = HeadModel.template()

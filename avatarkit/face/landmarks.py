@@ -22,8 +22,9 @@ mirror image, its answer is mirrored back and re-indexed left <-> right (`mirror
 the two answers are averaged. The model does not answer a mirrored face with the mirrored
 points: on an exactly left-right symmetric render of the template head its points miss their
 mirrored partners by 3 px median at 512 x 512 (0.03 eye distances), a left/right-asymmetric
-reading that the average cancels. The averaged mesh of a mirrored image is the mirrored mesh
-(up to the resampling's rounding). The iris model needs no second run: the subject's left eye
+reading that the average cancels. An averaged pass of a mirrored image in the mirrored region
+is the mirrored pass (up to the resampling's rounding; `face_landmarks` averages only the pass
+it keeps). The iris model needs no second run: the subject's left eye
 is already fed to it mirrored, so on the mirror image each eye's input is the other eye's
 input of the original; it follows the averaged mesh's eye corners and so is mirror-consistent.
 """
@@ -55,10 +56,13 @@ MESH_ROTATION_POINTS = (33, 263)
 #: left-right symmetric render (nearest mirrored point, one-to-one) and checks it is this one.
 MESH_MIDLINE = (0, 1, 2, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 94, 151, 152, 164,
                 168, 175, 195, 197, 199, 200)
-#: `face_landmarks`' default: mirror-averaged (module docstring). Measured (session 9, docs/face.md):
-#: the portrait fit on the 36 shaded template renders 2.25 -> 2.07 deg median, 1.98 -> 1.87 px;
-#: on renders of the avatar from samples/portrait.jpg 10.20 -> 9.87 deg.
-MIRROR_AVERAGE = True
+#: `face_landmarks`' default: the plain mesh. The averaged one (module docstring) is asked for
+#: where it was measured to help: the landmark fit of `avatarkit face` (`face.overlay`; the
+#: benchmark's 36 shaded template renders 2.25 -> 1.82 deg, 1.98 -> 1.86 px; 36 renders of
+#: disjoint seeds 3.19 -> 2.63 deg; the avatar from samples/portrait.jpg 10.20 -> 10.12 deg).
+#: Not the build's fit (front-view PSNR 28.30 -> 28.21 dB with it: the shipped embedding was
+#: made from the plain mesh) nor the tracker (`TrackOptions.mirror_landmarks`; docs/face.md).
+MIRROR_AVERAGE = False
 
 
 @dataclass(eq=False)

@@ -71,7 +71,7 @@ class TrackOptions:
     bias (shaded template video: rotation 3.23 -> 2.15 deg, jaw 0.045 -> 0.034 rad) but puts
     it on other faces (the avatar built from samples/portrait.jpg: 4.15 -> 7.46 deg).
     mirror_landmarks: the face mesh averaged with its answer on the mirror image
-    (`face.landmarks`, module docstring; the stills' default). Off for tracking (session 9,
+    (`face.landmarks`, module docstring; what `avatarkit face` fits). Off (session 9,
     benchmarks/track.py, median over the video and its mirror): it hardly moves the shaded
     template (3.23 -> 3.18 deg, jaw 0.045 -> 0.044 rad) or the avatar from samples/portrait.jpg
     (4.15 -> 4.08 deg), makes the flat template worse (5.97 -> 6.75 deg), and costs a mesh-model
