@@ -8,8 +8,10 @@ Prints
     rendered at --size, each tracked as rendered and mirrored: median rotation error (degrees),
     jaw error (rad), landmark error (px); next to each, in the same process, the tracker with
     the template's view correction (`TrackOptions(view_correction=True)`, `face.view_correction`:
-    calibrated on template renders of seeds disjoint from these; off by default) and the tracker
-    without its landmark calibration (`TrackOptions(calibration_frames=0)`), and ratios.
+    calibrated on template renders of seeds disjoint from these; off by default), the tracker
+    without its landmark calibration (`TrackOptions(calibration_frames=0)`) and the tracker on
+    the plain face mesh (`TrackOptions(mirror_landmarks=False)`: not averaged with its mirror
+    image, the default before session 9), and ratios.
     The target figure is on the template rendered person-like (`synthetic.shading`: Lambert shading
     from a light fixed to the camera, so it moves over the head with the pose, and a dark mouth
     interior as the jaw opens; the lead's decision of session 7); the flat-coloured renders of
@@ -18,8 +20,9 @@ Prints
   - real videos (../shared/data/videos/*.mp4 beside the checkout, skipped when absent): frames
     tracked, frames with a face, median landmark reprojection error (px; also over the frames
     after the calibration frames alone, which the calibration did not see), the same without
-    calibration, frames per second of tracking with preview off, and, as the baseline run in
-    the same process, frames per second of decoding alone and of the face mesh alone.
+    calibration, the same on the plain face mesh (and the time ratio), frames per second of
+    tracking with preview off, and, as the baseline run in the same process, frames per second
+    of decoding alone and of the face mesh alone.
 Targets (issue 16): <= 2 deg and <= 0.05 rad median on the synthetic videos (the shaded ones);
 <= 3 px median at 480x480 on the real videos; >= 15 frames/s on 2 cores.
 """
@@ -100,7 +103,8 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
             for label, options in (("tracker", TrackOptions()),
                                    ("with the view correction",
                                     TrackOptions(view_correction=True)),
-                                   ("baseline, no landmark calibration", TrackOptions(calibration_frames=0))):
+                                   ("baseline, no landmark calibration", TrackOptions(calibration_frames=0)),
+                                   ("baseline, plain face mesh", TrackOptions(mirror_landmarks=False))):
                 t0 = time.perf_counter()
                 r = track_frames(frames_in, model, shape, (size, size), 30.0, options)
                 t_track = time.perf_counter() - t0
@@ -111,17 +115,19 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                       f"(p90 {np.percentile(rot, 90):.2f}), jaw error median {np.median(jaw):.3f} rad, "
                       f"landmark error median {np.nanmedian(r.landmark_error):.2f} px, faces found "
                       f"{int(r.found.sum())}/{frames}; track {t_track:.1f} s")
-            a, b, c = figures.values()
-            table.append((subject, view) + a + b)
+            a, b, c, d = figures.values()
+            table.append((subject, view) + a + b + d)
             print(f"  {view:11s} ratios view-corrected/tracker: rotation {b[0] / a[0]:.2f}, jaw {b[1] / a[1]:.2f}, "
                   f"landmarks {b[2] / a[2]:.2f}; tracker/no calibration: rotation {a[0] / c[0]:.2f}, "
-                  f"jaw {a[1] / c[1]:.2f}")
-    print("synthetic, median over as rendered + mirrored (tracker; with the view correction in brackets):")
+                  f"jaw {a[1] / c[1]:.2f}; tracker/plain face mesh: rotation {a[0] / d[0]:.2f}, jaw {a[1] / d[1]:.2f}")
+    print("synthetic, median over as rendered + mirrored (tracker; with the view correction in brackets; "
+          "baseline on the plain face mesh):")
     for subject in subjects:
         t = np.array([row[2:] for row in table if row[0] == subject])
         name = {"shaded": "TARGET shaded + mouth", "flat": "flat colours"}.get(subject, subject)
         print(f"  {name:22s} rotation {np.median(t[:, 0]):.2f} deg ({np.median(t[:, 3]):.2f}), jaw "
-              f"{np.median(t[:, 1]):.3f} rad ({np.median(t[:, 4]):.3f})   targets <= 2 deg, <= 0.05 rad")
+              f"{np.median(t[:, 1]):.3f} rad ({np.median(t[:, 4]):.3f}); plain face mesh {np.median(t[:, 6]):.2f} deg, "
+              f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
 
 
 def real(limit: int | None, videos: str = VIDEOS) -> None:
@@ -161,6 +167,9 @@ def real(limit: int | None, videos: str = VIDEOS) -> None:
         t0 = time.perf_counter()
         prev = track_video(path, end=end, options=TrackOptions(view_correction=True))
         t_prev = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        plain = track_video(path, end=end, options=TrackOptions(mirror_landmarks=False))
+        t_plain = time.perf_counter() - t0
         held = r.landmark_error[np.cumsum(r.found) > CALIBRATION_FRAMES]
         print(f"{name}: {r.num_frames} frames, face in {int(r.found.sum())}; landmark error median "
               f"{np.nanmedian(r.landmark_error):.2f} px (p90 {np.nanpercentile(r.landmark_error, 90):.2f}; "
@@ -168,6 +177,9 @@ def real(limit: int | None, videos: str = VIDEOS) -> None:
         print(f"  with the view correction: {np.nanmedian(prev.landmark_error):.2f} px "
               f"(ratio {np.nanmedian(prev.landmark_error) / np.nanmedian(r.landmark_error):.2f}), "
               f"{prev.num_frames / t_prev:.1f} frames/s (time ratio view-corrected/tracker {t_prev / t_track:.2f})")
+        print(f"  baseline, plain face mesh: {np.nanmedian(plain.landmark_error):.2f} px "
+              f"(ratio {np.nanmedian(r.landmark_error) / np.nanmedian(plain.landmark_error):.2f}), "
+              f"{plain.num_frames / t_plain:.1f} frames/s (time ratio tracker/plain {t_track / t_plain:.2f})")
         print(f"  baseline, no landmark calibration: {np.nanmedian(base.landmark_error):.2f} px "
               f"(ratio {np.nanmedian(r.landmark_error) / np.nanmedian(base.landmark_error):.2f}), "
               f"{base.num_frames / t_base:.1f} frames/s (time ratio with/without {t_track / t_base:.2f})")

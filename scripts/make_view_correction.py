@@ -19,7 +19,8 @@ point relative to where the head's point projects (`view_correction.fit_correcti
 
 The renders' face meshes are cached (--cache, --stills-cache: delete them to render again; the
 shipped file took ~5 + ~6 min of rendering on 2 busy cores) so the fit can be re-run alone.
-Re-run after changing the template head, its colouring, or the embedding.
+Re-run after changing the template head, its colouring, or the embedding. The face mesh is the
+plain one (`face_landmarks(mirror=False)`), as the shipped file was made and as the tracker runs it.
 """
 from __future__ import annotations
 
@@ -93,7 +94,7 @@ def render_cases(cases: int, seed: int, size: int = 512) -> dict:
         frame = video.frame(i)
         v = video.vertices(i)
         faces = detect_faces(frame.rgb)
-        mesh = face_landmarks(frame.rgb, max(faces, key=lambda q: q.score)) if faces else None
+        mesh = face_landmarks(frame.rgb, max(faces, key=lambda q: q.score), mirror=False) if faces else None
         ok = mesh is not None and mesh.presence >= 0.5
         out["found"].append(ok)
         out["mesh"].append(np.asarray(mesh.points, np.float64) if ok else np.full((468, 3), np.nan))
@@ -132,7 +133,7 @@ def render_stills(cases: int, seed: int, size: int = 512) -> dict:
         cam = s.truth.camera
         focal = cam.fx
         faces = detect_faces(s.image)
-        mesh = face_landmarks(s.image, max(faces, key=lambda q: q.score)) if faces else None
+        mesh = face_landmarks(s.image, max(faces, key=lambda q: q.score), mirror=False) if faces else None
         ok = mesh is not None and mesh.presence >= 0.5
         rest = model.forward(HeadParams(shape=shape.astype(np.float32), expr=np.zeros((1, model.num_expr))))[0][0]
         out["found"].append(ok)

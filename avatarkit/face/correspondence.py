@@ -252,7 +252,9 @@ def make_template_embedding(views=TEMPLATE_VIEWS, size: int = 512, n_gaussians: 
         if not faces:
             raise InputError(f"no face found on the template rendered at yaw {yaw}, pitch {pitch}")
         face = max(faces, key=lambda f: f.score)
-        mesh = face_landmarks(view.image, face)
+        # the plain mesh, as the shipped embedding was made (session 9 made the mirror-averaged
+        # mesh the stills' default; the tracker runs the plain one)
+        mesh = face_landmarks(view.image, face, mirror=False)
         centre, dirs = pixel_rays(view.truth.camera, mesh.points[:, :2].astype(np.float64))
         f, b, _ = ray_triangle_hits(centre, dirs, tri)
         hits_f[i], hits_b[i] = f, b

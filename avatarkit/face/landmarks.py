@@ -16,6 +16,17 @@ contour points and 5 iris points (centre first, then four on the iris boundary).
 
 For video (issue 16), `roi_from_mesh` makes the next frame's region from this frame's mesh as
 MediaPipe's tracking does (rotation from points 33 -> 263, scale 1.5).
+
+Mirror averaging (`face_landmarks(mirror=True)`): the mesh model also runs on the region's
+mirror image, its answer is mirrored back and re-indexed left <-> right (`mirror_pairs`), and
+the two answers are averaged. The model does not answer a mirrored face with the mirrored
+points: on an exactly left-right symmetric render of the template head its points miss their
+mirrored partners by 3 px median at 512 x 512 (0.03 eye distances), a left/right-asymmetric
+reading that the average cancels. An averaged pass of a mirrored image in the mirrored region
+is the mirrored pass (up to the resampling's rounding; `face_landmarks` averages only the pass
+it keeps). The iris model needs no second run: the subject's left eye
+is already fed to it mirrored, so on the mirror image each eye's input is the other eye's
+input of the original; it follows the averaged mesh's eye corners and so is mirror-consistent.
 """
 from __future__ import annotations
 
@@ -37,6 +48,21 @@ IRIS_ROI_SCALE = 2.3
 EYE_CORNERS = ((33, 133), (362, 263))
 #: mesh points of the rotation vector when a region is made from a previous mesh
 MESH_ROTATION_POINTS = (33, 263)
+#: the face mesh's points on the face's midline (their own mirror partners). MediaPipe's
+#: canonical face model (face_geometry/data/canonical_face_model.obj) has x = 0 at exactly these
+#: 28 vertices; its other 440 come as the subject's right side (x < 0, the indices below 248
+#: not listed here, in order) followed by their mirror images in the same order (248..467).
+#: `scripts/check_mesh_mirror.py` re-derives the pairing from the model's own answer on a
+#: left-right symmetric render (nearest mirrored point, one-to-one) and checks it is this one.
+MESH_MIDLINE = (0, 1, 2, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 94, 151, 152, 164,
+                168, 175, 195, 197, 199, 200)
+#: `face_landmarks`' default: the plain mesh. The averaged one (module docstring) is asked for
+#: where it was measured to help: the landmark fit of `avatarkit face` (`face.overlay`; the
+#: benchmark's 36 shaded template renders 2.25 -> 1.82 deg, 1.98 -> 1.86 px; 36 renders of
+#: disjoint seeds 3.19 -> 2.63 deg; the avatar from samples/portrait.jpg 10.20 -> 10.12 deg).
+#: Not the build's fit (front-view PSNR 28.30 -> 28.21 dB with it: the shipped embedding was
+#: made from the plain mesh) nor the tracker (`TrackOptions.mirror_landmarks`; docs/face.md).
+MIRROR_AVERAGE = False
 
 
 @dataclass(eq=False)
@@ -75,6 +101,25 @@ class FaceMesh:
     def iris_radii(self) -> np.ndarray:
         """(2,) pixels: mean distance of the boundary points from each iris centre."""
         return np.linalg.norm(self.iris[:, 1:, :2] - self.iris[:, :1, :2], axis=2).mean(axis=1)
+
+
+def mirror_pairs() -> np.ndarray:
+    """(468,) int64: the face-mesh point that point i becomes when the face is mirrored left-right
+    (an involution; the midline points map to themselves; `MESH_MIDLINE`)."""
+    mid = set(MESH_MIDLINE)
+    right = [i for i in range(N_LANDMARKS - (N_LANDMARKS - len(mid)) // 2) if i not in mid]
+    pairs = np.arange(N_LANDMARKS)
+    left = np.arange(N_LANDMARKS - len(right), N_LANDMARKS)
+    pairs[right], pairs[left] = left, right
+    return pairs
+
+
+def mirror_points(points: np.ndarray, width: float) -> np.ndarray:
+    """Face-mesh points (468, 2+) of an image `width` pixels wide as the mesh of its mirror image
+    should be: x -> width - x, re-indexed left <-> right (`mirror_pairs`); other columns kept."""
+    out = np.array(points, copy=True)[mirror_pairs()]
+    out[:, 0] = width - out[:, 0]
+    return out
 
 
 def roi_from_face(face: Face) -> Roi:
@@ -118,19 +163,35 @@ def _iris(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
             (rois[0], rois[1]))
 
 
-def _mesh(image: np.ndarray, roi: Roi) -> tuple[np.ndarray, float]:
+def _run_mesh(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """The mesh model on one (S, S, 3) input in [0, 1]: (468, 3) region-normalised points
+    (u, v, z / side) and the presence logit."""
     model = get_model("landmarks")
     size = model.input_size[0]
-    x = crop(image, roi, size) / 255.0
-    outs = model.run(x[None])
+    outs = model.run(np.ascontiguousarray(x[None], np.float32))
     raw = next(o for o in outs if o.size == N_LANDMARKS * 3).reshape(N_LANDMARKS, 3).astype(np.float64) / size
     flag = next(o for o in outs if o.size == 1)
+    return raw, float(flag.reshape(-1)[0])
+
+
+def _mesh(image: np.ndarray, roi: Roi, mirror: bool = False) -> tuple[np.ndarray, float]:
+    size = get_model("landmarks").input_size[0]
+    x = crop(image, roi, size) / 255.0
+    raw, logit = _run_mesh(x)
+    if mirror:
+        # the region's mirror image is the input column-reversed (pixel centres are symmetric
+        # about u = 0.5); its answer mirrored back: u -> 1 - u, left <-> right re-indexed
+        raw_m, logit_m = _run_mesh(x[:, ::-1])
+        raw_m = raw_m[mirror_pairs()]
+        raw_m[:, 0] = 1.0 - raw_m[:, 0]
+        raw, logit = 0.5 * (raw + raw_m), 0.5 * (logit + logit_m)
     xy = roi.to_image(raw[:, :2])
     points = np.concatenate([xy, raw[:, 2:] * roi.side], axis=1).astype(np.float32)
-    return points, _sigmoid(float(flag.reshape(-1)[0]))
+    return points, _sigmoid(logit)
 
 
-def face_landmarks(image: np.ndarray, face: Face | Roi, refine: bool = True) -> FaceMesh:
+def face_landmarks(image: np.ndarray, face: Face | Roi, refine: bool = True,
+                   mirror: bool | None = None) -> FaceMesh:
     """The face mesh and irises of one face in an (H, W, 3) uint8 RGB image of any size.
     face: a detection (`detect_faces`) or a region (`roi_from_mesh` of a previous frame).
     refine: run the mesh model a second time in the region made from its first answer
@@ -138,19 +199,30 @@ def face_landmarks(image: np.ndarray, face: Face | Roi, refine: bool = True) -> 
     eye keypoints are coarse, worse under strong roll (a face turned 90 degrees in the picture
     gets a ~70 degree region); on the sample portrait turned by 30, -45 and 90 degrees the
     second pass brings the median error from up to 6% to at most 2.5% of the eye distance.
+    mirror: average the kept mesh pass with its answer on the region's mirror image (module
+    docstring; one more mesh-model run); None: `MIRROR_AVERAGE`. With `refine` the first pass,
+    which only places the second pass's region, is not averaged, so the mesh of a mirrored
+    image matches the mirrored mesh to what the second region's small shift moves (on the sample
+    portrait 0.4% of the eye distance median, 1.3% at most, against 2.4% / 5% for the plain
+    mesh), not to the resampling's rounding as with one pass.
     Raises ModelsMissing when the models or LiteRT are not installed."""
     image = np.asarray(image)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     image = image[..., :3]
     roi = face if isinstance(face, Roi) else roi_from_face(face)
-    points, presence = _mesh(image, roi)
+    mirror = MIRROR_AVERAGE if mirror is None else bool(mirror)
+    # with refine, the first pass only places the second's region: averaged only if it is kept
+    points, presence = _mesh(image, roi, mirror and not refine)
+    averaged = mirror and not refine
     if refine and presence > 0.5:
         # kept only if the model is at least as sure of a face there: on a face turned far
         # sideways the mesh's bounding box can frame it worse than the detector did
         again = roi_from_mesh(points)
-        points2, presence2 = _mesh(image, again)
+        points2, presence2 = _mesh(image, again, mirror)
         if presence2 >= min(presence, 0.9):
-            roi, points, presence = again, points2, presence2
+            roi, points, presence, averaged = again, points2, presence2, mirror
+    if mirror and not averaged:
+        points, presence = _mesh(image, roi, True)
     iris, contours, eye_rois = _iris(image, points)
     return FaceMesh(points, presence, iris, contours, roi, eye_rois)

@@ -39,7 +39,8 @@ def look_at_faces(image: np.ndarray, face_index: int | None = None, fit: bool = 
     from avatarkit.face.landmarks import face_landmarks
 
     faces = detect_faces(image)
-    meshes = [face_landmarks(image, f) for f in faces]
+    # mirror-averaged: the landmark fit reads the pose closer with it (`landmarks.MIRROR_AVERAGE`)
+    meshes = [face_landmarks(image, f, mirror=True) for f in faces]
     keep = [i for i, m in enumerate(meshes) if m.presence >= 0.5]
     faces, meshes = [faces[i] for i in keep], [meshes[i] for i in keep]
     if not faces:

@@ -70,6 +70,12 @@ class TrackOptions:
     Off by default: calibrated on renders of the template head, it removes the template's
     bias (shaded template video: rotation 3.23 -> 2.15 deg, jaw 0.045 -> 0.034 rad) but puts
     it on other faces (the avatar built from samples/portrait.jpg: 4.15 -> 7.46 deg).
+    mirror_landmarks: the face mesh averaged with its answer on the mirror image
+    (`face.landmarks`, module docstring; what `avatarkit face` fits). Off (session 9,
+    benchmarks/track.py, median over the video and its mirror): it hardly moves the shaded
+    template (3.23 -> 3.18 deg, jaw 0.045 -> 0.044 rad) or the avatar from samples/portrait.jpg
+    (4.15 -> 4.08 deg), makes the flat template worse (5.97 -> 6.75 deg), and costs a mesh-model
+    run per frame.
     Tracking departs from the portrait fit's
     defaults, as measured on rendered heads with known motion: the face mesh's relative depth
     biased the pitch (median rotation error 5.0 deg with it, 3.4 without), and a jaw prior
@@ -91,6 +97,7 @@ class TrackOptions:
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
     view_correction: bool = False
+    mirror_landmarks: bool = False
 
 
 @dataclass(eq=False)
@@ -205,13 +212,13 @@ class FrameTracker:
         o = self.options
         mesh = None
         if self.prev_mesh is not None:
-            mesh = face_landmarks(rgb, roi_from_mesh(self.prev_mesh.points))
+            mesh = face_landmarks(rgb, roi_from_mesh(self.prev_mesh.points), mirror=o.mirror_landmarks)
             if mesh.presence < o.min_presence:
                 mesh = None
         if mesh is None:
             face = _pick_face(detect_faces(rgb), o.face_index, self.last_centre)
             if face is not None:
-                mesh = face_landmarks(rgb, face)
+                mesh = face_landmarks(rgb, face, mirror=o.mirror_landmarks)
                 if mesh.presence < o.min_presence:
                     mesh = None
         self.prev_mesh = mesh
