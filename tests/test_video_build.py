@@ -129,3 +129,19 @@ def test_video_build_of_a_subject_not_made_of_our_gaussians(tmp_path, capsys):
     # test above).
     assert all(g > -0.5 for g in gains.values()), (pv, ps)
     assert np.mean([gains[90.0], gains[-90.0]]) > -0.25, (pv, ps)
+
+
+def test_the_eased_turn_reaches_its_yaw_both_ways_slows_at_the_ends_and_nods_last():
+    from avatarkit.synthetic.turning_video import eased_turning_clip
+    from avatarkit.track.keyframes import yaw_pitch
+
+    clip = eased_turning_clip(96, yaw=np.radians(80.0))
+    yp = np.degrees(yaw_pitch(clip.rotation))
+    assert clip.n_frames == 96 and abs(yp[0]).max() < 1.0
+    assert yp[:, 0].max() == pytest.approx(80.0, abs=0.5) and yp[:, 0].min() == pytest.approx(-80.0, abs=0.5)
+    speed = np.abs(np.diff(yp[:, 0]))                          # degrees per frame
+    top = int(np.argmax(yp[:, 0]))
+    # eased: the head slows into the turn's end (a whip reverses at full speed)
+    assert speed[top - 1] < 0.25 * speed.max() and speed.max() < 10.0
+    # the nod comes after the turn, with the head to the front
+    assert np.all(np.abs(yp[np.abs(yp[:, 1]) > 1.0, 0]) < 1.0) and abs(yp[-1, 1]) > 15.0
