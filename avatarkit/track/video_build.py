@@ -180,6 +180,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             first = dataclasses.replace(options, n_bald=min(options.n_bald, FIRST_BUILD_COUNTS[0]),
                                         n_hair=min(options.n_hair, FIRST_BUILD_COUNTS[1]), preview=False)
             draft = build_avatar(png, first, None, views=views)
+            # no face crop to measure a registered frame's sharpness on: the keyframes' median
             added, figures = register_turned(draft, result, turned, views, video, float(np.median(kf.sharpness)))
             views.keyframes.extend(added)
             views.info["registered"] = figures
