@@ -97,6 +97,14 @@ def test_frames_the_tracker_lost_at_a_turns_ends_are_the_ones_registered():
     conf = np.where(np.abs(true) > np.radians(45), 0.4, 0.9)
     found = np.abs(true) <= np.radians(50)
     conf[90:92] = 0.1                                            # a dropout at the front
+    # on the way to the right the tracker under-reads beside the lost stretch (-30 where the
+    # head is at -45), and a 2-frame dropout before it has edges turned more (-42): the long
+    # stretch is still the one registered
+    neg = np.flatnonzero(true < -np.radians(45))
+    a, b = neg[0], neg[-1]
+    tracked[a - 1] = tracked[b + 1] = -np.radians(30)
+    conf[a - 4:a - 2] = 0.1
+    tracked[a - 5] = tracked[a - 2] = -np.radians(42)
     r = _tracking(tracked, conf=conf)
     r.found = found
     ok = eligible_frames(r)

@@ -146,7 +146,8 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
                    steps=REFINE_STEPS, rounds: int = REFINE_ROUNDS, above: float = 1.0) -> Registration:
     """The head pose at which `gaussians` (the avatar at rest) best reproduce `image` (H, W, 3)
     uint8 (module docstring). guess (4, 4): the starting pose (its pitch, roll and translation
-    start the search); yaw_range: (lo, hi) radians, the absolute yaws the coarse search tries;
+    start the search); yaw_range: (lo, hi) radians, the absolute yaws searched (the coarse grid
+    and the refinement's bounds);
     above: only the image rows above this share of the height count (`head_rows`)."""
     target = _target(image, size)
     bg = background_colour(target)
@@ -173,6 +174,8 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
                 for s in (+step[i], -step[i]):
                     p = best.copy()
                     p[i] += s
+                    if i == 0 and not lo <= p[0] <= hi:
+                        continue                  # the yaw stays within the range it was given
                     e = cost(p)
                     if e < err - 1e-12:
                         best, err, improved = p, e, True

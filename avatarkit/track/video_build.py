@@ -59,8 +59,8 @@ class TurnedFrame:
 def turned_frames(result, yaw) -> list[TurnedFrame]:
     """The frames to register (module docstring): stretches of frames not eligible as keyframes
     (`keyframes.eligible_frames`) with a tracked frame beside them turned at least `TURNED_EDGE`
-    (yaw (T,) radians, the tracked yaw); per side (left, right) the stretch whose edge turned
-    most; its middle frame."""
+    (yaw (T,) radians, the tracked yaw); per side (left, right) the longest such stretch (ties:
+    the one whose edge turned most); its middle frame."""
     from avatarkit.track.keyframes import eligible_frames
 
     ok = eligible_frames(result)
@@ -85,8 +85,11 @@ def turned_frames(result, yaw) -> list[TurnedFrame]:
         far = side * (abs(y) + SEARCH_BEYOND)
         near = side * (abs(y) - SEARCH_BEFORE)
         cand = TurnedFrame((a + t - 1) // 2, e, min(near, far), max(near, far))
-        if side not in best or abs(y) > best[side][0]:
-            best[side] = (abs(y), cand)
+        # the longest stretch: the head stayed out of the tracking's reach longest there (a short
+        # dropout on the way, with a turned edge, is no turn beyond it: on the bob subject one at
+        # -26 degrees was taken over the stretch at the -80 pause)
+        if side not in best or (t - a, abs(y)) > best[side][0]:
+            best[side] = ((t - a, abs(y)), cand)
     return [best[k][1] for k in sorted(best)]
 
 
