@@ -177,7 +177,9 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         write_png(png, images[ref_frame])
         if options.name is None:
             options.name = Path(video).stem
-        turned = turned_frames(result, yaw_pitch(result.clip.rotation)[:, 0]) if views is not None and REGISTER_TURNED else []
+        turned = []
+        if views is not None and REGISTER_TURNED:
+            turned = turned_frames(result, yaw_pitch(result.clip.rotation)[:, 0])
         if turned:
             t0 = time.perf_counter()
             first = dataclasses.replace(options, n_bald=min(options.n_bald, FIRST_BUILD_COUNTS[0]),
@@ -243,5 +245,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["FIRST_BUILD_COUNTS", "REGISTER_TURNED", "TURNED_EDGE", "TurnedFrame", "register_turned", "turned_guess", "turned_frames",
-           "IDENTITY_EXPR", "build_tracking", "build_video_avatar", "joint_identity"]
+__all__ = ["FIRST_BUILD_COUNTS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
+           "TurnedFrame",
+           "build_tracking", "build_video_avatar", "joint_identity", "register_turned", "turned_frames",
+           "turned_guess"]
