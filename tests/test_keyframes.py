@@ -81,3 +81,49 @@ def test_face_sharpness_falls_with_blur():
     blurred = cv2.GaussianBlur(img, (0, 0), 2.0)
     assert face_sharpness(img, marks) > 10 * face_sharpness(blurred, marks)
     assert face_sharpness(img, None) == 0.0
+
+
+def test_frames_the_tracker_lost_at_a_turns_ends_are_the_ones_registered():
+    # the head turns to 80 degrees each way; the tracking follows to 45 and loses the rest (no
+    # face found past 50, a collapsed confidence at 45-50); a short dropout near the front must
+    # not be registered (its neighbours have not turned)
+    from avatarkit.track.keyframes import eligible_frames
+    from avatarkit.track.video_build import TURNED_EDGE, turned_frames
+
+    true = np.radians(np.concatenate([np.linspace(0, 80, 20), np.full(6, 80.0), np.linspace(80, -80, 30),
+                                      np.full(6, -80.0), np.linspace(-80, 0, 20), np.zeros(14)]))
+    T = len(true)
+    tracked = np.clip(true, -np.radians(45), np.radians(45))
+    conf = np.where(np.abs(true) > np.radians(45), 0.4, 0.9)
+    found = np.abs(true) <= np.radians(50)
+    conf[90:92] = 0.1                                            # a dropout at the front
+    # on the way to the right the tracker under-reads beside the lost stretch (-30 where the
+    # head is at -45), and a 2-frame dropout before it has edges turned more (-42): the long
+    # stretch is still the one registered
+    neg = np.flatnonzero(true < -np.radians(45))
+    a, b = neg[0], neg[-1]
+    tracked[a - 1] = tracked[b + 1] = -np.radians(30)
+    conf[a - 4:a - 2] = 0.1
+    tracked[a - 5] = tracked[a - 2] = -np.radians(42)
+    r = _tracking(tracked, conf=conf)
+    r.found = found
+    ok = eligible_frames(r)
+    assert not ok[90:92].any() and ok[:9].all()
+    got = turned_frames(r, tracked)
+    assert len(got) == 2                                         # one per side, none at the front
+    for t in got:
+        assert not ok[t.clip_index] and abs(true[t.clip_index]) >= np.radians(75)   # the middle of the stretch
+        assert ok[t.edge] and abs(tracked[t.edge]) >= TURNED_EDGE
+        assert t.lo < true[t.clip_index] < t.hi                  # the search reaches the true yaw
+    assert {np.sign(true[t.clip_index]) for t in got} == {-1.0, 1.0}
+
+
+def test_a_tracking_that_loses_the_face_only_near_the_front_registers_nothing():
+    # a blink of lost frames with the head near the front is no turn beyond the tracking
+    from avatarkit.track.video_build import turned_frames
+
+    yaw = np.radians(np.linspace(-40, 40, 50))
+    assert turned_frames(_tracking(yaw), yaw) == []
+    conf = np.full(50, 0.9)
+    conf[23:27] = 0.1                                            # around yaw 0
+    assert turned_frames(_tracking(yaw, conf=conf), yaw) == []

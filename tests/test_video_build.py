@@ -20,10 +20,11 @@ def truth(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def turning(truth, tmp_path_factory):
-    from avatarkit.synthetic.turning_video import write_turning_video
+    # the eased turn to +-80 degrees the benchmark builds (the recording docs/video-build.md asks for)
+    from avatarkit.synthetic.turning_video import eased_turning_clip, write_turning_video
 
     root = tmp_path_factory.mktemp("turn")
-    write_turning_video(truth, root / "turn.mp4", size=192, frames=32)
+    write_turning_video(truth, root / "turn.mp4", size=192, clip=eased_turning_clip(96))
     return root
 
 
@@ -38,6 +39,16 @@ def test_video_build_is_no_worse_than_the_single_frame_build_away_from_the_front
     assert src["mode"] == "video" and len(src["keyframes"]) >= 3
     yaws = [k["yaw_deg"] for k in src["keyframes"]]
     assert min(yaws) < -15 and max(yaws) > 15 or max(abs(y) for y in yaws) > 15     # the turn was used
+    # the face mesh loses the head past ~55 degrees; the frame at each side's pause (80 degrees)
+    # is registered against the first build (`track.register`) to within a few degrees
+    from avatarkit.synthetic.turning_video import eased_turning_clip
+    from avatarkit.track.keyframes import yaw_pitch
+
+    true = np.degrees(yaw_pitch(eased_turning_clip(96).rotation)[:, 0])
+    reg = src["registered"]
+    assert len(reg) == 2 and {np.sign(r["yaw_deg"]) for r in reg} == {-1.0, 1.0}
+    for r in reg:
+        assert abs(true[r["frame"]]) > 70 and abs(r["yaw_deg"] - true[r["frame"]]) < 5.0, reg
     build = read_manifest(tmp_path / "v")["provenance"]["build"]
     assert {"track", "keyframes", "identity", "views"} <= set(build["timings_s"])
     assert build["video"]["segmented"] >= 2 and build["multiview_colours"]["seen_only_by_other_keyframes"] > 0
@@ -48,18 +59,14 @@ def test_video_build_is_no_worse_than_the_single_frame_build_away_from_the_front
     gains = {a: pv[a] - ps[a] for a in pv}
     # Until session 8 this asserted a profile gain > 3 dB (measured +4.2 .. +5.3): that gain was
     # the video build making up for the segmentation labelling the white background's halo as
-    # the hair. With the segmentation fixed (session 8) the single-frame build rose from ~12.8 to
-    # ~23 dB at the profile and the video build measures +0.07 / +1.77 dB at +-90, -0.01 / +3.28
-    # at +-45, +0.49 at the front (benchmarks/build_video.py, the same builds): this video's
-    # keyframes turn at most ~33 degrees (the tracker loses the face past that), and the
-    # profile's errors lie behind the ear, where no keyframe looks (docs/video-build.md). The
-    # bounds say the extra views cost nothing anywhere: the issue's +3 dB is not met. On this
-    # subject the views mattered little before the colours kept after the photo's matching
-    # (`multiview.VideoViews.keep_view_colours`): then every keyframe but the reference
-    # misregistered by 15 degrees of yaw measured -0.18 / -0.16 / +0.15 / -0.03 / -0.06 dB and
-    # passed too; the mesh subject's test below catches the keyframes' labels going wrong.
+    # the hair. With the segmentation fixed the single-frame build is ~23 dB at the profile.
+    # Session 9, on this eased 80-degree turn with the registered profile frames (the same
+    # builds as benchmarks/build_video.py): +0.35 / +0.60 / +3.72 / +0.74 / +2.84 dB at front,
+    # +-45, +-90 (profile mean +1.79; without the registration +1.03). The profile's rest is the
+    # hair's strand texture, which neither build reproduces. The issue's +3 dB is not met; the
+    # bounds say the extra views cost nothing anywhere and the profile gains.
     assert all(g > -0.5 for g in gains.values()), (pv, ps)
-    assert np.mean([gains[90.0], gains[-90.0]]) > -0.25, (pv, ps)
+    assert np.mean([gains[90.0], gains[-90.0]]) > 0.5, (pv, ps)
 
 
 @pytest.mark.slow
@@ -129,3 +136,19 @@ def test_video_build_of_a_subject_not_made_of_our_gaussians(tmp_path, capsys):
     # test above).
     assert all(g > -0.5 for g in gains.values()), (pv, ps)
     assert np.mean([gains[90.0], gains[-90.0]]) > -0.25, (pv, ps)
+
+
+def test_the_eased_turn_reaches_its_yaw_both_ways_slows_at_the_ends_and_nods_last():
+    from avatarkit.synthetic.turning_video import eased_turning_clip
+    from avatarkit.track.keyframes import yaw_pitch
+
+    clip = eased_turning_clip(96, yaw=np.radians(80.0))
+    yp = np.degrees(yaw_pitch(clip.rotation))
+    assert clip.n_frames == 96 and abs(yp[0]).max() < 1.0
+    assert yp[:, 0].max() == pytest.approx(80.0, abs=0.5) and yp[:, 0].min() == pytest.approx(-80.0, abs=0.5)
+    speed = np.abs(np.diff(yp[:, 0]))                          # degrees per frame
+    top = int(np.argmax(yp[:, 0]))
+    # eased: the head slows into the turn's end (a whip reverses at full speed)
+    assert speed[top - 1] < 0.25 * speed.max() and speed.max() < 10.0
+    # the nod comes after the turn, with the head to the front
+    assert np.all(np.abs(yp[np.abs(yp[:, 1]) > 1.0, 0]) < 1.0) and abs(yp[-1, 1]) > 15.0

@@ -567,7 +567,15 @@ class VideoViews:
                 if colours is not None:
                     v.labels = relabel_head(v.labels, k.image, v.head, colours).astype(np.int32)
             except AvatarKitError as e:
-                v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
+                if colours is None:
+                    v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
+                else:
+                    # a head turned to the profile shows no face to the portrait analysis: its
+                    # head is labelled by the reference view's colours alone (`relabel_head` on
+                    # an image of background: what is not the background's colour by the head
+                    # is the person's)
+                    v.labels = relabel_head(np.zeros(k.image.shape[:2], np.int32), k.image, v.head,
+                                            colours).astype(np.int32)
             views.append(v)
         return views
 

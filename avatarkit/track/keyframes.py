@@ -100,6 +100,12 @@ def face_sharpness(rgb: np.ndarray, landmarks: np.ndarray | None) -> float:
     return float(cv2.Laplacian(crop.astype(np.float32), cv2.CV_32F).var())
 
 
+def eligible_frames(result) -> np.ndarray:
+    """(T,) bool: a face found and a confidence at least `MIN_CONFIDENCE_SHARE` of the best."""
+    conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
+    return conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
+
+
 def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = KEYFRAMES,
                      min_spread: float = MIN_SPREAD, min_gap: int = MIN_GAP) -> Keyframes:
     """Keyframes of a `TrackResult` (module docstring). sharpness: (T,) raw face sharpness per
@@ -108,8 +114,7 @@ def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = K
 
     T = result.num_frames
     base = frame_costs(result)                       # inf where the single-frame choice would not take it
-    conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
-    eligible = conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(T, bool)
+    eligible = eligible_frames(result)
     pose = yaw_pitch(result.clip.rotation)
     s = np.ones(T) if sharpness is None else np.asarray(sharpness, np.float64).reshape(T)
     top = s[eligible].max() if eligible.any() else 0.0
@@ -162,5 +167,5 @@ def read_frames(video, frame_index) -> dict[int, np.ndarray]:
     return out
 
 
-__all__ = ["KEYFRAMES", "Keyframes", "choose_keyframes", "face_sharpness", "read_frames",
+__all__ = ["KEYFRAMES", "Keyframes", "choose_keyframes", "eligible_frames", "face_sharpness", "read_frames",
            "video_sharpness", "yaw_pitch"]

@@ -1,0 +1,82 @@
+"""`track.register`: a frame the face mesh lost, registered by analysis by synthesis against an
+avatar, on a known case (the avatar itself rendered at a known, far-turned pose)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from avatarkit.track.register import (params_from_pose, photometric_error, pose_camera, pose_from_params,
+                                      register_frame, register_frame_exhaustive, scaled_camera)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    from avatarkit.render import render
+    from avatarkit.synthetic.head_video import head_video_camera
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+
+    avatar = make_sample_avatar(n_hair=1200, n_bald=4000, style="short", cage_vertices=200)
+    gs = avatar.rest_gaussians()
+    # the reference keyframe's camera and pose in the tracker's convention: the camera on +Z
+    # 0.5 m from a point 5 cm above the neck joint, the head at rest (W_ref = C M_r)
+    camera = head_video_camera(128, distance=0.5)
+    ref_pose = pose_from_params([0.0, 0.0, 0.0, 0.0, -0.05, -0.5])
+    truth = pose_from_params([math.radians(70.0), math.radians(4.0), math.radians(-2.0), 0.004, -0.052, -0.505])
+    frame = render(gs, pose_camera(camera, ref_pose, truth), background=(1.0, 1.0, 1.0))
+    image = (np.clip(frame.rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+    assert frame.alpha.mean() > 0.1                       # the head is in the picture
+    return gs, camera, ref_pose, truth, image
+
+
+def test_pose_params_round_trip_and_the_reference_pose_gives_the_reference_camera(scene):
+    gs, camera, ref_pose, truth, _ = scene
+    np.testing.assert_allclose(pose_from_params(params_from_pose(truth)), truth, atol=1e-12)
+    np.testing.assert_allclose(pose_camera(camera, ref_pose, ref_pose).world_to_camera, camera.world_to_camera,
+                               atol=1e-12)
+    # the tracker's frame is the camera's: turning the head by P is C P in this set-up
+    c = np.diag([1.0, -1.0, -1.0, 1.0])
+    np.testing.assert_allclose(pose_camera(camera, ref_pose, truth).world_to_camera, c @ truth, atol=1e-12)
+
+
+def test_a_scaled_camera_puts_every_splat_where_the_smaller_picture_has_it(scene):
+    from avatarkit.render import render
+
+    gs, camera, ref_pose, truth, _ = scene
+    cam = pose_camera(camera, ref_pose, truth)
+    full = render(gs, cam).meta["means2d"]
+    half = render(gs, scaled_camera(cam, 64, 64)).meta["means2d"]
+    both = (render(gs, cam).meta["radii"] > 0) & (render(gs, scaled_camera(cam, 64, 64)).meta["radii"] > 0)
+    both = both.reshape(len(full), -1).all(axis=1)
+    assert both.sum() > 100
+    # pixel (i, j) covers [i, i+1) x [j, j+1) at both sizes: positions scale with the grid
+    np.testing.assert_allclose(half[both], 0.5 * full[both], atol=1e-4)
+
+
+def test_a_far_turned_frame_is_registered_from_a_guess_25_degrees_short(scene):
+    gs, camera, ref_pose, truth, image = scene
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    reg = register_frame(gs, image, camera, ref_pose, guess, (math.radians(40.0), math.radians(100.0)))
+    found, want = np.degrees(params_from_pose(reg.pose)[:3]), np.degrees(params_from_pose(truth)[:3])
+    assert abs(found[0] - want[0]) < 2.0, (found, want)
+    assert abs(found[1] - want[1]) < 2.0, (found, want)
+    assert np.linalg.norm(reg.pose[:3, 3] - truth[:3, 3]) < 0.01
+    # the coarse grid alone (pitch, roll and position the guess's) is further off: the local
+    # refinement is what gets within 2 degrees
+    assert reg.error < reg.coarse[:, 1].min()
+
+
+def test_the_fast_registration_agrees_with_the_exhaustive_grid(scene):
+    gs, camera, ref_pose, truth, image = scene
+    guess = pose_from_params([math.radians(60.0), 0.0, math.radians(-2.0), 0.004, -0.052, -0.505])
+    window = (math.radians(60.0), math.radians(80.0))
+    fast = register_frame(gs, image, camera, ref_pose, guess, window)
+    slow = register_frame_exhaustive(gs, image, camera, ref_pose, guess, window)
+    assert abs(np.degrees(fast.yaw_pitch_roll[0] - slow.yaw_pitch_roll[0])) <= 2.0
+    assert abs(np.degrees(fast.yaw_pitch_roll[1] - slow.yaw_pitch_roll[1])) <= 2.0
+    # both at the truth's yaw (the grid holds it to its step) and scored by the same error
+    assert abs(np.degrees(slow.yaw_pitch_roll[0]) - 70.0) <= 1.0
+    target = image.astype(np.float64) / 255.0
+    assert photometric_error(gs, pose_camera(camera, ref_pose, slow.pose), target, (1.0, 1.0, 1.0)) == \
+        pytest.approx(slow.error, rel=1e-9)
