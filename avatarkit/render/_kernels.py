@@ -329,11 +329,12 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
         ti.loop_config(serialize=True)
         for _ in range(1):
             run = 0
-            for d in range(RADIX):
-                for c in range(SORT_CHUNKS):
-                    v = hist[c, d]
-                    hist[c, d] = run
-                    run += v
+            if p == 0 or p < total[1]:
+                for d in range(RADIX):
+                    for c in range(SORT_CHUNKS):
+                        v = hist[c, d]
+                        hist[c, d] = run
+                        run += v
             if ti.static(p == 0):
                 total[0] = run
                 lo = 0x7FFFFFFF
