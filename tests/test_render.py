@@ -283,25 +283,31 @@ def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
 
 
 def _tied_depths(case, rng, n):
-    """Depths with ties everywhere, and the sort passes the binning should take for them."""
-    if case == "wide":  # 40 distinct depths over many binades: three passes
+    """Depths with ties everywhere, and the sort passes the binning should take for them: as
+    many 12-bit passes as the spread of their bit patterns (largest - least) needs."""
+    if case == "wide":  # 40 distinct depths from 0.02 to 50: three passes
         return rng.choice(rng.uniform(0.02, 50.0, 40), n).astype(np.float32), 3
-    if case == "two_binades":  # [2, 8): keys share bits 24-30, two passes; ties broken by
-        # the low 12 bits as well as the next 12 (neighbours a few ulps apart)
-        base = rng.uniform(2.0, 7.9, 30).astype(np.float32)
+    if case == "across_half":  # 0.4-0.7 (spread < 2^24): two passes; ties broken by the low
+        # 12 bits as well as the next 12 (neighbours a few ulps apart)
+        base = rng.uniform(0.4, 0.7, 30).astype(np.float32)
         near = base[:, None].view(np.int32) + rng.integers(0, 5000, (30, 4)).astype(np.int32)
         return rng.choice(near.reshape(-1).view(np.float32), n), 2
-    if case == "across_bit_24":  # [2, 16): bit 24 differs (exponents 128 and 130): three
-        return rng.choice(rng.uniform(2.0, 16.0, 40), n).astype(np.float32), 3
-    return np.full(n, 0.75, np.float32), 2  # one depth
+    if case == "spread_2_24":  # a spread of exactly 2^24: three passes
+        lo = np.float32(2.0).view(np.int32)
+        keys = np.array([lo, lo + (1 << 24), lo + 4095, lo + 4096, lo + (1 << 23)], np.int32)
+        return rng.choice(keys.view(np.float32), n), 3
+    if case == "narrow":  # within 4096 ulps: one pass
+        keys = np.float32(0.6).view(np.int32) + rng.integers(0, 4096, 40).astype(np.int32)
+        return rng.choice(keys.view(np.float32), n), 1
+    return np.full(n, 0.75, np.float32), 1  # one depth
 
 
-@pytest.mark.parametrize("case", ["wide", "two_binades", "across_bit_24", "one_depth"])
+@pytest.mark.parametrize("case", ["wide", "across_half", "spread_2_24", "narrow", "one_depth"])
 def test_binning_sorts_tied_depths_stably_over_many_chunks(case):
     # the kernel's radix sort against numpy's stable argsort, through the tile lists: 5000
     # splats (many per sort and bin chunk), ties everywhere, a fifth culled, rects of 1-9
-    # tiles; loose binning, so every tile of a rect is listed. Two 12-bit passes when all
-    # keys share their bits 24-30, else three: both paths, and the choice, are checked.
+    # tiles; loose binning, so every tile of a rect is listed. One, two or three 12-bit
+    # passes, by the keys' spread: each path, and the choice, are checked.
     from avatarkit.render import pipeline
 
     rng = np.random.default_rng(3)

@@ -164,18 +164,17 @@ MASK_TILES = 63  # rects of up to this many tiles keep their hits as bits for th
 i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
 
 # The depth sort: a stable LSD radix sort of the visible splats' depths (positive float32,
-# which order like their bit patterns as int32), RADIX_BITS a pass. Each pass is a chunked
-# counting sort, SORT_CHUNKS tasks a loop, so the result does not depend on the thread count.
-# Two passes of 12 bits when all keys share their bits 24-30 (depths within one aligned pair
-# of binades, e.g. [2, 8) m or [0.5, 2) m: the bench scene's and an avatar's at arm's length),
-# else three. 11 bits and always three passes cost one pass more; 8 bits (4 passes) and 2 or
-# 8 chunks measured no faster than 11 bits.
+# which order like their bit patterns as int32) less the least of them, RADIX_BITS a pass.
+# Each pass is a chunked counting sort, SORT_CHUNKS tasks a loop, so the result does not
+# depend on the thread count. It takes as many passes as the keys' spread needs: two while
+# the largest depth is within ~2-4x the smallest (the spread of the keys < 2^24: the bench
+# scene's 2-4 m, an avatar at 0.4-0.7 m), one for < 2^12 (depths within ~1e-3 of each
+# other), else three. 11 bits and always three passes cost one pass more; 8 bits (4 passes)
+# and 2 or 8 chunks measured no faster than 11 bits.
 SORT_CHUNKS = 4
 RADIX_BITS = 12
 RADIX = 1 << RADIX_BITS
 RADIX_PASSES = -(-31 // RADIX_BITS)  # at most; the sign bit is 0
-SHORT_PASSES = 2  # when the keys' bits from SHORT_PASSES * RADIX_BITS up are all the same
-assert SHORT_PASSES * RADIX_BITS < 31
 
 
 def order_row(passes: int) -> int:
@@ -281,10 +280,10 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
 
     1. idx[order_row(total[1]), :m] = the m splats with radii > 0 in increasing depth, ties
        in index order (numpy's stable argsort: `pipeline.depth_order`); total[0] = m,
-       total[1] = the sort passes run (SHORT_PASSES or RADIX_PASSES); rank[i] = splat i's
-       place in that order, -1 where culled (rank starts at -1). keys, idx: (2, N),
-       hist: (SORT_CHUNKS, RADIX) and spans: (SORT_CHUNKS, 2) (each chunk's least and
-       greatest key) scratch.
+       total[1] = the sort passes run (1 to RADIX_PASSES), total[2] = the least key;
+       rank[i] = splat i's place in that order, -1 where culled (rank starts at -1). keys,
+       idx: (2, N), hist: (SORT_CHUNKS, RADIX) and spans: (SORT_CHUNKS, 2) (each chunk's
+       least and greatest key) scratch.
     2. Per splat, in input order (one parallel loop over all splats, so the costly part, the
        ellipse-tile tests, is spread evenly over the cores), written to row k = rank[i] so
        that the chunk loops below and `scatter_tiles` read in depth order, streaming:
@@ -302,6 +301,31 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
        earlier chunks' entries of tile t), firsts[c, t] likewise for the slots.
     """
     n_in = depths.shape[0]
+    per_in = (n_in + SORT_CHUNKS - 1) // SORT_CHUNKS
+    ti.loop_config(block_dim=1)
+    for c in range(SORT_CHUNKS):
+        lo = 0x7FFFFFFF
+        hi = -1
+        for k in range(c * per_in, ti.min(n_in, (c + 1) * per_in)):
+            if radii[k] > 0:
+                key = ti.bit_cast(depths[k], ti.i32)
+                lo = ti.min(lo, key)
+                hi = ti.max(hi, key)
+        spans[c, 0] = lo
+        spans[c, 1] = hi
+    # the keys are sorted less the least of them: as many passes as their spread needs
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        lo = 0x7FFFFFFF
+        hi = -1
+        for c in range(SORT_CHUNKS):
+            lo = ti.min(lo, spans[c, 0])
+            hi = ti.max(hi, spans[c, 1])
+        passes = 1
+        while passes < RADIX_PASSES and ((hi - lo) >> (passes * RADIX_BITS)) > 0:
+            passes += 1
+        total[1] = passes
+        total[2] = lo
     for p in ti.static(range(RADIX_PASSES)):
         shift = p * RADIX_BITS
         src = (p + 1) % 2  # pass 0 reads the inputs, then each pass the buffer the last wrote
@@ -312,19 +336,11 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
                 hist[c, d] = 0
             n = n_in if p == 0 else (total[0] if p < total[1] else 0)
             per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
-            lo = 0x7FFFFFFF
-            hi = -1
             for k in range(c * per, ti.min(n, (c + 1) * per)):
                 if p > 0 or radii[k] > 0:
-                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    key = ti.bit_cast(depths[k], ti.i32) - total[2] if p == 0 else keys[src, k]
                     d = (key >> shift) & (RADIX - 1)
                     hist[c, d] = hist[c, d] + 1
-                    if ti.static(p == 0):
-                        lo = ti.min(lo, key)
-                        hi = ti.max(hi, key)
-            if ti.static(p == 0):
-                spans[c, 0] = lo
-                spans[c, 1] = hi
         # digit d of chunk c goes after all smaller digits and the earlier chunks' digit d
         ti.loop_config(serialize=True)
         for _ in range(1):
@@ -337,13 +353,6 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
                         run += v
             if ti.static(p == 0):
                 total[0] = run
-                lo = 0x7FFFFFFF
-                hi = -1
-                for c in range(SORT_CHUNKS):
-                    lo = ti.min(lo, spans[c, 0])
-                    hi = ti.max(hi, spans[c, 1])
-                top = SHORT_PASSES * RADIX_BITS
-                total[1] = SHORT_PASSES if (lo >> top) == (hi >> top) else RADIX_PASSES
         ti.loop_config(block_dim=1)
         for c in range(SORT_CHUNKS):
             n = n_in if p == 0 else (total[0] if p < total[1] else 0)
@@ -351,7 +360,7 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
             per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
             for k in range(c * per, ti.min(n, (c + 1) * per)):
                 if p > 0 or radii[k] > 0:
-                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    key = ti.bit_cast(depths[k], ti.i32) - total[2] if p == 0 else keys[src, k]
                     i = k if p == 0 else idx[src, k]
                     d = (key >> shift) & (RADIX - 1)
                     pos = hist[c, d]

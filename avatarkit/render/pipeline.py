@@ -251,7 +251,7 @@ def bin_gaussians(proj: Projection, camera: Camera, opacities: np.ndarray | None
     k = _kernels()
     snug = opacities is not None
     ops = np.ascontiguousarray(opacities if snug else np.zeros(n), np.float32)
-    total = _scratch_array("bin_total", (2,), np.int32)  # visible splats, sort passes run
+    total = _scratch_array("bin_total", (3,), np.int32)  # visible splats, sort passes, least key
     idx = _scratch_array("bin_idx", (2, n), np.int32)
     # depth-ordered rows [:m], m = visible splats
     s_rect = _scratch_array("bin_rect", (n, 2), np.int32)
