@@ -18,11 +18,14 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    (d^T conic d <= 2 ln(255 opacity), widened by 1%) reaches with a pixel centre: an exact
    ellipse-rectangle test that drops only tiles the compositor would find nothing to draw in
    (the image is the same; ~28% fewer pairs on the bench scene). Depths are sorted once
-   (stable, so ties keep input order: a parallel radix sort, `depth_order` is its numpy
-   twin); the depth-ordered Gaussians are cut into 16 chunks that are counted and scattered
-   in parallel, chunk after chunk within each tile's list, so the per-tile lists
-   (`tile_offsets`, `gaussian_ids`) come out depth-sorted. The same passes number the listed
-   Gaussians in the order the lists, tile by tile, first name them (`TileBins.slots`).
+   (stable, so ties keep input order: a parallel radix sort in as many 12-bit passes as the
+   depths' spread needs, `depth_order` is its numpy twin); the ellipse-tile tests run in one
+   parallel loop over the splats in input order, each splat's tiles kept as bits in its
+   depth-ordered row; the depth-ordered Gaussians are then cut into 16 chunks that are
+   counted and scattered in parallel, chunk after chunk within each tile's list, so the
+   per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted. The same passes
+   number the listed Gaussians in the order the lists, tile by tile, first name them
+   (`TileBins.slots`).
 4. `rasterize`: each splat's record (mean, conic, opacity, colour, depth and the half-extents
    of its alpha >= 1/255 ellipse) is packed in row `slots[g]`, so a tile's records lie close
    together in memory; per pixel, in list order, d = mean2d - pixel
@@ -175,8 +178,8 @@ def _scratch_array(name: str, shape: tuple, dtype) -> np.ndarray:
     one buffer per name and thread, kept between calls and grown when too small. A fresh
     array's pages fault in (and are zeroed by the kernel) on first touch: ~3800 faults,
     ~15 MB, per 100k frame, several ms of CPU; reused buffers skip that for everything but
-    the arrays a stage returns. Holds ~33 MB per rendering thread at 100k splats (18 of them
-    the compositor's cell lists, 16 int32 per splat-tile pair)."""
+    the arrays a stage returns. Holds ~27 MB per rendering thread at 100k splats (18 of them
+    the compositor's cell lists, 16 int32 per splat-tile pair; the binning's ~4)."""
     arrays = getattr(_scratch, "arrays", None)
     if arrays is None:
         arrays = _scratch.arrays = {}
