@@ -171,6 +171,28 @@ def test_scratch_buffers_carry_nothing_between_frames():
     assert pipeline._scratch.arrays["bin_hits"].nbytes >= 3000 * 8  # the buffers did carry over
 
 
+def test_kernel_call_launches_like_taichis_plain_call(monkeypatch):
+    # the stages launch their kernels through `_launch.KernelCall`, which fills Taichi's
+    # launch context itself: a frame through it must be Taichi's own call's, bit for bit
+    # (arrays of 1-3 dimensions, ints and floats: the background, the camera), and the
+    # fast path must be the one taken
+    from avatarkit.render import pipeline
+
+    gs, cam = random_scene(800, 40, 3, width=70, height=50)
+    fast = render(gs, cam, background=(0.2, 0.3, 0.4))
+    assert {"project", "sh_colors", "bin_prepare", "scatter_tiles", "pack_splats",
+            "rasterize"} <= set(pipeline._calls)
+    assert all(i is not False for c in pipeline._calls.values() for i in c._instances.values())
+    monkeypatch.setattr(pipeline, "_launch",
+                        lambda name, *args: getattr(pipeline._kernels(), name)(*args))
+    plain = render(gs, cam, background=(0.2, 0.3, 0.4))
+    for a, b in ((fast.rgb, plain.rgb), (fast.alpha, plain.alpha), (fast.depth, plain.depth),
+                 (fast.meta["gaussian_ids"], plain.meta["gaussian_ids"]),
+                 (fast.meta["conics"], plain.meta["conics"])):
+        np.testing.assert_array_equal(a, b)
+    assert fast.alpha.max() > 0.5
+
+
 def test_compositor_exp_matches_numpy():
     # the compositor's inlined float32 exp (Cephes expf), over every exponent it meets: alpha
     # >= 1/255 needs x >= ln(1/255) ~ -5.5; far lanes of a block go down to the -87 clamp

@@ -159,13 +159,12 @@ _calls: dict = {}
 
 
 def _launch(name: str, *args) -> None:
-    """`_kernels.<name>(*args)` through `KernelCall`, which skips Taichi's per-call Python work
-    (looking the instance up from the arguments, building the launch context): ~0.05 ms of
-    the calling thread per array argument, while the other cores wait; a frame's six launches
-    pass ~55 arrays. The same kernel on the same memory, so the same results."""
+    """`_kernels.<name>(*args)` through `_launch.KernelCall`, which skips Taichi's per-call
+    Python work (~0.05 ms of this thread per array argument while the kernel threads wait;
+    a 100k frame's launches pass ~55 arrays). The same kernel on the same memory."""
     call = _calls.get(name)
     if call is None:
-        from avatarkit.sim._launch import KernelCall
+        from avatarkit.render._launch import KernelCall
         call = _calls[name] = KernelCall(getattr(_kernels(), name))
     call(*args)
 
