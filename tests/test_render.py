@@ -168,7 +168,29 @@ def test_scratch_buffers_carry_nothing_between_frames():
     again = render(small, small_cam)
     for a, b in ((fresh.rgb, again.rgb), (fresh.alpha, again.alpha), (fresh.depth, again.depth)):
         np.testing.assert_array_equal(a, b)
-    assert pipeline._scratch.arrays["bin_geo"].nbytes >= 3000 * 64  # the buffers did carry over
+    assert pipeline._scratch.arrays["bin_hits"].nbytes >= 3000 * 8  # the buffers did carry over
+
+
+def test_kernel_call_launches_like_taichis_plain_call(monkeypatch):
+    # the stages launch their kernels through `_launch.KernelCall`, which fills Taichi's
+    # launch context itself: a frame through it must be Taichi's own call's, bit for bit
+    # (arrays of 1-3 dimensions, ints and floats: the background, the camera), and the
+    # fast path must be the one taken
+    from avatarkit.render import pipeline
+
+    gs, cam = random_scene(800, 40, 3, width=70, height=50)
+    fast = render(gs, cam, background=(0.2, 0.3, 0.4))
+    assert {"project", "sh_colors", "bin_prepare", "scatter_tiles", "pack_splats",
+            "rasterize"} <= set(pipeline._calls)
+    assert all(i is not False for c in pipeline._calls.values() for i in c._instances.values())
+    monkeypatch.setattr(pipeline, "_launch",
+                        lambda name, *args: getattr(pipeline._kernels(), name)(*args))
+    plain = render(gs, cam, background=(0.2, 0.3, 0.4))
+    for a, b in ((fast.rgb, plain.rgb), (fast.alpha, plain.alpha), (fast.depth, plain.depth),
+                 (fast.meta["gaussian_ids"], plain.meta["gaussian_ids"]),
+                 (fast.meta["conics"], plain.meta["conics"])):
+        np.testing.assert_array_equal(a, b)
+    assert fast.alpha.max() > 0.5
 
 
 def test_compositor_exp_matches_numpy():
@@ -282,10 +304,34 @@ def test_snug_binning_of_splats_with_more_tiles_than_hit_bits():
     assert np.isin(loose.gaussian_ids, big).sum() > np.isin(snug.gaussian_ids, big).sum()
 
 
-def test_binning_sorts_tied_depths_stably_over_many_chunks():
+def _tied_depths(case, rng, n):
+    """Depths with ties everywhere, and the sort passes the binning should take for them: as
+    many 12-bit passes as the spread of their bit patterns (largest - least) needs."""
+    if case == "wide":  # 40 distinct depths from 0.02 to 50: three passes
+        return rng.choice(rng.uniform(0.02, 50.0, 40), n).astype(np.float32), 3
+    if case == "across_half":  # 0.4-0.7 (spread < 2^24): two passes; ties broken by the low
+        # 12 bits as well as the next 12 (neighbours a few ulps apart)
+        base = rng.uniform(0.4, 0.7, 30).astype(np.float32)
+        near = base[:, None].view(np.int32) + rng.integers(0, 5000, (30, 4)).astype(np.int32)
+        return rng.choice(near.reshape(-1).view(np.float32), n), 2
+    if case == "spread_2_24":  # a spread of exactly 2^24: three passes
+        lo = np.float32(2.0).view(np.int32)
+        keys = np.array([lo, lo + (1 << 24), lo + 4095, lo + 4096, lo + (1 << 23)], np.int32)
+        return rng.choice(keys.view(np.float32), n), 3
+    if case == "narrow":  # within 4096 ulps: one pass
+        keys = np.float32(0.6).view(np.int32) + rng.integers(0, 4096, 40).astype(np.int32)
+        return rng.choice(keys.view(np.float32), n), 1
+    return np.full(n, 0.75, np.float32), 1  # one depth
+
+
+@pytest.mark.parametrize("case", ["wide", "across_half", "spread_2_24", "narrow", "one_depth"])
+def test_binning_sorts_tied_depths_stably_over_many_chunks(case):
     # the kernel's radix sort against numpy's stable argsort, through the tile lists: 5000
-    # splats (many per sort and bin chunk), 40 distinct depths (ties everywhere), a fifth
-    # culled, rects of 1-9 tiles; loose binning, so every tile of a rect is listed
+    # splats (many per sort and bin chunk), ties everywhere, a fifth culled, rects of 1-9
+    # tiles; loose binning, so every tile of a rect is listed. One, two or three 12-bit
+    # passes, by the keys' spread: each path, and the choice, are checked.
+    from avatarkit.render import pipeline
+
     rng = np.random.default_rng(3)
     n, cam = 5000, Camera(60.0, 60.0, 40.0, 40.0, 83, 61)
     tiles_x, tiles_y = 6, 4
@@ -294,17 +340,44 @@ def test_binning_sorts_tied_depths_stably_over_many_chunks():
                       np.minimum(y0 + rng.integers(1, 4, n), tiles_y)], 1).astype(np.int32)
     radii = np.where(rng.random(n) < 0.2, 0, 5).astype(np.int32)
     rects[radii == 0] = 0
-    depths = rng.choice(rng.uniform(0.02, 50.0, 40), n).astype(np.float32)
+    depths, passes = _tied_depths(case, rng, n)
+    depths[radii == 0] = rng.uniform(-5, 100, (radii == 0).sum())  # culled: any depth
     conics = np.tile(np.float32([0.1, 0.0, 0.1]), (n, 1))
     proj = Projection(rng.uniform(0, 80, (n, 2)).astype(np.float32), depths, conics, radii, rects)
     bins = bin_gaussians(proj, cam)
+    assert pipeline._scratch.arrays["bin_total"].view(np.int32)[1] == passes
     order = np.flatnonzero(radii > 0)
+    assert len(np.unique(depths[order])) < len(order) / 10  # ties
     order = order[np.argsort(depths[order], kind="stable")]
     for t in range(tiles_x * tiles_y):
         ty, tx = divmod(t, tiles_x)
         inside = (rects[order, 0] <= tx) & (tx < rects[order, 2]) & (rects[order, 1] <= ty) & (ty < rects[order, 3])
         got = bins.gaussian_ids[bins.tile_offsets[t]:bins.tile_offsets[t + 1]]
         np.testing.assert_array_equal(got, order[inside])
+
+
+def test_binning_q_limit_is_the_numpy_twins():
+    # the binning kernel's alpha >= 1/255 bound on q (`_kernels.splat_geo`) must be
+    # `tile_q_limits` bit for bit: its constants are float64 (a bare Python float in a
+    # kernel is a float32 literal, which gave a different float32 limit for ~1 in 4)
+    from avatarkit.render import _kernels as k
+
+    ti = k.ti
+
+    @ti.kernel
+    def q_limits(means: k.f32_2, conics: k.f32_2, ops: k.f32_1,
+                 out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
+        for i in range(ops.shape[0]):
+            _, _, _, _, _, q = k.splat_geo(means, conics, ops, 1, i)
+            out[i] = q
+
+    rng = np.random.default_rng(5)
+    ops = np.concatenate([rng.uniform(0, 1, 200_000), rng.uniform(0, 0.01, 20_000),
+                          [0.0, 1 / 255, 0.5, 1.0]]).astype(np.float32)
+    means, conics = np.zeros((len(ops), 2), np.float32), np.ones((len(ops), 3), np.float32)
+    got = np.empty(len(ops), np.float64)
+    q_limits(means, conics, ops, got)
+    np.testing.assert_array_equal(got, tile_q_limits(ops).astype(np.float64))
 
 
 @pytest.mark.parametrize("case", ["random", "snug_fallback", "cut_edge"])

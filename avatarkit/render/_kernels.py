@@ -164,15 +164,29 @@ MASK_TILES = 63  # rects of up to this many tiles keep their hits as bits for th
 i64_1 = ti.types.ndarray(dtype=ti.i64, ndim=1)
 
 # The depth sort: a stable LSD radix sort of the visible splats' depths (positive float32,
-# which order like their bit patterns as int32), RADIX_BITS a pass. Each pass is a chunked
-# counting sort, SORT_CHUNKS tasks a loop, so the result does not depend on the thread count.
-# On 100k splats it costs the CPU time of numpy's stable argsort (`pipeline.depth_order`) but
-# runs on all cores. 11 bits: 8 bits (4 passes) and 2 or 8 chunks measured no faster.
+# which order like their bit patterns as int32) less the least of them, RADIX_BITS a pass.
+# Each pass is a chunked counting sort, SORT_CHUNKS tasks a loop, so the result does not
+# depend on the thread count. It takes as many passes as the keys' spread needs: two while
+# the largest depth is within ~2-4x the smallest (the spread of the keys < 2^24: the bench
+# scene's 2-4 m, an avatar at 0.4-0.7 m), one for < 2^12 (depths within ~1e-3 of each
+# other), else three. 11 bits and always three passes cost one pass more; 8 bits (4 passes)
+# and 2 or 8 chunks measured no faster than 11 bits.
 SORT_CHUNKS = 4
-RADIX_BITS = 11
+RADIX_BITS = 12
 RADIX = 1 << RADIX_BITS
-RADIX_PASSES = -(-31 // RADIX_BITS)  # the sign bit is 0
-ORDER_ROW = (RADIX_PASSES - 1) % 2  # the row of `idx` the last pass writes
+RADIX_PASSES = -(-31 // RADIX_BITS)  # at most; the sign bit is 0
+
+
+def order_row(passes: int) -> int:
+    """The row of `bin_prepare`'s `idx` that the last of `passes` sort passes wrote."""
+    return (passes - 1) % 2
+
+
+@ti.func
+def clamp_sel(v, lo, hi):
+    """min(max(v, lo), hi) for lo <= hi, as two compare-selects."""
+    w = ti.select(v < lo, lo, v)
+    return ti.select(w > hi, hi, w)
 
 
 @ti.func
@@ -189,69 +203,129 @@ def touches_tile(mx, my, ca, cb, cc, ra, rc, qlim, px0, py0, px1, py1):
     if lox <= 0.0 and hix >= 0.0 and loy <= 0.0 and hiy >= 0.0:
         hit = 1
     else:
+        # clamps and minima as compare-selects: ti.min/ti.max add NaN handling (nothing here
+        # is NaN), ~10% of the binning's ellipse tests
         best = qlim + 1.0
         for e in ti.static(range(2)):
             dx = lox if e == 0 else hix
-            dy = ti.min(ti.max(rc * dx, loy), hiy)
-            best = ti.min(best, ca * dx * dx + 2.0 * cb * dx * dy + cc * dy * dy)
+            dy = clamp_sel(rc * dx, loy, hiy)
+            q = ca * dx * dx + 2.0 * cb * dx * dy + cc * dy * dy
+            best = ti.select(q < best, q, best)
             dy2 = loy if e == 0 else hiy
-            dx2 = ti.min(ti.max(ra * dy2, lox), hix)
-            best = ti.min(best, ca * dx2 * dx2 + 2.0 * cb * dx2 * dy2 + cc * dy2 * dy2)
+            dx2 = clamp_sel(ra * dy2, lox, hix)
+            q2 = ca * dx2 * dx2 + 2.0 * cb * dx2 * dy2 + cc * dy2 * dy2
+            best = ti.select(q2 < best, q2, best)
         if best <= qlim:
             hit = 1
     return hit
 
 
-RECT_BASE = 65536  # a rect corner (tx, ty) is kept as tx + RECT_BASE ty, exact in float64
+@ti.func
+def splat_geo(means2d: ti.template(), conics: ti.template(), opacities: ti.template(), snug, g):
+    """Splat g's (mx, my, a, b, c, q limit) in float64 for the tile test; the q limit is
+    `pipeline.tile_q_limits` (computed as there, in float64, then rounded to float32) with
+    `snug`, else -1 (plain 3-sigma rects: every tile of the rect)."""
+    qlim = ti.cast(-1.0, ti.f64)
+    if snug:
+        # float64 constants: a bare Python float in a kernel is a float32 literal
+        op = ti.max(ti.cast(opacities[g], ti.f64), ti.f64(ALPHA_MIN))
+        qlim = ti.cast(ti.cast(2.0 * ti.log(op / ti.f64(ALPHA_MIN)) * ti.f64(1.01) + ti.f64(0.05),
+                               ti.f32), ti.f64)
+    return (ti.cast(means2d[g, 0], ti.f64), ti.cast(means2d[g, 1], ti.f64),
+            ti.cast(conics[g, 0], ti.f64), ti.cast(conics[g, 1], ti.f64),
+            ti.cast(conics[g, 2], ti.f64), qlim)
 
 
 @ti.func
-def splat_rect(s_geo: ti.template(), k):
-    """(x0, y0, x1, y1) of depth-ordered splat k's tile rect, from its s_geo row."""
-    lo = ti.cast(s_geo[k, 6], ti.i32)
-    hi = ti.cast(s_geo[k, 7], ti.i32)
-    return lo % RECT_BASE, lo // RECT_BASE, hi % RECT_BASE, hi // RECT_BASE
-
-
-@ti.func
-def splat_in_tile(mx, my, ca, cb, cc, qlim, tx, ty, width, height):
+def splat_in_tile(mx, my, ca, cb, cc, ra, rc, qlim, tx, ty, width, height):
     """1 if a splat belongs in tile (tx, ty)'s list: always when its q limit is negative
     (plain 3-sigma rects), else when its alpha >= 1/255 ellipse reaches one of the tile's
-    pixel centres (float64)."""
+    pixel centres (float64; ra = -b/a, rc = -b/c, worked out once per splat)."""
     hit = 1
     if qlim >= 0:
-        hit = touches_tile(mx, my, ca, cb, cc, -cb / ca, -cb / cc, qlim, tx * TILE + 0.5,
+        hit = touches_tile(mx, my, ca, cb, cc, ra, rc, qlim, tx * TILE + 0.5,
                            ty * TILE + 0.5, ti.min(tx * TILE + TILE, width) - 0.5,
                            ti.min(ty * TILE + TILE, height) - 0.5)
     return hit
 
 
+@ti.func
+def splat_tiles_again(means2d: ti.template(), conics: ti.template(), opacities: ti.template(),
+                      snug, g, tx, ty, width, height):
+    """`splat_in_tile` for splat g from the input arrays: for the rare splats whose rect has
+    more than MASK_TILES tiles, which keep no hit bits."""
+    mx, my, ca, cb, cc, qlim = splat_geo(means2d, conics, opacities, snug, g)
+    return splat_in_tile(mx, my, ca, cb, cc, -cb / ca, -cb / cc, qlim, tx, ty, width, height)
+
+
+RECT_BASE = 65536  # a rect corner (tx, ty) is kept as tx + RECT_BASE ty (tiles a side <= 1024)
+
+
+@ti.func
+def splat_rect(s_rect: ti.template(), k):
+    """(x0, y0, x1, y1) of depth-ordered splat k's tile rect, from its s_rect row."""
+    lo = s_rect[k, 0]
+    hi = s_rect[k, 1]
+    return lo % RECT_BASE, lo // RECT_BASE, hi % RECT_BASE, hi // RECT_BASE
+
+
 @ti.kernel
 def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conics: f32_2,
                 opacities: f32_1, snug: ti.i32, tiles_x: ti.i32, width: ti.i32, height: ti.i32,
-                keys: i32_2, idx: i32_2, hist: i32_2, total: i32_1, rank: i32_1, s_geo: f64_2,
-                counts: i32_2, firsts: i32_2, hits: i64_1):
+                keys: i32_2, idx: i32_2, hist: i32_2, spans: i32_2, total: i32_1, rank: i32_1,
+                s_rect: i32_2, s_hits: i64_1, s_first: i32_1, counts: i32_2, firsts: i32_2,
+                offsets: i32_1):
     """The binning up to its prefix sums, in one launch (each launch costs ~0.1-0.2 ms of
     Python and C++ on the calling thread while the other cores wait):
 
-    1. idx[ORDER_ROW, :m] = the m splats with radii > 0 in increasing depth, ties in index
-       order (numpy's stable argsort: `pipeline.depth_order`); total[0] = m; rank[i] = splat
-       i's place in that order, -1 where culled (rank starts at -1). keys, idx: (2, N) and
-       hist: (SORT_CHUNKS, RADIX) scratch.
-    2. Row k = rank[i] of s_geo: splat i's (mx, my, a, b, c, q limit, x0 + RECT_BASE y0,
-       x1 + RECT_BASE y1) in float64, so that the chunk loops stream through memory, one
-       64-byte row a splat; the q limit is `pipeline.tile_q_limits` (computed as there, in
-       float64, then rounded to float32) with `snug`, else -1 (plain 3-sigma rects). Reads in
-       index order and scatters the writes: reading in depth order from the input-ordered
-       arrays instead (no copy) measured 1.4x slower than the copy and the count together.
+    1. idx[order_row(total[1]), :m] = the m splats with radii > 0 in increasing depth, ties
+       in index order (numpy's stable argsort: `pipeline.depth_order`); total[0] = m,
+       total[1] = the sort passes run (1 to RADIX_PASSES), total[2] = the least key;
+       rank[i] = splat i's place in that order, -1 where culled (rank starts at -1). keys,
+       idx: (2, N), hist: (SORT_CHUNKS, RADIX) and spans: (SORT_CHUNKS, 2) (each chunk's
+       least and greatest key) scratch.
+    2. Per splat, in input order (one parallel loop over all splats, so the costly part, the
+       ellipse-tile tests, is spread evenly over the cores), written to row k = rank[i] so
+       that the chunk loops below and `scatter_tiles` read in depth order, streaming:
+       s_hits[k] = its tiles as bits, row-major over its rect (bit (ty - y0) * width + tx -
+       x0), or -1 for a rect of more than MASK_TILES tiles (tested again where needed);
+       s_first[k] = its first tile (row-major), -1 if it reaches none; s_rect[k] = (x0 +
+       RECT_BASE y0, x1 + RECT_BASE y1). Reading the input-ordered arrays in depth order
+       instead (no copy) measured 1.6x slower.
     3. counts[c, t] = number of splats of depth-order chunk c (BIN_CHUNKS chunks) in tile t's
-       list; firsts[c, t] = how many of them have t as their first tile (row-major), which
-       sets the records' slots (`scatter_tiles`); both start at 0. One task per chunk, so no
-       atomics. hits[k] = splat k's tiles as bits, row-major over its rect (bit
-       (ty - y0) * width + tx - x0), or -1 for a rect of more than MASK_TILES tiles, so that
-       `scatter_tiles` need not test the ellipse again.
+       list; firsts[c, t] = how many of them have t as their first tile, which sets the
+       records' slots (`scatter_tiles`); both start at 0. One task per chunk, so no atomics.
+    4. Prefix sums, serial (32k additions: less than numpy's calls on the calling thread):
+       offsets (n_tiles + 1,) = where each tile's list starts; counts[c, t] becomes where
+       chunk c's part of tile t's list starts (after all earlier tiles' entries and the
+       earlier chunks' entries of tile t), firsts[c, t] likewise for the slots.
     """
     n_in = depths.shape[0]
+    per_in = (n_in + SORT_CHUNKS - 1) // SORT_CHUNKS
+    ti.loop_config(block_dim=1)
+    for c in range(SORT_CHUNKS):
+        lo = 0x7FFFFFFF
+        hi = -1
+        for k in range(c * per_in, ti.min(n_in, (c + 1) * per_in)):
+            if radii[k] > 0:
+                key = ti.bit_cast(depths[k], ti.i32)
+                lo = ti.min(lo, key)
+                hi = ti.max(hi, key)
+        spans[c, 0] = lo
+        spans[c, 1] = hi
+    # the keys are sorted less the least of them: as many passes as their spread needs
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        lo = 0x7FFFFFFF
+        hi = -1
+        for c in range(SORT_CHUNKS):
+            lo = ti.min(lo, spans[c, 0])
+            hi = ti.max(hi, spans[c, 1])
+        passes = 1
+        while passes < RADIX_PASSES and ((hi - lo) >> (passes * RADIX_BITS)) > 0:
+            passes += 1
+        total[1] = passes
+        total[2] = lo
     for p in ti.static(range(RADIX_PASSES)):
         shift = p * RADIX_BITS
         src = (p + 1) % 2  # pass 0 reads the inputs, then each pass the buffer the last wrote
@@ -260,87 +334,111 @@ def bin_prepare(depths: f32_1, radii: i32_1, rects: i32_2, means2d: f32_2, conic
         for c in range(SORT_CHUNKS):
             for d in range(RADIX):
                 hist[c, d] = 0
-            n = n_in if p == 0 else total[0]
+            n = n_in if p == 0 else (total[0] if p < total[1] else 0)
             per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
             for k in range(c * per, ti.min(n, (c + 1) * per)):
                 if p > 0 or radii[k] > 0:
-                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    key = ti.bit_cast(depths[k], ti.i32) - total[2] if p == 0 else keys[src, k]
                     d = (key >> shift) & (RADIX - 1)
                     hist[c, d] = hist[c, d] + 1
         # digit d of chunk c goes after all smaller digits and the earlier chunks' digit d
         ti.loop_config(serialize=True)
         for _ in range(1):
             run = 0
-            for d in range(RADIX):
-                for c in range(SORT_CHUNKS):
-                    v = hist[c, d]
-                    hist[c, d] = run
-                    run += v
-            total[0] = run
+            if p == 0 or p < total[1]:
+                for d in range(RADIX):
+                    for c in range(SORT_CHUNKS):
+                        v = hist[c, d]
+                        hist[c, d] = run
+                        run += v
+            if ti.static(p == 0):
+                total[0] = run
         ti.loop_config(block_dim=1)
         for c in range(SORT_CHUNKS):
-            n = n_in if p == 0 else total[0]
+            n = n_in if p == 0 else (total[0] if p < total[1] else 0)
+            last = p == total[1] - 1
             per = (n + SORT_CHUNKS - 1) // SORT_CHUNKS
             for k in range(c * per, ti.min(n, (c + 1) * per)):
                 if p > 0 or radii[k] > 0:
-                    key = ti.bit_cast(depths[k], ti.i32) if p == 0 else keys[src, k]
+                    key = ti.bit_cast(depths[k], ti.i32) - total[2] if p == 0 else keys[src, k]
                     i = k if p == 0 else idx[src, k]
                     d = (key >> shift) & (RADIX - 1)
                     pos = hist[c, d]
                     hist[c, d] = pos + 1
                     keys[dst, pos] = key
                     idx[dst, pos] = i
-                    if p == RADIX_PASSES - 1:
+                    if last:
                         rank[i] = pos
     for i in range(n_in):
         k = rank[i]
         if k >= 0:
-            s_geo[k, 0] = ti.cast(means2d[i, 0], ti.f64)
-            s_geo[k, 1] = ti.cast(means2d[i, 1], ti.f64)
-            s_geo[k, 2] = ti.cast(conics[i, 0], ti.f64)
-            s_geo[k, 3] = ti.cast(conics[i, 1], ti.f64)
-            s_geo[k, 4] = ti.cast(conics[i, 2], ti.f64)
-            qlim = ti.cast(-1.0, ti.f64)
-            if snug:
-                op = ti.max(ti.cast(opacities[i], ti.f64), ALPHA_MIN)
-                qlim = ti.cast(ti.cast(2.0 * ti.log(op / ALPHA_MIN) * 1.01 + 0.05, ti.f32), ti.f64)
-            s_geo[k, 5] = qlim
-            s_geo[k, 6] = ti.cast(rects[i, 0] + RECT_BASE * rects[i, 1], ti.f64)
-            s_geo[k, 7] = ti.cast(rects[i, 2] + RECT_BASE * rects[i, 3], ti.f64)
+            x0, y0, x1, y1 = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+            mx, my, ca, cb, cc, qlim = splat_geo(means2d, conics, opacities, snug, i)
+            ra = -cb / ca
+            rc = -cb / cc
+            bits = ti.cast(0, ti.i64)
+            f = -1
+            j = 0
+            for ty in range(y0, y1):
+                for tx in range(x0, x1):
+                    if splat_in_tile(mx, my, ca, cb, cc, ra, rc, qlim, tx, ty, width, height):
+                        if f < 0:
+                            f = ty * tiles_x + tx
+                        if j < MASK_TILES:
+                            bits |= ti.cast(1, ti.i64) << j
+                    j += 1
+            s_hits[k] = bits if (x1 - x0) * (y1 - y0) <= MASK_TILES else -1
+            s_first[k] = f
+            s_rect[k, 0] = x0 + RECT_BASE * y0
+            s_rect[k, 1] = x1 + RECT_BASE * y1
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
         m = total[0]
         per = (m + BIN_CHUNKS - 1) // BIN_CHUNKS
         for k in range(c * per, ti.min(m, (c + 1) * per)):
-            x0, y0, x1, y1 = splat_rect(s_geo, k)
-            mx, my, ca, cb, cc, qlim = (s_geo[k, 0], s_geo[k, 1], s_geo[k, 2], s_geo[k, 3],
-                                        s_geo[k, 4], s_geo[k, 5])
-            bits = ti.cast(0, ti.i64)
+            f = s_first[k]
+            if f >= 0:
+                firsts[c, f] = firsts[c, f] + 1
+            bits = s_hits[k]
+            x0, y0, x1, y1 = splat_rect(s_rect, k)
             j = 0
-            first = -1
             for ty in range(y0, y1):
                 for tx in range(x0, x1):
-                    if splat_in_tile(mx, my, ca, cb, cc, qlim, tx, ty, width, height):
+                    hit = 0
+                    if bits >= 0:
+                        hit = ti.cast((bits >> j) & 1, ti.i32)
+                    else:
+                        hit = splat_tiles_again(means2d, conics, opacities, snug,
+                                                idx[(total[1] - 1) % 2, k], tx, ty, width, height)
+                    if hit:
                         t = ty * tiles_x + tx
                         counts[c, t] = counts[c, t] + 1
-                        if first < 0:
-                            first = t
-                        if j < MASK_TILES:
-                            bits |= ti.cast(1, ti.i64) << j
                     j += 1
-            if first >= 0:
-                firsts[c, first] = firsts[c, first] + 1
-            hits[k] = bits if (x1 - x0) * (y1 - y0) <= MASK_TILES else -1
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        run = 0
+        first_run = 0
+        for t in range(offsets.shape[0] - 1):
+            offsets[t] = run
+            for c in range(BIN_CHUNKS):
+                v = counts[c, t]
+                counts[c, t] = run
+                run += v
+                f = firsts[c, t]
+                firsts[c, t] = first_run
+                first_run += f
+        offsets[offsets.shape[0] - 1] = run
 
 
 @ti.kernel
-def scatter_tiles(order: i32_1, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
-                  height: ti.i32, hits: i64_1, cursor: i32_2, ids: i32_1, first_cursor: i32_2,
-                  slot: i32_1, sids: i32_1):
+def scatter_tiles(order: i32_1, s_rect: i32_2, s_hits: i64_1, means2d: f32_2, conics: f32_2,
+                  opacities: f32_1, snug: ti.i32, tiles_x: ti.i32, width: ti.i32,
+                  height: ti.i32, cursor: i32_2, ids: i32_1, first_cursor: i32_2, slot: i32_1,
+                  sids: i32_1):
     """Walk each chunk's splats front to back and append them to their tiles' lists from
     cursor[c, t] (where chunk c's part of tile t's list starts); every list comes out
-    depth-sorted without a per-tile sort. A splat's tiles are `bin_prepare`'s `hits` bits, or
-    tested again where it kept none.
+    depth-sorted without a per-tile sort. A splat's tiles are `bin_prepare`'s `s_hits` bits,
+    or tested again where it kept none.
 
     Also gives each listed splat g its record's row slot[g] (slot starts at -1) and
     sids[k] = slot[ids[k]]: the slots count up by first tile, and within one first tile in
@@ -352,19 +450,19 @@ def scatter_tiles(order: i32_1, s_geo: f64_2, tiles_x: ti.i32, width: ti.i32,
     ti.loop_config(block_dim=1)
     for c in range(BIN_CHUNKS):
         for k in range(c * per, ti.min(m, (c + 1) * per)):
-            bits = hits[k]
+            bits = s_hits[k]
             g = order[k]
             s = -1
             j = 0
-            x0, y0, x1, y1 = splat_rect(s_geo, k)
+            x0, y0, x1, y1 = splat_rect(s_rect, k)
             for ty in range(y0, y1):
                 for tx in range(x0, x1):
                     hit = 0
                     if bits >= 0:
                         hit = ti.cast((bits >> j) & 1, ti.i32)
                     else:
-                        hit = splat_in_tile(s_geo[k, 0], s_geo[k, 1], s_geo[k, 2], s_geo[k, 3],
-                                            s_geo[k, 4], s_geo[k, 5], tx, ty, width, height)
+                        hit = splat_tiles_again(means2d, conics, opacities, snug, g, tx, ty,
+                                                width, height)
                     if hit:
                         t = ty * tiles_x + tx
                         if s < 0:

@@ -18,11 +18,14 @@ Stages (each its own function, gsplat-style, each with a float64 numpy twin in `
    (d^T conic d <= 2 ln(255 opacity), widened by 1%) reaches with a pixel centre: an exact
    ellipse-rectangle test that drops only tiles the compositor would find nothing to draw in
    (the image is the same; ~28% fewer pairs on the bench scene). Depths are sorted once
-   (stable, so ties keep input order: a parallel radix sort, `depth_order` is its numpy
-   twin); the depth-ordered Gaussians are cut into 16 chunks that are counted and scattered
-   in parallel, chunk after chunk within each tile's list, so the per-tile lists
-   (`tile_offsets`, `gaussian_ids`) come out depth-sorted. The same passes number the listed
-   Gaussians in the order the lists, tile by tile, first name them (`TileBins.slots`).
+   (stable, so ties keep input order: a parallel radix sort in as many 12-bit passes as the
+   depths' spread needs, `depth_order` is its numpy twin); the ellipse-tile tests run in one
+   parallel loop over the splats in input order, each splat's tiles kept as bits in its
+   depth-ordered row; the depth-ordered Gaussians are then cut into 16 chunks that are
+   counted and scattered in parallel, chunk after chunk within each tile's list, so the
+   per-tile lists (`tile_offsets`, `gaussian_ids`) come out depth-sorted. The same passes
+   number the listed Gaussians in the order the lists, tile by tile, first name them
+   (`TileBins.slots`).
 4. `rasterize`: each splat's record (mean, conic, opacity, colour, depth and the half-extents
    of its alpha >= 1/255 ellipse) is packed in row `slots[g]`, so a tile's records lie close
    together in memory; per pixel, in list order, d = mean2d - pixel
@@ -152,6 +155,20 @@ def _kernels():
     return _kernels
 
 
+_calls: dict = {}
+
+
+def _launch(name: str, *args) -> None:
+    """`_kernels.<name>(*args)` through `_launch.KernelCall`, which skips Taichi's per-call
+    Python work (~0.05 ms of this thread per array argument while the kernel threads wait;
+    a 100k frame's launches pass ~55 arrays). The same kernel on the same memory."""
+    call = _calls.get(name)
+    if call is None:
+        from avatarkit.render._launch import KernelCall
+        call = _calls[name] = KernelCall(getattr(_kernels(), name))
+    call(*args)
+
+
 _scratch = threading.local()
 
 
@@ -160,8 +177,8 @@ def _scratch_array(name: str, shape: tuple, dtype) -> np.ndarray:
     one buffer per name and thread, kept between calls and grown when too small. A fresh
     array's pages fault in (and are zeroed by the kernel) on first touch: ~3800 faults,
     ~15 MB, per 100k frame, several ms of CPU; reused buffers skip that for everything but
-    the arrays a stage returns. Holds ~33 MB per rendering thread at 100k splats (18 of them
-    the compositor's cell lists, 16 int32 per splat-tile pair)."""
+    the arrays a stage returns. Holds ~27 MB per rendering thread at 100k splats (18 of them
+    the compositor's cell lists, 16 int32 per splat-tile pair; the binning's ~4)."""
     arrays = getattr(_scratch, "arrays", None)
     if arrays is None:
         arrays = _scratch.arrays = {}
@@ -180,11 +197,10 @@ def project_gaussians(gaussians: GaussianSet, camera: Camera, near: float = NEAR
     proj = Projection(np.zeros((n, 2), np.float32), np.zeros(n, np.float32),
                       np.zeros((n, 3), np.float32), np.zeros(n, np.int32), np.zeros((n, 4), np.int32))
     if n:
-        _kernels().project(gaussians.means, gaussians.quats, gaussians.scales, gaussians.opacities,
-                           np.ascontiguousarray(camera.world_to_camera, np.float64),
-                           camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
-                           float(near), proj.means2d, proj.depths, proj.conics, proj.radii,
-                           proj.tile_rects)
+        _launch("project", gaussians.means, gaussians.quats, gaussians.scales,
+                gaussians.opacities, np.ascontiguousarray(camera.world_to_camera, np.float64),
+                camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
+                float(near), proj.means2d, proj.depths, proj.conics, proj.radii, proj.tile_rects)
     return proj
 
 
@@ -194,8 +210,8 @@ def sh_colors(gaussians: GaussianSet, camera: Camera) -> np.ndarray:
     colors = np.zeros((len(gaussians), 3), np.float32)
     if len(gaussians):
         c = camera.camera_center
-        _kernels().sh_colors(gaussians.sh, gaussians.means, float(c[0]), float(c[1]), float(c[2]),
-                             colors)
+        _launch("sh_colors", gaussians.sh, gaussians.means, float(c[0]), float(c[1]),
+                float(c[2]), colors)
     return colors
 
 
@@ -237,30 +253,28 @@ def bin_gaussians(proj: Projection, camera: Camera, opacities: np.ndarray | None
     k = _kernels()
     snug = opacities is not None
     ops = np.ascontiguousarray(opacities if snug else np.zeros(n), np.float32)
-    total = np.zeros(1, np.int32)
+    total = _scratch_array("bin_total", (3,), np.int32)  # visible splats, sort passes, least key
     idx = _scratch_array("bin_idx", (2, n), np.int32)
-    s_geo = _scratch_array("bin_geo", (n, 8), np.float64)  # rows [:m] used, m = visible splats
-    # [0]: list entries, [1]: first tiles
+    # depth-ordered rows [:m], m = visible splats
+    s_rect = _scratch_array("bin_rect", (n, 2), np.int32)
+    s_hits = _scratch_array("bin_hits", (n,), np.int64)
+    s_first = _scratch_array("bin_first", (n,), np.int32)
+    # [0]: list entries, [1]: first tiles; then where each chunk's part of them starts
     counts = _scratch_array("bin_counts", (2, k.BIN_CHUNKS, n_tiles), np.int32)
     counts.fill(0)
-    hits = _scratch_array("bin_hits", (n,), np.int64)
     rank = _scratch_array("bin_rank", (n,), np.int32)
     rank.fill(-1)
-    k.bin_prepare(proj.depths, proj.radii, proj.tile_rects, proj.means2d, proj.conics, ops,
-                  int(snug), tiles_x, camera.width, camera.height,
-                  _scratch_array("bin_keys", (2, n), np.int32), idx,
-                  _scratch_array("bin_hist", (k.SORT_CHUNKS, k.RADIX), np.int32), total, rank,
-                  s_geo, counts[0], counts[1], hits)
-    # chunk c's entries of tile t start after all earlier tiles' entries and the earlier
-    # chunks' entries of tile t; the same for the slots, counted by first tile
-    before = np.cumsum(counts, axis=1) - counts
-    totals = counts.sum(axis=1)  # (2, n_tiles)
-    np.cumsum(totals[0], out=offsets[1:])
-    cursor = (before + (np.cumsum(totals, axis=1) - totals)[:, None, :]).astype(np.int32)
+    _launch("bin_prepare", proj.depths, proj.radii, proj.tile_rects, proj.means2d, proj.conics,
+            ops, int(snug), tiles_x, camera.width, camera.height,
+            _scratch_array("bin_keys", (2, n), np.int32), idx,
+            _scratch_array("bin_hist", (k.SORT_CHUNKS, k.RADIX), np.int32),
+            _scratch_array("bin_spans", (k.SORT_CHUNKS, 2), np.int32), total, rank,
+            s_rect, s_hits, s_first, counts[0], counts[1], offsets)
     ids = np.empty(int(offsets[-1]), np.int32)
     slot_ids = np.empty_like(ids)
-    k.scatter_tiles(idx[k.ORDER_ROW, :int(total[0])], s_geo, tiles_x, camera.width,
-                    camera.height, hits, cursor[0], ids, cursor[1], slots, slot_ids)
+    _launch("scatter_tiles", idx[k.order_row(int(total[1])), :int(total[0])], s_rect, s_hits,
+            proj.means2d, proj.conics, ops, int(snug), tiles_x, camera.width, camera.height,
+            counts[0], ids, counts[1], slots, slot_ids)
     return TileBins(tiles_x, tiles_y, offsets, ids, slots, slot_ids)
 
 
@@ -283,13 +297,14 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
     if slot is None or sids is None:
         slot = np.full(len(proj.radii), -1, np.int32)
         sids = np.empty_like(bins.gaussian_ids)
-        k.first_sight(bins.gaussian_ids, slot, sids)
+        _launch("first_sight", bins.gaussian_ids, slot, sids)
     packed = _scratch_array("packed", (int(slot.max()) + 1, k.PACK), np.float32)
-    k.pack_splats(slot, proj.means2d, proj.conics, np.ascontiguousarray(opacities, np.float32),
-                  np.ascontiguousarray(colors, np.float32), proj.depths, packed)
+    _launch("pack_splats", slot, proj.means2d, proj.conics,
+            np.ascontiguousarray(opacities, np.float32), np.ascontiguousarray(colors, np.float32),
+            proj.depths, packed)
     lists = _scratch_array("cell_lists", (k.CELLS * len(sids),), np.int32)
-    k.rasterize(bins.tile_offsets, sids, packed, lists, float(bg[0]),
-                float(bg[1]), float(bg[2]), rgb, alpha, depth)
+    _launch("rasterize", bins.tile_offsets, sids, packed, lists, float(bg[0]), float(bg[1]),
+            float(bg[2]), rgb, alpha, depth)
     return rgb, alpha, depth
 
 
