@@ -9,9 +9,12 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
     (build)    the portrait build of the reference keyframe (its own    recon.pipeline
                shape fit, as a single-frame build) with the keyframes   recon.multiview
                as extra views, registered by the joint fit's poses
+    frame_colours  the neck, lips, mouth interior and outline coloured  track.frame_colours
+               from up to 24 tracked frames of the video
 
-A video whose head never turns gives one keyframe: the build is then exactly the single-frame
-build of that frame (`build VIDEO --frame N`), and the report says so.
+A video whose head never turns gives one keyframe: the build is then the single-frame build of
+that frame (`build VIDEO --frame N`) with the frame_colours stage after it, and the report says
+so.
 """
 from __future__ import annotations
 
@@ -22,6 +25,9 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+#: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
+FRAME_COLOURS = True
 
 #: expression coefficients fitted per keyframe in the joint identity fit (the keyframes are
 #: chosen neutral; a few absorb what is left of a smile)
@@ -61,13 +67,15 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
 
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
-                       tracking=None):
+                       tracking=None, colour_span: tuple[int, int] | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
     `TrackResult` of `build_tracking(video, options)` when the caller has it already
     (`evaluate` reuses its face meshes), else the video is tracked here. The provenance gets
-    `source_video` {video, frame (the reference), keyframes, mode}."""
+    `source_video` {video, frame (the reference), keyframes, mode, colour_frames}. colour_span:
+    [start, end) video frames the frame_colours stage may use (None: the whole video;
+    `avatarkit evaluate` keeps the second half of the clip out of the build)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness
@@ -113,6 +121,14 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if options.name is None:
             options.name = Path(video).stem
         avatar = build_avatar(png, options, progress, views=views)
+    if FRAME_COLOURS:
+        from avatarkit.track.frame_colours import fuse_frame_colours
+
+        t0 = time.perf_counter()
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
+        timings["frame_colours"] = time.perf_counter() - t0
+        avatar.provenance["build"]["frame_colours"] = fused
+        source["colour_frames"] = fused["frames"]
     avatar.provenance["source_video"] = source
     avatar.provenance["source_image"] = f"{os.path.abspath(video)} (frame {ref_frame})"
     build = avatar.provenance["build"]
@@ -121,4 +137,4 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     return avatar
 
 
-__all__ = ["IDENTITY_EXPR", "build_tracking", "build_video_avatar", "joint_identity"]
+__all__ = ["FRAME_COLOURS", "IDENTITY_EXPR", "build_tracking", "build_video_avatar", "joint_identity"]
