@@ -108,6 +108,22 @@ def test_colour_frames_are_eligible_spread_and_within_the_span():
     np.testing.assert_array_equal(everything, np.r_[0:10, 20:23])
 
 
+def test_colour_frames_keep_to_the_reference_view():
+    """Frames turned more than MAX_TURN from the reference are the keyframes' job, not fused."""
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track.frame_colours import MAX_TURN
+
+    yaw = np.linspace(-0.5, 0.5, 41)                     # -29 .. +29 degrees
+    rot = Rotation.from_euler("YXZ", np.stack([yaw, np.zeros(41), np.zeros(41)], 1)).as_rotvec()
+    result = SimpleNamespace(found=np.ones(41, bool), confidence=np.ones(41), frame_index=np.arange(41),
+                             clip=SimpleNamespace(rotation=rot))
+    rows = colour_frames(result, None, 41, reference=20)
+    np.testing.assert_array_equal(rows, np.flatnonzero(np.abs(yaw) <= MAX_TURN + 1e-9))
+    assert 0 < len(rows) < 41
+    assert len(colour_frames(result, None, 41)) == 41
+
+
 def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
     faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
     regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}

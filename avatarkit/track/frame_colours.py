@@ -24,6 +24,7 @@ Gaussian shows in). The other Gaussians keep the portrait build's colours.
 """
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -39,6 +40,12 @@ OUTLINE = True
 FRAMES = 24
 #: frames tracked with less than this share of the best confidence are not used
 MIN_CONFIDENCE_SHARE = 0.6
+#: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
+#: pitch: `track.keyframes.MIN_SPREAD`, the turn below which a frame adds no view) are fused:
+#: this stage fuses what changes over time at the reference's view; turned views are the
+#: keyframes' (`recon.multiview`). With every frame of a synthetic turning video it cost the
+#: sides 0.1-0.2 dB of the keyframes' colours
+MAX_TURN = math.radians(8.0)
 #: rounds of the multi-frame refine (the first does most; more rounds sharpen toward single
 #: frames' noise)
 ITERATIONS = 2
@@ -150,9 +157,11 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
                                        "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)})
 
 
-def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAMES) -> np.ndarray:
+def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAMES,
+                  reference: int | None = None, max_turn: float = MAX_TURN) -> np.ndarray:
     """(K,) rows of a TrackResult to fuse: up to `count` spread evenly over the eligible rows
-    (face found, confidence >= MIN_CONFIDENCE_SHARE of the best) whose video frame is within
+    (face found, confidence >= MIN_CONFIDENCE_SHARE of the best, and, given the reference
+    row, a head pose within `max_turn` of its yaw / pitch) whose video frame is within
     span = [start, end) (None: all)."""
     conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
     frames = np.asarray(result.frame_index, np.int64)
@@ -160,6 +169,11 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
     ok &= conf > 0
     if span is not None:
         ok &= (frames >= span[0]) & (frames < span[1])
+    if reference is not None:
+        from avatarkit.track.keyframes import yaw_pitch
+
+        yp = yaw_pitch(result.clip.rotation)
+        ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
     rows = np.flatnonzero(ok)
     if len(rows) <= count:
         return rows
@@ -271,7 +285,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         align_to_build(result, folder, reference_frame)
         saved = load_avatar(folder)
     result.source = os.fspath(video)
-    rows = colour_frames(result, span, count)
+    ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
+    rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)
     select = fusion_selection(saved)
     if len(rows) == 0:
         return avatar, {"frames": [], "updated": 0}
@@ -290,6 +305,6 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     return avatar, info
 
 
-__all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MIN_CONFIDENCE_SHARE",
+__all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN", "MIN_CONFIDENCE_SHARE",
            "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "fuse_frame_colours",
            "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]
