@@ -242,17 +242,16 @@ def posed_frames(avatar, result, rows) -> list[FrameView]:
     from avatarkit.sim.config import SimConfig
     from avatarkit.track.keyframes import read_frames
 
+    from avatarkit.motion.clip import CHANNELS
+
     rows = [int(r) for r in rows]
-    want = set(rows)
     images = read_frames(result.source, np.asarray(result.frame_index)[rows])
-    static, baked = bake(avatar, result.clip, BakeConfig(sim=SimConfig(static=True)))
+    # the hair rides the head (no simulation), so the frames are independent: only these are baked
+    clip = result.clip.replace(**{k: np.asarray(getattr(result.clip, k))[rows] for k in CHANNELS})
+    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
     kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MASK_ERODE + 1,) * 2) if MASK_ERODE else None)
     out = []
-    for i, frame in enumerate(baked):
-        if i > rows[-1]:
-            break
-        if i not in want:
-            continue
+    for i, frame in zip(rows, baked):
         parts = [frame.gaussians(static, "face").replace(extras={})]
         if avatar.has_hair:
             parts.append(frame.gaussians(static, "hair").replace(extras={}))
@@ -265,10 +264,12 @@ def posed_frames(avatar, result, rows) -> list[FrameView]:
 
 
 def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
-                       span: tuple[int, int] | None = None, count: int = FRAMES):
+                       span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE):
     """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
-    the frame the avatar was built from. Returns (the avatar with the fused colours, info)."""
+    the frame the avatar was built from; outline: the outline's Gaussians are fused too (the
+    video build passes False when it has turned keyframes: the reference view's outline is the
+    head's sides, which they see face on). Returns (the avatar with the fused colours, info)."""
     from avatarkit.avatar import load_avatar
     from avatarkit.recon.pipeline import save_avatar
     from avatarkit.track.build_pose import align_to_build
@@ -292,7 +293,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         return avatar, {"frames": [], "updated": 0}
     views = posed_frames(saved, result, rows)
     regions = int(select.sum())
-    if OUTLINE:
+    if outline:
         select = select | outline_selection(views)
     fused = refine_colours_frames(views, select)
     nb = len(avatar.bald)
@@ -301,7 +302,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     if len(avatar.hair):
         avatar.hair = avatar.hair.with_colors(rgb[nb:])
     info = {**fused.info, "frames": [int(f) for f in np.asarray(result.frame_index)[rows]],
-            "regions": list(REGIONS), "in_regions": regions, "outline": bool(OUTLINE)}
+            "regions": list(REGIONS), "in_regions": regions, "outline": bool(outline)}
     return avatar, info
 
 

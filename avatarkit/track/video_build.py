@@ -125,7 +125,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         from avatarkit.track.frame_colours import fuse_frame_colours
 
         t0 = time.perf_counter()
-        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
+        # with turned keyframes the reference's outline is the head's sides, which they colour
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, outline=len(kf) == 1)
         timings["frame_colours"] = time.perf_counter() - t0
         avatar.provenance["build"]["frame_colours"] = fused
         source["colour_frames"] = fused["frames"]
