@@ -142,3 +142,30 @@ def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
     np.testing.assert_array_equal(sel, [True, True, True, True, False, False])
     sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), ("neck",))
     np.testing.assert_array_equal(sel, [True, False, False, True, False, False])
+
+
+def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
+    """`posed_frames` bakes the chosen rows alone (the fast path); the reference is the bake of
+    the whole clip: with the hair riding the head the poses are the same."""
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.sim.config import SimConfig
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.track.frame_colours import posed_frames
+
+    avatar = make_sample_avatar(n_hair=800, n_bald=1000, cage_vertices=150, seed=5)
+    rng = np.random.default_rng(0)
+    T = 9
+    clip = MotionClip(30.0, rng.normal(0, 0.1, (T, 3)), rng.normal(0, 0.01, (T, 3)), np.zeros((T, 3)),
+                      np.abs(rng.normal(0, 0.1, (T, 3))), np.zeros((T, 6)), np.zeros((T, 0)))
+    camera = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=48, height=48, fov_deg=40)
+    result = SimpleNamespace(clip=clip, camera=camera, frame_index=np.arange(T) + 100)
+    rows = [1, 4, 8]
+    images = {int(f): np.full((48, 48, 3), k, np.uint8) for k, f in enumerate(np.arange(T) + 100)}
+    views = posed_frames(avatar, result, rows, images)
+    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    whole = list(baked)
+    for r, v in zip(rows, views):
+        ref = np.concatenate([whole[r].face.means, whole[r].hair.means])
+        np.testing.assert_allclose(v.gaussians.means, ref, atol=1e-6)
+        assert int(v.image[0, 0, 0]) == r and v.mask.shape == (48, 48)

@@ -231,21 +231,20 @@ def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
     return (seen > 0) & (hits >= share * np.maximum(seen, 1))
 
 
-def posed_frames(avatar, result, rows) -> list[FrameView]:
-    """The avatar posed by the tracked clip at `rows` (static hair), each with the video frame
-    and the render's person mask (alpha > 0.5) eroded by MASK_ERODE px."""
+def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
+    """The avatar posed by the tracked clip (`result`: a TrackResult) at `rows` (static hair),
+    each with its video frame (images: video frame number -> (H, W, 3) uint8) and the render's
+    person mask (alpha > 0.5) eroded by MASK_ERODE px."""
     import cv2
 
     from avatarkit.bake import BakeConfig, bake
     from avatarkit.gaussians import GaussianSet
     from avatarkit.render import render
     from avatarkit.sim.config import SimConfig
-    from avatarkit.track.keyframes import read_frames
 
     from avatarkit.motion.clip import CHANNELS
 
     rows = [int(r) for r in rows]
-    images = read_frames(result.source, np.asarray(result.frame_index)[rows])
     # the hair rides the head (no simulation), so the frames are independent: only these are baked
     clip = result.clip.replace(**{k: np.asarray(getattr(result.clip, k))[rows] for k in CHANNELS})
     static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
@@ -285,13 +284,14 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         result = track_video(video, avatar=folder, meshes=tracking.meshes)
         align_to_build(result, folder, reference_frame)
         saved = load_avatar(folder)
-    result.source = os.fspath(video)
     ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
     rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)
     select = fusion_selection(saved)
     if len(rows) == 0:
         return avatar, {"frames": [], "updated": 0}
-    views = posed_frames(saved, result, rows)
+    from avatarkit.track.keyframes import read_frames
+
+    views = posed_frames(saved, result, rows, read_frames(video, np.asarray(result.frame_index)[rows]))
     regions = int(select.sum())
     if outline:
         select = select | outline_selection(views)
