@@ -266,9 +266,9 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
                        span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE):
     """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
-    the frame the avatar was built from; outline: the outline's Gaussians are fused too (the
-    video build passes False when it has turned keyframes: the reference view's outline is the
-    head's sides, which they see face on). Returns (the avatar with the fused colours, info)."""
+    the frame the avatar was built from; outline: the outline's Gaussians are fused too.
+    Returns (the avatar with the fused colours, info). The video build runs it only when it has
+    one keyframe (`track.video_build`)."""
     from avatarkit.avatar import load_avatar
     from avatarkit.recon.pipeline import save_avatar
     from avatarkit.track.build_pose import align_to_build

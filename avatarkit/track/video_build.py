@@ -9,8 +9,9 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
     (build)    the portrait build of the reference keyframe (its own    recon.pipeline
                shape fit, as a single-frame build) with the keyframes   recon.multiview
                as extra views, registered by the joint fit's poses
-    frame_colours  the neck, lips, mouth interior and outline coloured  track.frame_colours
-               from up to 24 tracked frames of the video
+    frame_colours  (one keyframe only: a head that does not turn) the    track.frame_colours
+               neck, lips, mouth interior and outline coloured from up
+               to 24 tracked frames of the video
 
 A video whose head never turns gives one keyframe: the build is then the single-frame build of
 that frame (`build VIDEO --frame N`) with the frame_colours stage after it, and the report says
@@ -121,12 +122,14 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if options.name is None:
             options.name = Path(video).stem
         avatar = build_avatar(png, options, progress, views=views)
-    if FRAME_COLOURS:
+    if FRAME_COLOURS and len(kf) == 1:
+        # only when the head does not turn: with turned keyframes the views colour the sides, and
+        # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
+        # video's sides 0.07-0.18 dB (docs/video-build.md)
         from avatarkit.track.frame_colours import fuse_frame_colours
 
         t0 = time.perf_counter()
-        # with turned keyframes the reference's outline is the head's sides, which they colour
-        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, outline=len(kf) == 1)
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
         timings["frame_colours"] = time.perf_counter() - t0
         avatar.provenance["build"]["frame_colours"] = fused
         source["colour_frames"] = fused["frames"]
