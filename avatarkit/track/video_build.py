@@ -126,11 +126,17 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         # only when the head does not turn: with turned keyframes the views colour the sides, and
         # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
         # video's sides 0.07-0.18 dB (docs/video-build.md)
+        from avatarkit.recon.pipeline import STAGES
         from avatarkit.track.frame_colours import fuse_frame_colours
 
+        last = len(STAGES) + 1            # told as one more stage after the portrait build's
+        if progress is not None:
+            progress("frame_colours", last, last, None)
         t0 = time.perf_counter()
         avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
         timings["frame_colours"] = time.perf_counter() - t0
+        if progress is not None:
+            progress("frame_colours", last, last, timings["frame_colours"])
         avatar.provenance["build"]["frame_colours"] = fused
         source["colour_frames"] = fused["frames"]
     avatar.provenance["source_video"] = source
