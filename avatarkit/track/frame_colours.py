@@ -6,21 +6,27 @@ every frame of a talking video, and one frame is then one arbitrary sample of th
   the build frame's collar pixels land on other pixels in every other frame;
 - the lips and the mouth interior: one frame with the mouth closed says nothing about the
   mouth opened (the interior keeps a flat dark red, or the lips' colour the photo gave it).
+- the outline: the head moves by a pixel or two from frame to frame, so the wall and the hair
+  or skin swap under the Gaussians on the silhouette, and the build frame's colour there is one
+  sample of that.
 Measured on the shared clips (session 9, docs/video-build.md): the neck / collar carries 5 % of
 the single-frame build's held-out squared error on one clip and 27 % on the other, the mouth and
-lips 17 % and 3 %; the face's interior (eyes, brows, skin: registered detail) 16-19 %. Fitting
-every Gaussian's colour to many frames blurs that detail (the frames' registration differs by a
-pixel or two) and gained 0.03 dB; fitting only the parts above gained several times more.
+lips 17 % and 3 %, the outline band 37 % and 28 %; the face's interior (eyes, brows, skin:
+registered detail) 18-19 %. Fitting every Gaussian's colour to many frames blurs that detail
+(the frames' registration differs by a pixel or two) and gained 0.03 dB; fitting only the parts
+above gained +0.11 / +0.63 dB on the two clips' second halves.
 
 The stage (`fuse_frame_colours`): track the video with the built avatar (as `avatarkit evaluate`
 does: `track_video(avatar=)`, the clip aligned to the reference keyframe), pose the avatar at up
 to `FRAMES` frames spread evenly over the eligible frames of the span (face found, confidence at
-least `MIN_CONFIDENCE_SHARE` of the best), render each from the tracked camera, and refine the
-colours of the selected Gaussians (`fusion_selection`: bald Gaussians on the head model's
-`REGIONS`) against all those frames at once (`refine_colours_frames`: each round, the residual
+least `MIN_CONFIDENCE_SHARE` of the best, head pose within `MAX_TURN` of the reference's), render
+each from the tracked camera, and refine the colours of the selected Gaussians
+(`fusion_selection`: bald Gaussians on the head model's `REGIONS`; `outline_selection`: those on
+the posed renders' outline) against all those frames at once (`refine_colours_frames`: each round, the residual
 video - render inside the frame's render mask eroded by `MASK_ERODE` px, averaged over each
 Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
-Gaussian shows in). The other Gaussians keep the portrait build's colours.
+Gaussian shows in). The other Gaussians keep the portrait build's colours. The video build runs
+it only when it has one keyframe (a head that does not turn: `track.video_build`).
 """
 from __future__ import annotations
 
