@@ -169,3 +169,30 @@ def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
         ref = np.concatenate([whole[r].face.means, whole[r].hair.means])
         np.testing.assert_allclose(v.gaussians.means, ref, atol=1e-6)
         assert int(v.image[0, 0, 0]) == r and v.mask.shape == (48, 48)
+
+
+def test_shared_weights_give_the_same_refine_and_outline():
+    """`posed_frames` computes each frame's `frame_shows` once for the refine and the outline
+    selection (the fast path); without it both compute their own (the reference)."""
+    from dataclasses import replace
+
+    from avatarkit.track.frame_colours import frame_shows
+
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    X, Y = np.meshgrid(xs, ys)
+    truth = np.stack([0.3 + X.ravel(), np.full(X.size, 0.6), 0.5 - Y.ravel()], 1)
+    cam = _camera()
+    image = (np.clip(render(_plane(truth, xs, ys), cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    g = _plane(np.full_like(truth, 0.5), xs, ys)
+    person = render(g, cam, np.ones(3)).alpha > 0.5
+    mask = person.copy()
+    mask[:, SIZE // 2 + 8:] = False                      # the right part is not compared: its Gaussians do not show
+    plain = FrameView(g, cam, image, mask, outline_band(person, 0.05))
+    shared = replace(plain, shows=frame_shows(plain))
+    select = X.ravel() < 0.03
+    a = refine_colours_frames([plain], select, background=np.ones(3))
+    b = refine_colours_frames([shared], select, background=np.ones(3))
+    np.testing.assert_array_equal(a.rgb, b.rgb)
+    np.testing.assert_array_equal(a.updated, b.updated)
+    np.testing.assert_array_equal(outline_selection([plain]), outline_selection([shared]))
+    assert shared.shows.any() and not shared.shows.all()

@@ -73,13 +73,27 @@ MIN_WEIGHT = 0.05
 class FrameView:
     """One posed frame: gaussians (N, same order in every frame), camera, image (H, W, 3) uint8,
     mask (H, W) bool: the pixels whose residual counts; outline (H, W) bool or None: the band
-    inside the render's silhouette (`outline_selection`)."""
+    inside the render's silhouette (`outline_selection`); shows (N,) bool or None: `frame_shows`
+    of this frame when already computed (the refine and the outline selection both need it)."""
 
     gaussians: object
     camera: object
     image: np.ndarray
     mask: np.ndarray
     outline: np.ndarray | None = None
+    shows: np.ndarray | None = None
+
+
+def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
+    """(N,) bool: the Gaussians whose blending weight summed over the frame's mask is at least
+    `min_weight` pixels (the renderer's compositing, `label_lifting.accumulate_weights`)."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1] >= min_weight
+
+
+def _shows(view: FrameView, min_weight: float) -> np.ndarray:
+    return view.shows if view.shows is not None and min_weight == MIN_WEIGHT else frame_shows(view, min_weight)
 
 
 @dataclass
@@ -106,7 +120,6 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
 
     from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
     from avatarkit.recon.image_sampling import sample_image
-    from avatarkit.recon.label_lifting import accumulate_weights
     from avatarkit.render import render
 
     if not views:
@@ -123,8 +136,7 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
         bg = (np.asarray(background, np.float32) if background is not None
               else np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32))
         px, _ = v.camera.project(v.gaussians.means)
-        shows = accumulate_weights(v.gaussians, v.camera, m.astype(np.int32), 2)[:, 1] >= min_weight
-        shows &= np.isfinite(px).all(axis=1) & select
+        shows = _shows(v, min_weight) & np.isfinite(px).all(axis=1) & select
         prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None))
     history = []
     for it in range(iterations + 1):
@@ -215,15 +227,13 @@ def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
     least `share` of the frames where they show (blending weight summed over the frame's mask
     >= min_weight pixels). A head that moves by a pixel or two between frames swaps the wall
     and the hair / skin under these: the build frame's colour there is one sample of that."""
-    from avatarkit.recon.label_lifting import accumulate_weights
-
     n = len(views[0].gaussians)
     hits = np.zeros(n)
     seen = np.zeros(n)
     for v in views:
         if v.outline is None:
             continue
-        shows = accumulate_weights(v.gaussians, v.camera, np.asarray(v.mask, np.int32), 2)[:, 1] >= min_weight
+        shows = _shows(v, min_weight)
         px, _ = v.camera.project(v.gaussians.means)
         h, w = v.outline.shape
         ok = np.isfinite(px).all(axis=1)
@@ -263,8 +273,9 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
         g = GaussianSet.concat(parts)
         person = render(g, result.camera, np.ones(3)).alpha > 0.5
         mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
-        out.append(FrameView(g, result.camera, images[int(result.frame_index[i])], mask,
-                             outline_band(person)))
+        view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
+        view.shows = frame_shows(view)
+        out.append(view)
     return out
 
 
@@ -313,5 +324,5 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN", "MIN_CONFIDENCE_SHARE",
-           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "fuse_frame_colours",
+           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]
