@@ -125,7 +125,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     if FRAME_COLOURS and len(kf) == 1:
         # only when the head does not turn: with turned keyframes the views colour the sides, and
         # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
-        # video's sides 0.07-0.18 dB (docs/video-build.md)
+        # video's sides up to 0.21 dB (docs/video-build.md)
         from avatarkit.recon.pipeline import STAGES
         from avatarkit.track.frame_colours import fuse_frame_colours
 
