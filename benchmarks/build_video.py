@@ -160,7 +160,8 @@ def real(videos: list[str], counts: tuple[int, int], tmp: str) -> None:
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         s, one = report.summary, report.summary["single_frame"]
         print(f"{os.path.basename(v)}: {s['frames_evaluated']} of {s['frames']} frames held out "
-              f"(keyframes {report.settings['keyframes']} +-{report.settings['exclude']} excluded)")
+              f"(keyframes {report.settings['keyframes']} and the build's colour frames "
+              f"{report.settings['colour_frames']} +-{report.settings['exclude']} excluded)")
         for name, m in (("video build", s), ("single-frame build", one)):
             print(f"  {name:<19s} PSNR {m['psnr']:.2f} dB  SSIM {m['ssim']:.3f}  whole-frame PSNR "
                   f"{m['psnr_full']:.2f}  landmark {m['landmark_error_px']:.2f} px")

@@ -25,8 +25,10 @@ Steps (`evaluate`):
    computed on the mask's bounding box, `metrics.region_metrics`: the same numbers), and the
    landmark error: the face mesh detected on our render against the one detected on the video
    (median pixels over the 468 points, and that divided by the video face's eye distance).
-   Frames within `exclude` frames of the build frame, or of any keyframe of a video build, are
-   reported but left out of the summary (the avatar saw them); the same frames for both builds. LPIPS is not computed: it needs network weights we cannot ship.
+   Frames within `exclude` frames of the build frame, or of any frame a video build saw (its
+   keyframes and the frames its frame_colours stage coloured from, which `evaluate` takes from
+   the first `colour_share` of the clip only), are reported but left out of the summary (the
+   avatar saw them); the same frames for both builds. LPIPS is not computed: it needs network weights we cannot ship.
 5. Outputs in REPORT_DIR: metrics.json (summary + settings), frames.csv (one row per frame),
    side_by_side.mp4 (video | our render | error heat map), written into a temporary folder and
    renamed into place at the end (nothing half-written on failure or Ctrl-C).
@@ -75,6 +77,7 @@ class EvalOptions:
     n_bald: int = 40_000
     n_hair: int = 40_000
     compare_single: bool = False
+    colour_share: float = 0.5
 
 
 @dataclass
@@ -181,9 +184,11 @@ def compare_frame(video_rgb: np.ndarray, render_rgb: np.ndarray, alpha: np.ndarr
 
 
 def _build_video(video: str, report: Path, options: EvalOptions,
-                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int], object]:
+                 progress: Progress | None, timings: dict) -> tuple[Path, int, list[int], list[int], object]:
     """The whole-video build into report/avatar -> (folder, reference frame, keyframes, the
-    template tracking it chose them from: its face meshes are reused by the second tracking)."""
+    frames its frame_colours stage coloured from, the template tracking it chose the keyframes
+    from: its face meshes are reused by the second tracking). The frame_colours stage may
+    use the first `options.colour_share` of the tracked frames only."""
     from avatarkit.recon.pipeline import BuildOptions, save_avatar
     from avatarkit.track.video_build import build_tracking, build_video_avatar
 
@@ -194,11 +199,14 @@ def _build_video(video: str, report: Path, options: EvalOptions,
     timings["choose_frame"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     target = report / "avatar"
-    avatar = build_video_avatar(video, build_options, tracking=tracking)
+    index = np.asarray(tracking.frame_index, np.int64)
+    span = (int(index[0]), int(index[min(len(index) - 1, int(math.ceil(options.colour_share * len(index))))]))
+    avatar = build_video_avatar(video, build_options, tracking=tracking, colour_span=span)
     save_avatar(avatar, target)
     timings["build"] = time.perf_counter() - t0
     src = avatar.provenance["source_video"]
-    return target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]], tracking
+    return (target, int(src["frame"]), [int(k["frame"]) for k in src["keyframes"]],
+            [int(f) for f in src.get("colour_frames", [])], tracking)
 
 
 def _build(video: str, report: Path, frame: int | None, options: EvalOptions,
@@ -241,8 +249,10 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         build_frame = options.build_frame
         tracking = None
         keyframes: list[int] = []
+        colour_frames: list[int] = []
         if avatar is None and build_frame is None:
-            avatar_dir, build_frame, keyframes, tracking = _build_video(video, staged, options, progress, timings)
+            avatar_dir, build_frame, keyframes, colour_frames, tracking = _build_video(video, staged, options,
+                                                                                       progress, timings)
             built = True
         elif avatar is None:
             avatar_dir, build_frame, tracking = _build(video, staged, build_frame, options, progress, timings)
@@ -260,7 +270,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         aligned = align_to_build(result, avatar_dir, build_frame)
         relative, posed = aligned["eyes"], aligned["head_pose"]
         timings["track"] = time.perf_counter() - t0
-        centres = sorted(set(keyframes) | ({build_frame} if build_frame is not None else set()))
+        centres = sorted(set(keyframes) | set(colour_frames) | ({build_frame} if build_frame is not None else set()))
         frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
         timings.update(rest)
         summary = summarise(frames)
@@ -284,7 +294,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         settings = {
             "video": os.path.abspath(video), "width": info.width, "height": info.height,
             "fps": result.clip.fps, "avatar": "built (REPORT_DIR/avatar)" if built else os.path.abspath(avatar_dir),
-            "build_frame": build_frame, "keyframes": keyframes,
+            "build_frame": build_frame, "keyframes": keyframes, "colour_frames": colour_frames,
             "build": ("video (keyframes fused)" if keyframes else "single frame" if built else "given"),
             "exclude": options.exclude,
             "mask": f"render alpha > {options.alpha_threshold} (same mask for both images)",

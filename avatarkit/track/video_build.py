@@ -9,6 +9,9 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
     (build)    the portrait build of the reference keyframe (its own    recon.pipeline
                shape fit, as a single-frame build) with the keyframes   recon.multiview
                as extra views, registered by the joint fit's poses
+    frame_colours  (one keyframe only: a head that does not turn) the    track.frame_colours
+               neck, lips, mouth interior and outline coloured from up
+               to 24 tracked frames of the video
 
 Where the head turns past what the face mesh follows (~50-60 degrees: the tracker loses the
 face or its confidence collapses), the frame in the middle of each such stretch (one per side)
@@ -16,8 +19,9 @@ is registered by analysis by synthesis (`track.register`) against a first build 
 tracked keyframes, and the avatar is built again with those frames as extra keyframes
 (`register_turned`).
 
-A video whose head never turns gives one keyframe: the build is then exactly the single-frame
-build of that frame (`build VIDEO --frame N`), and the report says so.
+A video whose head never turns gives one keyframe: the build is then the single-frame build of
+that frame (`build VIDEO --frame N`) with the frame_colours stage after it, and the report says
+so.
 """
 from __future__ import annotations
 
@@ -30,6 +34,9 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+#: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
+FRAME_COLOURS = True
 
 #: expression coefficients fitted per keyframe in the joint identity fit (the keyframes are
 #: chosen neutral; a few absorb what is left of a smile)
@@ -126,13 +133,15 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
 
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
-                       tracking=None):
+                       tracking=None, colour_span: tuple[int, int] | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
     `TrackResult` of `build_tracking(video, options)` when the caller has it already
     (`evaluate` reuses its face meshes), else the video is tracked here. The provenance gets
-    `source_video` {video, frame (the reference), keyframes, mode}."""
+    `source_video` {video, frame (the reference), keyframes, mode, colour_frames}. colour_span:
+    [start, end) video frames the frame_colours stage may use (None: the whole video;
+    `avatarkit evaluate` keeps the second half of the clip out of the build)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness, yaw_pitch
@@ -192,6 +201,23 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             source["registered"] = figures
             timings["register"] = time.perf_counter() - t0
         avatar = build_avatar(png, options, progress, views=views)
+    if FRAME_COLOURS and len(kf) == 1:
+        # only when the head does not turn: with turned keyframes the views colour the sides, and
+        # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
+        # video's sides up to 0.21 dB (docs/video-build.md)
+        from avatarkit.recon.pipeline import STAGES
+        from avatarkit.track.frame_colours import fuse_frame_colours
+
+        last = len(STAGES) + 1            # told as one more stage after the portrait build's
+        if progress is not None:
+            progress("frame_colours", last, last, None)
+        t0 = time.perf_counter()
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
+        timings["frame_colours"] = time.perf_counter() - t0
+        if progress is not None:
+            progress("frame_colours", last, last, timings["frame_colours"])
+        avatar.provenance["build"]["frame_colours"] = fused
+        source["colour_frames"] = fused["frames"]
     avatar.provenance["source_video"] = source
     avatar.provenance["source_image"] = f"{os.path.abspath(video)} (frame {ref_frame})"
     build = avatar.provenance["build"]
@@ -245,7 +271,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["FIRST_BUILD_COUNTS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
+__all__ = ["FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "register_turned", "turned_frames",
            "turned_guess"]

@@ -1,0 +1,328 @@
+"""Colours fused over a video's frames: the video build's last stage (`fuse_frame_colours`).
+
+A portrait build colours every Gaussian from one photo. Some parts of a head look different in
+every frame of a talking video, and one frame is then one arbitrary sample of them:
+- the neck and the collar: the avatar's neck rides the head, the clothes around it do not, so
+  the build frame's collar pixels land on other pixels in every other frame;
+- the lips and the mouth interior: one frame with the mouth closed says nothing about the
+  mouth opened (the interior keeps a flat dark red, or the lips' colour the photo gave it).
+- the outline: the head moves by a pixel or two from frame to frame, so the wall and the hair
+  or skin swap under the Gaussians on the silhouette, and the build frame's colour there is one
+  sample of that.
+Measured on the shared clips (session 9, docs/video-build.md): the neck / collar carries 5 % of
+the single-frame build's held-out squared error on one clip and 27 % on the other, the mouth and
+lips 17 % and 3 %, the outline band 37 % and 28 %; the face's interior (eyes, brows, skin:
+registered detail) 18-19 %. Fitting every Gaussian's colour to many frames blurs that detail
+(the frames' registration differs by a pixel or two) and gained 0.03 dB; fitting only the parts
+above gained +0.11 / +0.63 dB on the two clips' second halves.
+
+The stage (`fuse_frame_colours`): track the video with the built avatar (as `avatarkit evaluate`
+does: `track_video(avatar=)`, the clip aligned to the reference keyframe), pose the avatar at up
+to `FRAMES` frames spread evenly over the eligible frames of the span (face found, confidence at
+least `MIN_CONFIDENCE_SHARE` of the best, head pose within `MAX_TURN` of the reference's), render
+each from the tracked camera, and refine the colours of the selected Gaussians
+(`fusion_selection`: bald Gaussians on the head model's `REGIONS`; `outline_selection`: those on
+the posed renders' outline) against all those frames at once (`refine_colours_frames`: each round, the residual
+video - render inside the frame's render mask eroded by `MASK_ERODE` px, averaged over each
+Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
+Gaussian shows in). The other Gaussians keep the portrait build's colours. The video build runs
+it only when it has one keyframe (a head that does not turn: `track.video_build`).
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+#: head-model regions whose bald Gaussians are coloured from the frames (module docstring);
+#: the Gaussians on the outline of the posed renders are too (`outline_selection`)
+REGIONS = ("neck", "lips", "mouth_interior")
+OUTLINE = True
+#: at most this many frames are fused
+FRAMES = 24
+#: frames tracked with less than this share of the best confidence are not used
+MIN_CONFIDENCE_SHARE = 0.6
+#: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
+#: pitch: `track.keyframes.MIN_SPREAD`, the turn below which a frame adds no view) are fused:
+#: this stage fuses what changes over time at the reference's view; turned views are the
+#: keyframes' (`recon.multiview`). With every frame of a synthetic turning video it cost the
+#: sides 0.1-0.2 dB of the keyframes' colours
+MAX_TURN = math.radians(8.0)
+#: rounds of the multi-frame refine (the first does most; more rounds sharpen toward single
+#: frames' noise)
+ITERATIONS = 2
+#: the render's person mask is eroded by this many pixels before the residual is taken: the
+#: outline's pixels mix the wall in the video and the background in the render
+MASK_ERODE = 2
+#: the silhouette's band: render-mask pixels within this share of the image's larger side of
+#: its outline (6 px at 480)
+OUTLINE_BAND = 0.0125
+#: a Gaussian is on the outline when its centre falls in the band in at least this share of
+#: the frames it shows in
+OUTLINE_SHARE = 0.25
+#: a Gaussian takes a frame's residual when its blending weight summed over the mask is at
+#: least this many pixels (as `recon.assemble.refine_colours`)
+MIN_WEIGHT = 0.05
+
+
+@dataclass
+class FrameView:
+    """One posed frame: gaussians (N, same order in every frame), camera, image (H, W, 3) uint8,
+    mask (H, W) bool: the pixels whose residual counts; outline (H, W) bool or None: the band
+    inside the render's silhouette (`outline_selection`); shows (N,) bool or None: `frame_shows`
+    of this frame when already computed (the refine and the outline selection both need it)."""
+
+    gaussians: object
+    camera: object
+    image: np.ndarray
+    mask: np.ndarray
+    outline: np.ndarray | None = None
+    shows: np.ndarray | None = None
+
+
+def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
+    """(N,) bool: the Gaussians whose blending weight summed over the frame's mask is at least
+    `min_weight` pixels (the renderer's compositing, `label_lifting.accumulate_weights`)."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1] >= min_weight
+
+
+def _shows(view: FrameView, min_weight: float) -> np.ndarray:
+    return view.shows if view.shows is not None and min_weight == MIN_WEIGHT else frame_shows(view, min_weight)
+
+
+@dataclass
+class FusedColours:
+    """rgb (N, 3) float32 in [0, 1]; updated (N,) bool: the Gaussians the frames recoloured;
+    info: JSON-able figures."""
+
+    rgb: np.ndarray
+    updated: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int = ITERATIONS,
+                          step: float = 1.0, min_weight: float = MIN_WEIGHT,
+                          background=None) -> FusedColours:
+    """`recon.assemble.refine_colours` over several posed frames of the same Gaussians: each
+    round renders every frame, takes the residual image - render inside its mask, per Gaussian
+    that shows there (blending weight summed over the mask >= min_weight pixels) the residual
+    averaged over about its own footprint (the blur scale matched to its projected radius);
+    a selected Gaussian's update is the mean over the frames it shows in. Unselected Gaussians
+    keep their colours. background: (3,) render background (None: each frame's median outside
+    its mask). With one frame and every Gaussian selected this is refine_colours."""
+    import cv2
+
+    from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
+    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.render import render
+
+    if not views:
+        raise ValueError("no frames to fuse")
+    n = len(views[0].gaussians)
+    select = np.asarray(select, bool).reshape(n)
+    rgb = views[0].gaussians.colors.astype(np.float32).copy()
+    prep = []
+    for v in views:
+        if len(v.gaussians) != n:
+            raise ValueError("every frame must hold the same Gaussians")
+        target = np.asarray(v.image, np.float32) / 255.0
+        m = np.asarray(v.mask, bool)
+        bg = (np.asarray(background, np.float32) if background is not None
+              else np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32))
+        px, _ = v.camera.project(v.gaussians.means)
+        shows = _shows(v, min_weight) & np.isfinite(px).all(axis=1) & select
+        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None))
+    history = []
+    for it in range(iterations + 1):
+        num = np.zeros((n, 3))
+        den = np.zeros(n)
+        scores = []
+        for p in prep:
+            g = p["v"].gaussians.with_colors(rgb)
+            r = render(g, p["v"].camera, background=p["bg"])
+            scores.append(psnr(r.rgb, p["target"], p["m"]))
+            sh = p["shows"]
+            if it == iterations or not sh.any():
+                continue
+            if p["level"] is None:
+                sigma = r.meta["radii"][sh] / 3.0
+                p["level"] = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
+            err = (p["target"] - r.rgb) * p["m"][:, :, None]
+            delta = np.zeros((int(sh.sum()), 3), np.float32)
+            for j, sg in enumerate(_BLUR_SIGMAS):
+                sel = p["level"] == j
+                if sel.any():
+                    e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
+                    delta[sel] = sample_image(e, p["px"][sh][sel])
+            num[sh] += delta
+            den[sh] += 1.0
+        history.append(float(np.mean(scores)))
+        if it == iterations or not (den > 0).any():
+            break
+        upd = den > 0
+        rgb[upd] = np.clip(rgb[upd] + step * (num[upd] / den[upd, None]).astype(np.float32), 0.0, 1.0)
+    updated = np.zeros(n, bool)
+    for p in prep:
+        updated |= p["shows"]
+    return FusedColours(rgb, updated, {"frames": len(views), "selected": int(select.sum()),
+                                       "updated": int(updated.sum()),
+                                       "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)})
+
+
+def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAMES,
+                  reference: int | None = None, max_turn: float = MAX_TURN) -> np.ndarray:
+    """(K,) rows of a TrackResult to fuse: up to `count` spread evenly over the eligible rows
+    (face found, confidence >= MIN_CONFIDENCE_SHARE of the best, and, given the reference
+    row, a head pose within `max_turn` of its yaw / pitch) whose video frame is within
+    span = [start, end) (None: all)."""
+    conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
+    frames = np.asarray(result.frame_index, np.int64)
+    ok = conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
+    ok &= conf > 0
+    if span is not None:
+        ok &= (frames >= span[0]) & (frames < span[1])
+    if reference is not None:
+        from avatarkit.track.keyframes import yaw_pitch
+
+        yp = yaw_pitch(result.clip.rotation)
+        ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
+    rows = np.flatnonzero(ok)
+    if len(rows) <= count:
+        return rows
+    return rows[np.unique(np.round(np.linspace(0, len(rows) - 1, count)).astype(np.int64))]
+
+
+def fusion_selection(avatar, regions=REGIONS) -> np.ndarray:
+    """(N_bald + N_hair,) bool: the bald Gaussians whose host triangle has at least two vertices
+    in one of the head model's `regions` (the hair is never selected)."""
+    model = avatar.head_model
+    faces = np.asarray(model.faces)[np.asarray(avatar.bald.extras["binding"], np.int64)]
+    sel = np.zeros(len(avatar.bald) + len(avatar.hair), bool)
+    for name in regions:
+        if name in model.regions:
+            sel[:len(avatar.bald)] |= model.region_mask(name)[faces].sum(axis=1) >= 2
+    return sel
+
+
+def outline_band(person: np.ndarray, band: float = OUTLINE_BAND) -> np.ndarray:
+    """(H, W) bool: the pixels of `person` (H, W) bool within `band` of the image's larger side
+    of its outline (a square erosion: max(|dx|, |dy|) <= r)."""
+    import cv2
+
+    r = max(1, int(round(band * max(person.shape))))
+    inner = cv2.erode(person.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=1).astype(bool)
+    return person & ~inner
+
+
+def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
+                      min_weight: float = MIN_WEIGHT) -> np.ndarray:
+    """(N,) bool: the Gaussians whose projected centre lies in a frame's `outline` band in at
+    least `share` of the frames where they show (blending weight summed over the frame's mask
+    >= min_weight pixels). A head that moves by a pixel or two between frames swaps the wall
+    and the hair / skin under these: the build frame's colour there is one sample of that."""
+    n = len(views[0].gaussians)
+    hits = np.zeros(n)
+    seen = np.zeros(n)
+    for v in views:
+        if v.outline is None:
+            continue
+        shows = _shows(v, min_weight)
+        px, _ = v.camera.project(v.gaussians.means)
+        h, w = v.outline.shape
+        ok = np.isfinite(px).all(axis=1)
+        q = np.zeros((n, 2), np.int64)
+        q[ok] = np.round(px[ok]).astype(np.int64)
+        ok &= (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+        inside = np.zeros(n, bool)
+        inside[ok] = v.outline[q[ok, 1], q[ok, 0]]
+        hits += inside & shows
+        seen += shows
+    return (seen > 0) & (hits >= share * np.maximum(seen, 1))
+
+
+def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
+    """The avatar posed by the tracked clip (`result`: a TrackResult) at `rows` (static hair),
+    each with its video frame (images: video frame number -> (H, W, 3) uint8) and the render's
+    person mask (alpha > 0.5) eroded by MASK_ERODE px."""
+    import cv2
+
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.gaussians import GaussianSet
+    from avatarkit.render import render
+    from avatarkit.sim.config import SimConfig
+
+    from avatarkit.motion.clip import CHANNELS
+
+    rows = [int(r) for r in rows]
+    # the hair rides the head (no simulation), so the frames are independent: only these are baked
+    clip = result.clip.replace(**{k: np.asarray(getattr(result.clip, k))[rows] for k in CHANNELS})
+    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MASK_ERODE + 1,) * 2) if MASK_ERODE else None)
+    out = []
+    for i, frame in zip(rows, baked):
+        parts = [frame.gaussians(static, "face").replace(extras={})]
+        if avatar.has_hair:
+            parts.append(frame.gaussians(static, "hair").replace(extras={}))
+        g = GaussianSet.concat(parts)
+        person = render(g, result.camera, np.ones(3)).alpha > 0.5
+        mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
+        view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
+        view.shows = frame_shows(view)
+        out.append(view)
+    return out
+
+
+def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
+                       span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE):
+    """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
+    tracking the build chose its keyframes from (its face meshes are reused), reference_frame
+    the frame the avatar was built from; outline: the outline's Gaussians are fused too.
+    Returns (the avatar with the fused colours, info). The video build runs it only when it has
+    one keyframe (`track.video_build`)."""
+    from avatarkit.avatar import load_avatar
+    from avatarkit.recon.pipeline import save_avatar
+    from avatarkit.track.build_pose import align_to_build
+    from avatarkit.track.video import track_video
+
+    with tempfile.TemporaryDirectory(prefix="avatarkit-fuse-") as tmp:
+        folder = Path(tmp) / "avatar"
+        preview, avatar.preview = avatar.preview, None
+        try:
+            save_avatar(avatar, folder)
+        finally:
+            avatar.preview = preview
+        result = track_video(video, avatar=folder, meshes=tracking.meshes)
+        align_to_build(result, folder, reference_frame)
+        saved = load_avatar(folder)
+    ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
+    rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)
+    select = fusion_selection(saved)
+    if len(rows) == 0:
+        return avatar, {"frames": [], "updated": 0}
+    from avatarkit.track.keyframes import read_frames
+
+    views = posed_frames(saved, result, rows, read_frames(video, np.asarray(result.frame_index)[rows]))
+    regions = int(select.sum())
+    if outline:
+        select = select | outline_selection(views)
+    fused = refine_colours_frames(views, select)
+    nb = len(avatar.bald)
+    rgb = np.where(fused.updated[:, None], fused.rgb, np.concatenate([avatar.bald.colors, avatar.hair.colors]))
+    avatar.bald = avatar.bald.with_colors(rgb[:nb])
+    if len(avatar.hair):
+        avatar.hair = avatar.hair.with_colors(rgb[nb:])
+    info = {**fused.info, "frames": [int(f) for f in np.asarray(result.frame_index)[rows]],
+            "regions": list(REGIONS), "in_regions": regions, "outline": bool(outline)}
+    return avatar, info
+
+
+__all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN", "MIN_CONFIDENCE_SHARE",
+           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
+           "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]

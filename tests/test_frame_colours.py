@@ -1,0 +1,198 @@
+"""The video build's frame_colours stage (`track.frame_colours`) on cases whose answer is known."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
+from avatarkit.render import render
+from avatarkit.render.camera import Camera
+from avatarkit.track.frame_colours import (FrameView, colour_frames, fusion_selection, outline_band,
+                                           outline_selection, refine_colours_frames)
+
+SIZE = 96
+
+
+def _plane(colours: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> GaussianSet:
+    X, Y = np.meshgrid(xs, ys)
+    n = X.size
+    means = np.stack([X.ravel(), Y.ravel(), np.zeros(n)], 1)
+    return GaussianSet(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0.008, 0.008, 0.001], (n, 1)),
+                       np.full(n, 0.99), rgb_to_dc(np.asarray(colours, np.float32).reshape(n, 3)))
+
+
+def _camera():
+    return Camera.look_at((0.0, 0.0, 0.5), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+
+
+def test_colours_fused_over_frames_average_out_what_each_frame_adds():
+    """Each frame shows the plane's true colours plus a tint of its own (light, a collar that
+    moves: what one frame adds); the plane moves a little between frames. Started from frame 0's
+    colours (the single-frame build), the selected Gaussians come out at the true colours plus
+    the frames' mean tint (zero), far nearer the truth than frame 0; the others keep theirs."""
+    rng = np.random.default_rng(3)
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    X, Y = np.meshgrid(xs, ys)
+    n = X.size
+    truth = np.stack([0.5 + 2 * X.ravel(), 0.4 + 0.5 * Y.ravel() + X.ravel(), np.full(n, 0.45)], 1)
+    tints = rng.normal(0.0, 0.1, (6, 3))
+    tints -= tints.mean(axis=0)                       # the frames' mean tint is zero
+    cam = _camera()
+    views = []
+    for k, tint in enumerate(tints):
+        shift = np.array([0.004 * np.cos(k), 0.004 * np.sin(k), 0.0])
+        shown = _plane(np.clip(truth + tint, 0, 1), xs, ys)
+        shown = shown.replace(means=shown.means + shift)
+        image = (np.clip(render(shown, cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+        start = shown.with_colors(np.clip(truth + tints[0], 0, 1))       # frame 0's colours
+        views.append(FrameView(start, cam, image, np.ones((SIZE, SIZE), bool)))
+    select = X.ravel() < 0.0
+    fused = refine_colours_frames(views, select, background=np.ones(3))
+    start = np.clip(truth + tints[0], 0, 1)
+    inner = (np.abs(X.ravel()) < 0.08) & (np.abs(Y.ravel()) < 0.08)       # away from the plane's edge
+    err_fused = np.abs(fused.rgb - truth)[select & inner].mean()
+    err_one = np.abs(start - truth)[select & inner].mean()
+    assert err_fused < 0.015, err_fused
+    assert err_fused < 0.25 * err_one, (err_fused, err_one)
+    np.testing.assert_allclose(fused.rgb[~select], views[0].gaussians.colors[~select], atol=0)
+    assert fused.updated[select & inner].all() and not fused.updated[~select].any()
+    assert fused.info["updated"] == int(fused.updated.sum()) and fused.info["frames"] == 6
+
+
+def test_one_frame_recovers_its_own_colours():
+    """With one frame the stage is the portrait's colour refine: it reproduces that frame."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    X, Y = np.meshgrid(xs, ys)
+    truth = np.stack([0.3 + X.ravel(), np.full(X.size, 0.6), 0.5 - Y.ravel()], 1)
+    cam = _camera()
+    image = (np.clip(render(_plane(truth, xs, ys), cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    g = _plane(np.full_like(truth, 0.5), xs, ys)
+    fused = refine_colours_frames([FrameView(g, cam, image, np.ones((SIZE, SIZE), bool))],
+                                  np.ones(len(g), bool), background=np.ones(3))
+    inner = (np.abs(X.ravel()) < 0.08) & (np.abs(Y.ravel()) < 0.08)
+    assert np.abs(fused.rgb - truth)[inner].mean() < 0.01
+
+
+def test_outline_gaussians_are_those_on_the_silhouette_band():
+    """A disc of Gaussians seen head on: its rim (within the band of the render's outline) is
+    selected, its middle is not."""
+    xs = ys = np.arange(-0.12, 0.12 + 1e-9, 0.006)
+    X, Y = np.meshgrid(xs, ys)
+    r = np.hypot(X, Y).ravel()
+    g = _plane(np.full((X.size, 3), 0.5), xs, ys).subset(r <= 0.1)
+    r = r[r <= 0.1]
+    cam = _camera()
+    person = render(g, cam, np.ones(3)).alpha > 0.5
+    band = outline_band(person, 0.05)                    # 5 px at 96
+    assert band.any() and not band[SIZE // 2, SIZE // 2]
+    sel = outline_selection([FrameView(g, cam, np.zeros((SIZE, SIZE, 3), np.uint8), person, band)])
+    assert not sel[r < 0.06].any()
+    assert sel[r > 0.095].mean() > 0.9
+
+
+def test_colour_frames_are_eligible_spread_and_within_the_span():
+    conf = np.full(100, 0.9)
+    conf[10:20] = 0.3                                      # poorly tracked: never used
+    found = np.ones(100, bool)
+    found[50] = False
+    result = SimpleNamespace(found=found, confidence=conf, frame_index=np.arange(100) + 7)
+    rows = colour_frames(result, None, 10)
+    assert len(rows) == 10 and rows[0] == 0 and rows[-1] == 99
+    assert not np.isin(rows, np.r_[10:20, 50]).any()
+    gaps = np.diff(rows)
+    assert gaps.max() <= 2 * gaps.min() + 10
+    half = colour_frames(result, (7, 57), 24)               # video frames 7..56: rows 0..49
+    assert half.max() <= 49 and len(half) == 24
+    everything = colour_frames(result, (7, 30), 24)      # rows 0..22, of which 10..19 are not eligible
+    np.testing.assert_array_equal(everything, np.r_[0:10, 20:23])
+
+
+def test_colour_frames_keep_to_the_reference_view():
+    """Frames turned more than MAX_TURN from the reference are the keyframes' job, not fused."""
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track.frame_colours import MAX_TURN
+
+    yaw = np.linspace(-0.5, 0.5, 41)                     # -29 .. +29 degrees
+    rot = Rotation.from_euler("YXZ", np.stack([yaw, np.zeros(41), np.zeros(41)], 1)).as_rotvec()
+    result = SimpleNamespace(found=np.ones(41, bool), confidence=np.ones(41), frame_index=np.arange(41),
+                             clip=SimpleNamespace(rotation=rot))
+    rows = colour_frames(result, None, 41, reference=20)
+    np.testing.assert_array_equal(rows, np.flatnonzero(np.abs(yaw) <= MAX_TURN + 1e-9))
+    assert 0 < len(rows) < 41
+    assert len(colour_frames(result, None, 41)) == 41
+
+
+def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
+    faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
+    regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}
+
+    def region_mask(name):
+        m = np.zeros(7, bool)
+        m[regions[name]] = True
+        return m
+
+    model = SimpleNamespace(faces=faces, regions=regions, region_mask=region_mask)
+    bald = _plane(np.full((4, 3), 0.5), np.array([0.0, 0.1]), np.array([0.0, 0.1]))
+    bald = bald.replace(extras={"binding": np.array([0, 1, 2, 0], np.int32)})
+    hair = _plane(np.full((2, 3), 0.5), np.array([0.0, 0.1]), np.array([0.0]))
+    sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), ("neck", "lips", "mouth_interior"))
+    # face 0: 2 neck vertices; face 1: 2 lips vertices; face 2: 2 lips vertices; hair never
+    np.testing.assert_array_equal(sel, [True, True, True, True, False, False])
+    sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), ("neck",))
+    np.testing.assert_array_equal(sel, [True, False, False, True, False, False])
+
+
+def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
+    """`posed_frames` bakes the chosen rows alone (the fast path); the reference is the bake of
+    the whole clip: with the hair riding the head the poses are the same."""
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.sim.config import SimConfig
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.track.frame_colours import posed_frames
+
+    avatar = make_sample_avatar(n_hair=800, n_bald=1000, cage_vertices=150, seed=5)
+    rng = np.random.default_rng(0)
+    T = 9
+    clip = MotionClip(30.0, rng.normal(0, 0.1, (T, 3)), rng.normal(0, 0.01, (T, 3)), np.zeros((T, 3)),
+                      np.abs(rng.normal(0, 0.1, (T, 3))), np.zeros((T, 6)), np.zeros((T, 0)))
+    camera = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=48, height=48, fov_deg=40)
+    result = SimpleNamespace(clip=clip, camera=camera, frame_index=np.arange(T) + 100)
+    rows = [1, 4, 8]
+    images = {int(f): np.full((48, 48, 3), k, np.uint8) for k, f in enumerate(np.arange(T) + 100)}
+    views = posed_frames(avatar, result, rows, images)
+    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    whole = list(baked)
+    for r, v in zip(rows, views):
+        ref = np.concatenate([whole[r].face.means, whole[r].hair.means])
+        np.testing.assert_allclose(v.gaussians.means, ref, atol=1e-6)
+        assert int(v.image[0, 0, 0]) == r and v.mask.shape == (48, 48)
+
+
+def test_shared_weights_give_the_same_refine_and_outline():
+    """`posed_frames` computes each frame's `frame_shows` once for the refine and the outline
+    selection (the fast path); without it both compute their own (the reference)."""
+    from dataclasses import replace
+
+    from avatarkit.track.frame_colours import frame_shows
+
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    X, Y = np.meshgrid(xs, ys)
+    truth = np.stack([0.3 + X.ravel(), np.full(X.size, 0.6), 0.5 - Y.ravel()], 1)
+    cam = _camera()
+    image = (np.clip(render(_plane(truth, xs, ys), cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    g = _plane(np.full_like(truth, 0.5), xs, ys)
+    person = render(g, cam, np.ones(3)).alpha > 0.5
+    mask = person.copy()
+    mask[:, SIZE // 2 + 8:] = False                      # the right part is not compared: its Gaussians do not show
+    plain = FrameView(g, cam, image, mask, outline_band(person, 0.05))
+    shared = replace(plain, shows=frame_shows(plain))
+    select = X.ravel() < 0.03
+    a = refine_colours_frames([plain], select, background=np.ones(3))
+    b = refine_colours_frames([shared], select, background=np.ones(3))
+    np.testing.assert_array_equal(a.rgb, b.rgb)
+    np.testing.assert_array_equal(a.updated, b.updated)
+    np.testing.assert_array_equal(outline_selection([plain]), outline_selection([shared]))
+    assert shared.shows.any() and not shared.shows.all()
