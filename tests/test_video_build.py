@@ -76,7 +76,8 @@ def test_a_head_that_never_turns_builds_the_single_frame_avatar(truth, tmp_path,
 
     clip = turning_clip(16, yaw=0.02, pitch=0.0)
     write_turning_video(truth, tmp_path / "still.mp4", size=160, clip=clip)
-    assert main(["build", str(tmp_path / "still.mp4"), "-o", str(tmp_path / "v"), *BUILD]) == 0, \
+    with_preview = [a for a in BUILD if a != "--no-preview"]
+    assert main(["build", str(tmp_path / "still.mp4"), "-o", str(tmp_path / "v"), *with_preview]) == 0, \
         capsys.readouterr().err
     src = read_manifest(tmp_path / "v")["provenance"]["source_video"]
     assert len(src["keyframes"]) == 1 and src["mode"].startswith("single frame")
@@ -94,6 +95,14 @@ def test_a_head_that_never_turns_builds_the_single_frame_avatar(truth, tmp_path,
     assert changed.sum() <= fused["updated"]
     assert np.median(np.abs(both_a - both_b)[changed]) < 0.05
     np.testing.assert_array_equal(a.bald.sh[:, 1:], b.bald.sh[:, 1:])
+    # the saved previews show the saved (fused) colours, not the portrait build's
+    import cv2
+
+    from avatarkit.recon.pipeline import render_previews
+
+    for name, image in render_previews(a).items():
+        saved = cv2.cvtColor(cv2.imread(str(tmp_path / "v" / name)), cv2.COLOR_BGR2RGB)
+        assert (np.abs(saved.astype(int) - image.astype(int)).max(axis=2) > 3).mean() < 1e-3, name
 
 
 def test_a_video_without_a_face_is_bad_input(tmp_path, capsys):

@@ -251,6 +251,18 @@ def render_previews(avatar, size: int = 512, background=(1.0, 1.0, 1.0)) -> dict
             for name, azimuth in PREVIEW_VIEWS.items()}
 
 
+def attach_previews(avatar, size: int = 512) -> dict[str, np.ndarray]:
+    """Render the avatar's previews (`render_previews`) and attach them (`preview`,
+    `extra_previews`, `build_previews`, which `save_avatar` writes); returns them. A stage that
+    changes the avatar after the build (the video build's frame_colours) calls it again, so the
+    saved previews show what was saved."""
+    previews = render_previews(avatar, size)
+    avatar.preview = previews["preview.png"]
+    avatar.extra_previews = {k: v for k, v in previews.items() if k != "preview.png"}
+    avatar.build_previews = previews
+    return previews
+
+
 def _preload() -> None:
     """Import torch and Taichi (`build_avatar` runs this beside its first stages). Only a head
     start: a failure here is left for the stage that needs the module to report."""
@@ -439,9 +451,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     previews = {}
     with stage("previews"):
         if options.preview:
-            previews = render_previews(avatar, options.preview_size)
-            avatar.preview = previews["preview.png"]
-            avatar.extra_previews = {k: v for k, v in previews.items() if k != "preview.png"}
+            previews = attach_previews(avatar, options.preview_size)
     report.info["counts"] = {"bald": len(bald_out), "hair": len(hair_out),
                              "cage_vertices": int(cage.n_vertices) if cage is not None else 0}
     avatar.provenance["build"] = report.to_json()
@@ -509,5 +519,5 @@ def save_avatar(avatar, folder: str | os.PathLike) -> Path:
     return target
 
 
-__all__ = ["NO_HAIR_WARNING", "BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "build_avatar", "clean_hair",
+__all__ = ["NO_HAIR_WARNING", "BuildOptions", "BuildReport", "PREVIEW_VIEWS", "STAGES", "attach_previews", "build_avatar", "clean_hair",
            "front_view_metrics", "head_mask", "render_previews", "save_avatar"]

@@ -217,6 +217,11 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if progress is not None:
             progress("frame_colours", last, last, timings["frame_colours"])
         avatar.provenance["build"]["frame_colours"] = fused
+        if options.preview:
+            # the portrait build rendered its previews before the stage changed the colours
+            from avatarkit.recon.pipeline import attach_previews
+
+            attach_previews(avatar, options.preview_size)
         source["colour_frames"] = fused["frames"]
     avatar.provenance["source_video"] = source
     avatar.provenance["source_image"] = f"{os.path.abspath(video)} (frame {ref_frame})"
