@@ -172,7 +172,7 @@ def test_scratch_buffers_carry_nothing_between_frames():
 
 
 def test_kernel_call_launches_like_taichis_plain_call(monkeypatch):
-    # the stages launch their kernels through `_launch.KernelCall`, which fills Taichi's
+    # the stages launch their kernels through `avatarkit._kernel_call.KernelCall`, which fills Taichi's
     # launch context itself: a frame through it must be Taichi's own call's, bit for bit
     # (arrays of 1-3 dimensions, ints and floats: the background, the camera), and the
     # fast path must be the one taken

@@ -159,12 +159,12 @@ _calls: dict = {}
 
 
 def _launch(name: str, *args) -> None:
-    """`_kernels.<name>(*args)` through `_launch.KernelCall`, which skips Taichi's per-call
+    """`_kernels.<name>(*args)` through `avatarkit._kernel_call.KernelCall`, which skips Taichi's per-call
     Python work (~0.05 ms of this thread per array argument while the kernel threads wait;
     a 100k frame's launches pass ~55 arrays). The same kernel on the same memory."""
     call = _calls.get(name)
     if call is None:
-        from avatarkit.render._launch import KernelCall
+        from avatarkit._kernel_call import KernelCall
         call = _calls[name] = KernelCall(getattr(_kernels(), name))
     call(*args)
 

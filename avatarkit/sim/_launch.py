@@ -8,7 +8,8 @@ address and shape. For the XPBD frame kernel and its 5 arrays that measured ~0.1
 a launch under load, against ~5 us for the launch itself (`benchmarks/sim.py`'s figures).
 Bound here, the context is built once and only the launch runs per call; the kernel writes the
 same memory as the plain call, so results are identical (`tests/test_sim.py`). `KernelCall`
-fills a fresh context per call from its arguments (a few us), the instance looked up once.
+fills a fresh context per call from its arguments (a few us), the instance looked up once; it
+lives in `avatarkit._kernel_call`, shared with the renderer.
 
 This uses Taichi 1.7's Python internals (the compiled kernel instance, its launch context,
 `Program.launch_kernel`), which are not public API: where any of them is missing, or an array
@@ -19,6 +20,8 @@ when they replace one (`XPBDSolver` checks the identity of each per step).
 from __future__ import annotations
 
 import numpy as np
+
+from avatarkit._kernel_call import KernelCall  # noqa: F401  (the push-out imports it from here)
 
 
 class BoundLaunch:
@@ -73,79 +76,6 @@ def _bind(kernel, arrays):
         ctx.set_arg_external_array_with_shape((i,), int(a.ctypes.data), a.nbytes, list(shape), 0)
 
     def launch():
-        prog.launch_kernel(compiled, ctx)
-
-    return launch
-
-
-class KernelCall:
-    """kernel(*args) for kernels called every frame with new arrays and scalars (the push-out):
-    the compiled instance is looked up once per argument signature (dtypes and dimensions),
-    and each call only fills a launch context (~10 arguments: ~0.3 ms of CPU under load
-    through Taichi's plain call). Same fallback as `BoundLaunch`: the plain call, for an array
-    Taichi would copy or a Taichi without these internals."""
-
-    def __init__(self, kernel):
-        self.kernel = kernel
-        self._instances: dict = {}
-
-    def __call__(self, *args) -> None:
-        if not all(a.flags.c_contiguous for a in args if isinstance(a, np.ndarray)):
-            self.kernel(*args)
-            return
-        sig = tuple((a.dtype.str, a.ndim) if isinstance(a, np.ndarray) else type(a) for a in args)
-        instance = self._instances.get(sig)
-        if instance is None:
-            try:
-                instance = _instance(self.kernel, args)
-            except (AttributeError, TypeError, KeyError, IndexError):
-                instance = False  # another Taichi: the plain call from now on
-            self._instances[sig] = instance
-        if instance is False:
-            self.kernel(*args)
-        else:
-            instance(args)
-
-
-def _instance(kernel, args):
-    """A launcher of kernel's compiled instance for arguments like args, filling the context
-    as Taichi's `Kernel.launch_kernel` does for numpy arrays, ints and floats."""
-    from taichi.lang import impl
-    from taichi.lang.util import cook_dtype
-    from taichi.types import primitive_types
-    from taichi.types.utils import is_signed
-
-    primal = kernel._primal
-    if len(primal.arguments) != len(args):
-        raise TypeError(f"kernel takes {len(primal.arguments)} arguments, {len(args)} given")
-    key = primal.ensure_compiled(*args)
-    kernel_cpp = primal.compiled_kernels[key]
-    prog = impl.get_runtime().prog
-    compiled = prog.compile_kernel(prog.config(), prog.get_device_caps(), kernel_cpp)
-    setters = []
-    for arg, a in zip(primal.arguments, args):
-        needed = arg.annotation
-        if isinstance(a, np.ndarray):
-            dtype = needed.dtype
-            element_dim = 0 if dtype is None or id(dtype) in primitive_types.type_ids else dtype.ndim
-            setters.append(("array", element_dim))
-        elif id(needed) in primitive_types.integer_type_ids and is_signed(cook_dtype(needed)):
-            setters.append(("int", None))
-        elif id(needed) in primitive_types.real_type_ids:
-            setters.append(("float", None))
-        else:
-            raise TypeError(f"argument type {needed} is not one KernelCall fills")
-
-    def launch(values):
-        ctx = kernel_cpp.make_launch_context()
-        for i, ((kind, element_dim), v) in enumerate(zip(setters, values)):
-            if kind == "array":
-                ctx.set_arg_external_array_with_shape((i,), int(v.ctypes.data), v.nbytes,
-                                                      list(v.shape[:v.ndim - element_dim]), 0)
-            elif kind == "int":
-                ctx.set_arg_int((i,), int(v))
-            else:
-                ctx.set_arg_float((i,), float(v))
         prog.launch_kernel(compiled, ctx)
 
     return launch

@@ -1,19 +1,20 @@
-"""Taichi kernel launches without Taichi's per-call Python work, for the renderer's kernels.
+"""`KernelCall`: Taichi kernel launches without Taichi's per-call Python work, for kernels
+called every frame with new arrays and scalars (the renderer's stages, the hair push-out).
 
 A plain call `kernel(*args)` goes through Taichi's Python launch path: it looks the compiled
 instance up from the arguments' types, builds a launch context and hands it each argument
 (~0.05 ms of the calling thread per array under load, while the kernel threads wait; a 100k
-frame's six launches pass ~55 arrays: the calling thread's CPU per frame went 7.3-8.6 ->
+render's six launches pass ~55 arrays: the calling thread's CPU per frame went 7.3-8.6 ->
 4.8-5.0 ms). `KernelCall` looks the instance up once per argument signature (dtypes and
 dimensions) and only fills a fresh context per call, as Taichi's `Kernel.launch_kernel` does
 for C-contiguous numpy arrays, ints and floats: the same kernel on the same memory, so the
-same results (`tests/test_render.py` compares it with the plain call).
+same results (`tests/test_render.py` and `tests/test_sim.py` compare it with the plain call).
 
-The same technique as `avatarkit.sim._launch.KernelCall` (the push-out's), kept here so that
-rendering does not import the simulation package (~0.4 s of CPU on a process's first
-render). It uses Taichi 1.7's Python internals (the compiled instance, its launch context,
-`Program.launch_kernel`), which are not public API: where any of them is missing, or an array
-is not one Taichi would pass without a copy, the plain call is used.
+A top-level module so that neither user imports the other's package (importing the simulation
+package cost ~0.4 s of CPU on a process's first render). It uses Taichi 1.7's Python internals
+(the compiled instance, its launch context, `Program.launch_kernel`), which are not public API:
+where any of them is missing, or an array is not one Taichi would pass without a copy, the
+plain call is used. `avatarkit.sim._launch.BoundLaunch` binds the same buffers once instead.
 """
 from __future__ import annotations
 
