@@ -291,6 +291,28 @@ def push_out(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, margin
 _BLUR_SIGMAS = (0.0, 1.0, 2.0, 4.0)
 
 
+def footprint_residuals(rendered: np.ndarray, target: np.ndarray, mask: np.ndarray, px: np.ndarray,
+                        radii: np.ndarray | None, level: np.ndarray | None = None):
+    """The residual target - rendered (H, W, 3) inside mask (H, W) at k Gaussians' projections
+    px (k, 2): (k, 3) float32, each Gaussian's averaged over about its own footprint (the residual
+    blurred at the `_BLUR_SIGMAS` step nearest a third of its radius, radii (k,) pixels). This is
+    SIRT's weighted mean of the residual a Gaussian contributes to, which keeps the colour
+    refinements from amplifying detail finer than the splats can show. Returns (residuals,
+    level): pass level back on the next round (the radii are then not needed)."""
+    import cv2
+
+    if level is None:
+        level = np.argmin(np.abs(np.asarray(radii)[:, None] / 3.0 - np.array(_BLUR_SIGMAS)[None]), axis=1)
+    err = (target - rendered) * mask[:, :, None]
+    delta = np.zeros((len(px), 3), np.float32)
+    for j, sg in enumerate(_BLUR_SIGMAS):
+        sel = level == j
+        if sel.any():
+            e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
+            delta[sel] = sample_image(e, px[sel])
+    return delta, level
+
+
 def refine_colours(gaussians: GaussianSet, camera, photo: np.ndarray, mask: np.ndarray,
                    iterations: int = 4, step: float = 1.0, min_weight: float = 0.05,
                    max_side: int = 1024) -> tuple[GaussianSet, dict]:
@@ -329,19 +351,7 @@ def refine_colours(gaussians: GaussianSet, camera, photo: np.ndarray, mask: np.n
         history.append(psnr(r.rgb, target, m))
         if it == iterations or not shows.any():
             break
-        if level is None:
-            # each Gaussian averages the residual over about its own footprint (SIRT: the
-            # weighted mean of the residual it contributes to, which keeps the iteration
-            # from amplifying detail finer than the splats can show)
-            sigma = r.meta["radii"][shows] / 3.0
-            level = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
-        err = (target - r.rgb) * m[:, :, None]
-        delta = np.zeros((int(shows.sum()), 3), np.float32)
-        for j, sg in enumerate(_BLUR_SIGMAS):
-            sel = level == j
-            if sel.any():
-                e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
-                delta[sel] = sample_image(e, px[shows][sel])
+        delta, level = footprint_residuals(r.rgb, target, m, px[shows], r.meta["radii"][shows], level)
         rgb[shows] = np.clip(rgb[shows] + step * delta, 0.0, 1.0)
         gs = gs.with_colors(rgb)
     return gs, {"psnr_before": round(float(history[0]), 3), "psnr_after": round(float(history[-1]), 3),

@@ -381,10 +381,7 @@ def refine_colours_views(gaussians, normals: np.ndarray, views: list[View], iter
     updates weighted by (1e-3 + cos^2) x sharpness (x `REFERENCE_WEIGHT` for the reference), so
     with the reference view alone this is refine_colours. Returns (recoloured set, figures:
     mean PSNR over the views' regions before and after)."""
-    import cv2
-
-    from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
-    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.recon.label_lifting import accumulate_weights
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.render import render
@@ -418,16 +415,8 @@ def refine_colours_views(gaussians, normals: np.ndarray, views: list[View], iter
             if it == iterations or not p["shows"].any():
                 continue
             sh = p["shows"]
-            if p["level"] is None:
-                sigma = r.meta["radii"][sh] / 3.0
-                p["level"] = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
-            err = (p["target"] - r.rgb) * p["m"][:, :, None]
-            delta = np.zeros((int(sh.sum()), 3), np.float32)
-            for j, sg in enumerate(_BLUR_SIGMAS):
-                sel = p["level"] == j
-                if sel.any():
-                    e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
-                    delta[sel] = sample_image(e, p["px"][sh][sel])
+            delta, p["level"] = footprint_residuals(r.rgb, p["target"], p["m"], p["px"][sh],
+                                                    r.meta["radii"][sh], p["level"])
             num[sh] += p["w"][sh, None] * delta
             den[sh] += p["w"][sh]
         history.append(float(np.mean(scores)) if scores else float("nan"))

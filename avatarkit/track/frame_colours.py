@@ -116,10 +116,7 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
     a selected Gaussian's update is the mean over the frames it shows in. Unselected Gaussians
     keep their colours. background: (3,) render background (None: each frame's median outside
     its mask). With one frame and every Gaussian selected this is refine_colours."""
-    import cv2
-
-    from avatarkit.recon.assemble import _BLUR_SIGMAS, psnr
-    from avatarkit.recon.image_sampling import sample_image
+    from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
     if not views:
@@ -150,16 +147,8 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
             sh = p["shows"]
             if it == iterations or not sh.any():
                 continue
-            if p["level"] is None:
-                sigma = r.meta["radii"][sh] / 3.0
-                p["level"] = np.argmin(np.abs(sigma[:, None] - np.array(_BLUR_SIGMAS)[None]), axis=1)
-            err = (p["target"] - r.rgb) * p["m"][:, :, None]
-            delta = np.zeros((int(sh.sum()), 3), np.float32)
-            for j, sg in enumerate(_BLUR_SIGMAS):
-                sel = p["level"] == j
-                if sel.any():
-                    e = cv2.GaussianBlur(err, (0, 0), sg) if sg > 0 else err
-                    delta[sel] = sample_image(e, p["px"][sh][sel])
+            delta, p["level"] = footprint_residuals(r.rgb, p["target"], p["m"], p["px"][sh],
+                                                    r.meta["radii"][sh], p["level"])
             num[sh] += delta
             den[sh] += 1.0
         history.append(float(np.mean(scores)))
