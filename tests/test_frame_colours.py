@@ -60,14 +60,20 @@ def test_colours_fused_over_frames_average_out_what_each_frame_adds():
     assert fused.info["updated"] == int(fused.updated.sum()) and fused.info["frames"] == 6
 
 
-def test_one_frame_recovers_its_own_colours():
-    """With one frame the stage is the portrait's colour refine: it reproduces that frame."""
+def _gradient_plane():
+    """A plane of Gaussians whose true colours are a gradient, its render (the one frame), and
+    the same plane in flat grey (the colours to recover): (X, Y, truth, cam, image, grey plane)."""
     xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
     X, Y = np.meshgrid(xs, ys)
     truth = np.stack([0.3 + X.ravel(), np.full(X.size, 0.6), 0.5 - Y.ravel()], 1)
     cam = _camera()
     image = (np.clip(render(_plane(truth, xs, ys), cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
-    g = _plane(np.full_like(truth, 0.5), xs, ys)
+    return X, Y, truth, cam, image, _plane(np.full_like(truth, 0.5), xs, ys)
+
+
+def test_one_frame_recovers_its_own_colours():
+    """With one frame the stage is the portrait's colour refine: it reproduces that frame."""
+    X, Y, truth, cam, image, g = _gradient_plane()
     fused = refine_colours_frames([FrameView(g, cam, image, np.ones((SIZE, SIZE), bool))],
                                   np.ones(len(g), bool), background=np.ones(3))
     inner = (np.abs(X.ravel()) < 0.08) & (np.abs(Y.ravel()) < 0.08)
@@ -178,12 +184,7 @@ def test_shared_weights_give_the_same_refine_and_outline():
 
     from avatarkit.track.frame_colours import frame_shows
 
-    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
-    X, Y = np.meshgrid(xs, ys)
-    truth = np.stack([0.3 + X.ravel(), np.full(X.size, 0.6), 0.5 - Y.ravel()], 1)
-    cam = _camera()
-    image = (np.clip(render(_plane(truth, xs, ys), cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
-    g = _plane(np.full_like(truth, 0.5), xs, ys)
+    X, Y, truth, cam, image, g = _gradient_plane()
     person = render(g, cam, np.ones(3)).alpha > 0.5
     mask = person.copy()
     mask[:, SIZE // 2 + 8:] = False                      # the right part is not compared: its Gaussians do not show
