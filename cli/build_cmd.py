@@ -42,12 +42,16 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--keyframes", type=click.IntRange(min=1, max=24), default=6, show_default=True,
               help="PORTRAIT is a video: fuse at most this many keyframes chosen by head pose "
               "(1: the single most frontal neutral frame).")
+@click.option("--register/--no-register", default=True, show_default=True,
+              help="PORTRAIT is a video that turns past what the face tracker follows (~55-60 degrees): "
+              "register those frames against a first build and fuse them as keyframes too (about doubles "
+              "the build of such a video).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
               face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
-              keyframes, preview, quiet):
+              keyframes, register, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
     a PORTRAIT video (MP4, MOV, MKV, AVI, WebM): by default from the whole video (tracked;
     keyframes covering the head's turns give the identity shape, colours and hair bounds;
@@ -94,7 +98,8 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
         if not quiet:
             click.echo("tracking the video ...", err=True)
         try:
-            avatar = build_video_avatar(portrait, options, keyframes=keyframes, progress=progress)
+            avatar = build_video_avatar(portrait, options, keyframes=keyframes, progress=progress,
+                                        register=register)
         except BaseException:
             if not quiet:
                 click.echo(" failed", err=True)

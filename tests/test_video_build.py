@@ -116,6 +116,24 @@ def test_a_video_without_a_face_is_bad_input(tmp_path, capsys):
     assert code == 2 and "empty.mp4" in line and "no face" in line and not (tmp_path / "a").exists()
 
 
+@pytest.mark.parametrize("flag, expected", [([], True), (["--no-register"], False)])
+def test_build_passes_the_register_switch_to_the_video_build(tmp_path, monkeypatch, flag, expected):
+    import avatarkit.track.video_build as video_build
+    from avatarkit.export.video import write_video
+
+    seen = {}
+
+    def fake(video, options, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt   # stop before anything is written
+
+    monkeypatch.setattr(video_build, "build_video_avatar", fake)
+    frames = [np.full((32, 32, 3), 128, np.uint8)] * 2
+    write_video(tmp_path / "v.mp4", frames, fps=10)
+    main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
+    assert seen["register"] is expected and not (tmp_path / "a").exists()
+
+
 def test_keyframes_must_be_positive(tmp_path, capsys):
     code = main(["build", str(tmp_path / "x.mp4"), "-o", str(tmp_path / "a"), "--keyframes", "0"])
     assert code == 2 and not (tmp_path / "a").exists()

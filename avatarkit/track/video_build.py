@@ -133,7 +133,8 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
 
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
-                       tracking=None, colour_span: tuple[int, int] | None = None):
+                       tracking=None, colour_span: tuple[int, int] | None = None,
+                       register: bool | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
@@ -141,7 +142,9 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     (`evaluate` reuses its face meshes), else the video is tracked here. The provenance gets
     `source_video` {video, frame (the reference), keyframes, mode, colour_frames}. colour_span:
     [start, end) video frames the frame_colours stage may use (None: the whole video;
-    `avatarkit evaluate` keeps the second half of the clip out of the build)."""
+    `avatarkit evaluate` keeps the second half of the clip out of the build). register: register
+    the frames the tracker lost at a turn's ends and fuse them as keyframes (`register_turned`;
+    None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness, yaw_pitch
@@ -187,7 +190,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if options.name is None:
             options.name = Path(video).stem
         turned = []
-        if views is not None and REGISTER_TURNED:
+        if views is not None and (REGISTER_TURNED if register is None else register):
             turned = turned_frames(result, yaw_pitch(result.clip.rotation)[:, 0])
         if turned:
             t0 = time.perf_counter()
