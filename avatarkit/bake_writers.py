@@ -65,15 +65,12 @@ class PreviewWriter:
                             self.size, self.size)
 
     def write(self, frame: BakeFrame) -> None:
-        from avatarkit.gaussians import GaussianSet
         from avatarkit.render import render
 
         if self._video is None:
             raise InputError("write() needs begin() first")
         s = self._static
-        gs = GaussianSet.concat([frame.gaussians(s, "face").replace(extras={}),
-                                 frame.gaussians(s, "hair").replace(extras={})])
-        self._video.append(render(gs, self.camera(frame), self.background).rgb)
+        self._video.append(render(frame.person(s), self.camera(frame), self.background).rgb)
         self.frames += 1
 
     def close(self) -> Path:

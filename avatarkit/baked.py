@@ -59,6 +59,14 @@ class BakeFrame:
         moving: SplatFrame = getattr(self, part)
         return rest.replace(means=moving.means, quats=moving.quats, scales=moving.scales)
 
+    def person(self, static: BakeStatic, hair: bool = True) -> GaussianSet:
+        """The whole avatar at this frame as one GaussianSet to render: the face part, then the
+        hair part (when `hair`), without per-Gaussian extras."""
+        parts = [self.gaussians(static, "face").replace(extras={})]
+        if hair:
+            parts.append(self.gaussians(static, "hair").replace(extras={}))
+        return GaussianSet.concat(parts)
+
 
 def check_fps(fps) -> None:
     """InputError unless `fps` (a `BakeStatic`'s frame rate) is a finite positive number."""

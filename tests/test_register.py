@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from avatarkit.track.register import (params_from_pose, photometric_error, pose_camera, pose_from_params,
-                                      register_frame, register_frame_exhaustive, scaled_camera)
+                                      register_frame, register_frame_exhaustive)
 
 
 @pytest.fixture(scope="module")
@@ -46,8 +46,8 @@ def test_a_scaled_camera_puts_every_splat_where_the_smaller_picture_has_it(scene
     gs, camera, ref_pose, truth, _ = scene
     cam = pose_camera(camera, ref_pose, truth)
     full = render(gs, cam).meta["means2d"]
-    half = render(gs, scaled_camera(cam, 64, 64)).meta["means2d"]
-    both = (render(gs, cam).meta["radii"] > 0) & (render(gs, scaled_camera(cam, 64, 64)).meta["radii"] > 0)
+    half = render(gs, cam.with_size(64, 64)).meta["means2d"]
+    both = (render(gs, cam).meta["radii"] > 0) & (render(gs, cam.with_size(64, 64)).meta["radii"] > 0)
     both = both.reshape(len(full), -1).all(axis=1)
     assert both.sum() > 100
     # pixel (i, j) covers [i, i+1) x [j, j+1) at both sizes: positions scale with the grid

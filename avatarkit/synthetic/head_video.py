@@ -104,15 +104,11 @@ def avatar_video(avatar, clip, camera: Camera, background=(1.0, 1.0, 1.0), stati
     benchmark compare against)."""
     from avatarkit.bake import BakeConfig, bake
     from avatarkit.export.images import to_uint8
-    from avatarkit.gaussians import GaussianSet
     from avatarkit.render import render
     from avatarkit.sim.config import SimConfig
 
     config = BakeConfig(sim=SimConfig(static=static_hair))
     static, frames = bake(avatar, clip, config)
     for frame in frames:
-        parts = [frame.gaussians(static, "face").replace(extras={})]
-        if avatar.has_hair:
-            parts.append(frame.gaussians(static, "hair").replace(extras={}))
-        r = render(GaussianSet.concat(parts), camera, background)
+        r = render(frame.person(static, avatar.has_hair), camera, background)
         yield SyntheticFrame(frame.index, frame.index / clip.fps, to_uint8(r.rgb))

@@ -322,7 +322,6 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
     from avatarkit.bake import BakeConfig, bake
     from avatarkit.export.images import to_uint8
     from avatarkit.export.video import VideoWriter
-    from avatarkit.gaussians import GaussianSet
     from avatarkit.render import render
     from avatarkit.sim.config import SimConfig
     from avatarkit.video import open_video
@@ -344,10 +343,7 @@ def render_and_compare(video, avatar_dir, result, build_frame, options: EvalOpti
             for i in range(T):
                 t0 = time.perf_counter()
                 frame = next(it)
-                parts = [frame.gaussians(static, "face").replace(extras={})]
-                if avatar.has_hair:
-                    parts.append(frame.gaussians(static, "hair").replace(extras={}))
-                g = GaussianSet.concat(parts)
+                g = frame.person(static, avatar.has_hair)
                 t1 = time.perf_counter()
                 r = render(g, result.camera, options.background)
                 t2 = time.perf_counter()

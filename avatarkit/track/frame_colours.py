@@ -19,7 +19,7 @@ above gained +0.11 / +0.63 dB on the two clips' second halves.
 The stage (`fuse_frame_colours`): track the video with the built avatar (as `avatarkit evaluate`
 does: `track_video(avatar=)`, the clip aligned to the reference keyframe), pose the avatar at up
 to `FRAMES` frames spread evenly over the eligible frames of the span (face found, confidence at
-least `MIN_CONFIDENCE_SHARE` of the best, head pose within `MAX_TURN` of the reference's), render
+least `track.keyframes.MIN_CONFIDENCE_SHARE` of the best, head pose within `MAX_TURN` of the reference's), render
 each from the tracked camera, and refine the colours of the selected Gaussians
 (`fusion_selection`: bald Gaussians on the head model's `REGIONS`; `outline_selection`: those on
 the posed renders' outline) against all those frames at once (`refine_colours_frames`: each round, the residual
@@ -44,8 +44,6 @@ REGIONS = ("neck", "lips", "mouth_interior")
 OUTLINE = True
 #: at most this many frames are fused
 FRAMES = 24
-#: frames tracked with less than this share of the best confidence are not used
-MIN_CONFIDENCE_SHARE = 0.6
 #: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
 #: pitch: `track.keyframes.MIN_SPREAD`, the turn below which a frame adds no view) are fused:
 #: this stage fuses what changes over time at the reference's view; turned views are the
@@ -167,18 +165,16 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
 def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAMES,
                   reference: int | None = None, max_turn: float = MAX_TURN) -> np.ndarray:
     """(K,) rows of a TrackResult to fuse: up to `count` spread evenly over the eligible rows
-    (face found, confidence >= MIN_CONFIDENCE_SHARE of the best, and, given the reference
-    row, a head pose within `max_turn` of its yaw / pitch) whose video frame is within
+    (those a keyframe may be: `keyframes.eligible_frames`, and, given the reference row, a
+    head pose within `max_turn` of its yaw / pitch) whose video frame is within
     span = [start, end) (None: all)."""
-    conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
+    from avatarkit.track.keyframes import eligible_frames, yaw_pitch
+
     frames = np.asarray(result.frame_index, np.int64)
-    ok = conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
-    ok &= conf > 0
+    ok = eligible_frames(result)
     if span is not None:
         ok &= (frames >= span[0]) & (frames < span[1])
     if reference is not None:
-        from avatarkit.track.keyframes import yaw_pitch
-
         yp = yaw_pitch(result.clip.rotation)
         ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
     rows = np.flatnonzero(ok)
@@ -243,7 +239,6 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
     import cv2
 
     from avatarkit.bake import BakeConfig, bake
-    from avatarkit.gaussians import GaussianSet
     from avatarkit.render import render
     from avatarkit.sim.config import SimConfig
 
@@ -256,10 +251,7 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
     kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MASK_ERODE + 1,) * 2) if MASK_ERODE else None)
     out = []
     for i, frame in zip(rows, baked):
-        parts = [frame.gaussians(static, "face").replace(extras={})]
-        if avatar.has_hair:
-            parts.append(frame.gaussians(static, "hair").replace(extras={}))
-        g = GaussianSet.concat(parts)
+        g = frame.person(static, avatar.has_hair)
         person = render(g, result.camera, np.ones(3)).alpha > 0.5
         mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
         view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
@@ -312,6 +304,6 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     return avatar, info
 
 
-__all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN", "MIN_CONFIDENCE_SHARE",
+__all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
            "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]

@@ -84,14 +84,6 @@ def pose_camera(reference_camera: Camera, reference_pose, pose) -> Camera:
     return Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height, w2c)
 
 
-def scaled_camera(camera: Camera, width: int, height: int) -> Camera:
-    """The same camera at another image size (intrinsics scaled with the pixel grid)."""
-    kx, ky = width / camera.width, height / camera.height
-    # pixel (i, j) covers [i, i+1) x [j, j+1) (render.camera): the principal point scales as is
-    return Camera(camera.fx * kx, camera.fy * ky, camera.cx * kx, camera.cy * ky,
-                  int(width), int(height), np.asarray(camera.world_to_camera, np.float64))
-
-
 def background_colour(image: np.ndarray) -> np.ndarray:
     """(3,) in [0, 1]: the median of the image's border pixels (the wall behind the person).
     image: (H, W, 3) uint8 or float in [0, 1]."""
@@ -151,7 +143,7 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
     above: only the image rows above this share of the height count (`head_rows`)."""
     target = _target(image, size)
     bg = background_colour(target)
-    cam0 = scaled_camera(reference_camera, target.shape[1], target.shape[0])
+    cam0 = reference_camera.with_size(target.shape[1], target.shape[0])
     n = [0]
 
     def cost(p) -> float:
@@ -209,4 +201,4 @@ def register_frame_exhaustive(gaussians, image: np.ndarray, reference_camera: Ca
 
 __all__ = ["COARSE_STEP", "REFINE_ROUNDS", "REFINE_STEPS", "SIZE", "Registration", "background_colour", "head_rows",
            "params_from_pose", "photometric_error", "pose_camera", "pose_from_params", "register_frame",
-           "register_frame_exhaustive", "scaled_camera"]
+           "register_frame_exhaustive"]
