@@ -148,6 +148,9 @@ def _finish(avatar, output, quiet, t0):
         if video.get("keyframes"):
             frames = ", ".join(str(k["frame"]) for k in video["keyframes"])
             click.echo(f"keyframes: {frames} (reference {video['frame']}; {video.get('mode')})", err=True)
+        if video.get("registered"):
+            found = ", ".join(f"{r['frame']} at {r['yaw_deg']:+.0f} deg yaw" for r in video["registered"])
+            click.echo(f"registered past the tracking: {found}", err=True)
         build = avatar.provenance.get("build", {})
         for w in build.get("warnings", []):
             click.echo(f"warning: {w}", err=True)

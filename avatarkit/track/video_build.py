@@ -193,6 +193,11 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if views is not None and (REGISTER_TURNED if register is None else register):
             turned = turned_frames(result, yaw_pitch(result.clip.rotation)[:, 0])
         if turned:
+            from avatarkit.recon.pipeline import STAGES
+
+            # told as a stage before the portrait build's (a first build and a few hundred renders)
+            if progress is not None:
+                progress("register", 0, len(STAGES), None)
             t0 = time.perf_counter()
             first = dataclasses.replace(options, n_bald=min(options.n_bald, FIRST_BUILD_COUNTS[0]),
                                         n_hair=min(options.n_hair, FIRST_BUILD_COUNTS[1]), preview=False)
@@ -203,6 +208,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             views.info["registered"] = figures
             source["registered"] = figures
             timings["register"] = time.perf_counter() - t0
+            if progress is not None:
+                progress("register", 0, len(STAGES), timings["register"])
         avatar = build_avatar(png, options, progress, views=views)
     if FRAME_COLOURS and len(kf) == 1:
         # only when the head does not turn: with turned keyframes the views colour the sides, and
