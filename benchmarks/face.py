@@ -6,11 +6,13 @@
    Target: detection + landmarks + iris <= 30 ms on 2 cores.
 2. Fit accuracy on renders of the template head with known pose and shape (512x512): rotation
    error (degrees) and the fitted head's landmark reprojection error (pixels, median), for the
-   landmark fit (`face.fit.fit_landmarks`) on the mirror-averaged face mesh (as `avatarkit face`
-   runs them, `face.overlay`) next to the closed-form solvePnP start it begins
-   from, the pose alone fitted with the true shape given, and the fit with the template's view
+   landmark fit (`face.fit.fit_landmarks`) on the mirror-averaged face mesh and the embedding
+   made from it (`template_embedding(mirror=True)`, session 10; as `avatarkit face` runs them,
+   `face.overlay`) next to the closed-form solvePnP start it begins
+   from, the pose alone fitted with the true shape given, the same mesh on the plain mesh's
+   embedding (session 9's fit: "before"), and the fit with the template's view
    correction (`fit_landmarks(view_correction="full")`, `face.view_correction`: calibrated on
-   renders of seeds disjoint from these) run in the same process, and the fit on the plain face
+   renders of seeds disjoint from these, for the plain embedding's rows) run in the same process, and the fit on the plain face
    mesh (`face_landmarks(mirror=False)`: not averaged with its mirror image, what the fit saw
    before session 9, and what the build and the tracker still use) as the baseline in the same
    process. The corrected fit's
@@ -71,10 +73,27 @@ def speed(repeats: int) -> None:
     print(f"baseline: cascade face detection    {t_cascade * 1e3:7.1f} ms   (ratio all/cascade {t_all / t_cascade:.2f})")
 
 
-def detected_targets(image: np.ndarray, emb, missing: str):
-    """The fit's landmark targets from the best face found in image (H, W, 3): (mirror-averaged
-    face mesh, as `avatarkit face` runs it (`face.overlay`), plain face mesh), or None (and the line `missing` printed) when
-    there is none."""
+class Embeddings:
+    """The template's two embeddings and their landmark models: `plain` for the plain face mesh
+    (the build, the tracker, the view correction), `mirror` for the mirror-averaged one (made
+    from it, `template_embedding(mirror=True)`; what `avatarkit face` fits)."""
+
+    def __init__(self, model):
+        from avatarkit.face.correspondence import template_embedding
+        from avatarkit.face.fit import LandmarkModel
+
+        self.plain = template_embedding()
+        self.mirror = template_embedding(mirror=True)
+        self.plain_lm = LandmarkModel(model, self.plain)
+        self.mirror_lm = LandmarkModel(model, self.mirror)
+
+
+def detected_targets(image: np.ndarray, embs: Embeddings, missing: str):
+    """The fits' landmark targets from the best face found in image (H, W, 3): a dict of
+    "fit" (the mirror-averaged face mesh on its own embedding, as `avatarkit face` runs them,
+    `face.overlay`), "mirror_plain" (the same mesh on the plain mesh's embedding: the fit of
+    session 9, and the view correction's rows) and "plain" (the plain mesh on its embedding),
+    or None (and the line `missing` printed) when there is none."""
     from avatarkit.face import detect_faces, face_landmarks
     from avatarkit.face.fit import LandmarkTargets
 
@@ -83,23 +102,23 @@ def detected_targets(image: np.ndarray, emb, missing: str):
         print(missing)
         return None
     face = max(faces, key=lambda q: q.score)
-    return tuple(LandmarkTargets.from_mesh(face_landmarks(image, face, mirror=m), emb, image.shape[:2][::-1])
-                 for m in (True, False))
+    size = image.shape[:2][::-1]
+    averaged, plain = (face_landmarks(image, face, mirror=m) for m in (True, False))
+    return {"fit": LandmarkTargets.from_mesh(averaged, embs.mirror, size),
+            "mirror_plain": LandmarkTargets.from_mesh(averaged, embs.plain, size),
+            "plain": LandmarkTargets.from_mesh(plain, embs.plain, size)}
 
 
 def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarray:
     """Rows per case (`fit_case`)."""
     from scipy.spatial.transform import Rotation
 
-    from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import LandmarkModel
     from avatarkit.head.model import HeadModel
     from avatarkit.recon.fit import portrait_focal, synthetic_head_view
     from avatarkit.synthetic.shading import AMBIENT
 
     model = HeadModel.template()
-    emb = template_embedding()
-    lm = LandmarkModel(model, emb)
+    embs = Embeddings(model)
     rng = np.random.default_rng(seed)
     size = 512
     f = portrait_focal(size, size)
@@ -114,21 +133,22 @@ def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarr
         rot = Rotation.from_euler("YXZ", [yaw, pitch, roll], degrees=True)
         s = synthetic_head_view(rotation=rot.as_rotvec(), size=size, distance=0.55, shape=shape,
                                 n_gaussians=40000, seed=i, light=light)
-        targets = detected_targets(s.image, emb, f"  case {i}: no face found (yaw {yaw:.0f})")
+        targets = detected_targets(s.image, embs, f"  case {i}: no face found (yaw {yaw:.0f})")
         if targets is None:
             continue
-        truth_px = s.truth.camera.project(lm.points_numpy(shape))[0]
-        rows.append(fit_case(model, emb, lm, targets, f, size, rot, shape, truth_px))
+        truth_px = s.truth.camera.project(embs.plain_lm.points_numpy(shape))[0]
+        rows.append(fit_case(model, embs, targets, f, size, rot, shape, truth_px))
         a = rows[-1]
         print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error {a[1]:5.2f} deg "
-              f"(start {a[0]:5.2f}, shape known {a[2]:5.2f}, view-corrected {a[3]:5.2f}, plain mesh {a[15]:5.2f}), "
+              f"(start {a[0]:5.2f}, shape known {a[2]:5.2f}, view-corrected {a[3]:5.2f}, plain embedding "
+              f"{a[21]:5.2f}, plain mesh {a[15]:5.2f}), "
               f"reprojection {a[5]:5.2f} px (view-corrected {a[6]:5.2f}); true landmarks vs detected {a[7]:5.2f} px")
     a = np.array(rows)
     summarise(a)
     return a
 
 
-def fit_case(model, emb, lm, both_targets, f: float, size: int, rot, shape: np.ndarray,
+def fit_case(model, embs: Embeddings, targets: dict, f: float, size: int, rot, shape: np.ndarray,
              truth_px: np.ndarray) -> tuple:
     """One render's row: rotation errors (deg) of the solvePnP start, the fit, the pose alone with
     the true shape and the fit with the view correction; reprojection (px) of the start, the
@@ -136,40 +156,46 @@ def fit_case(model, emb, lm, both_targets, f: float, size: int, rot, shape: np.n
     corrected fit's reprojection with its head's plain landmarks (the correction's offsets left
     out); the fit's and the corrected fit's signed (yaw, pitch, roll) errors (deg); then the
     baseline on the plain face mesh (`detected_targets`): its rotation error, reprojection and
-    its detected landmarks' distance to the true ones; the true (yaw, pitch, roll) (deg)."""
+    its detected landmarks' distance to the true ones; the true (yaw, pitch, roll) (deg); the fit
+    of the mirror-averaged mesh on the plain mesh's embedding (session 9's): its rotation error
+    and reprojection. The view correction's rows are the plain embedding's, so the corrected fit
+    runs on it; truth_px (K, 2) are the plain embedding's true points."""
     from scipy.spatial.transform import Rotation
 
     from avatarkit.face.fit import fit_landmarks, initial_pose, pixel_errors
     from avatarkit.recon.fit import view_camera
 
-    targets, plain_targets = both_targets
+    emb, lm, memb, mlm = embs.plain, embs.plain_lm, embs.mirror, embs.mirror_lm
+    fit_targets, mirror_plain, plain_targets = targets["fit"], targets["mirror_plain"], targets["plain"]
     base = fit_landmarks(model, emb, plain_targets, f, landmark_model=lm)
+    before = fit_landmarks(model, emb, mirror_plain, f, landmark_model=lm)
 
     err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
-    r0, t0 = initial_pose(lm.points_numpy(), targets, f)
-    px0 = view_camera(r0, t0, size, size, f).project(lm.points_numpy())[0]
-    fit = fit_landmarks(model, emb, targets, f, landmark_model=lm)
-    known = fit_landmarks(model, emb, targets, f, shape=shape, fit_shape=False, landmark_model=lm)
-    corrected = fit_landmarks(model, emb, targets, f, view_correction="full", landmark_model=lm)
+    r0, t0 = initial_pose(mlm.points_numpy(), fit_targets, f)
+    px0 = view_camera(r0, t0, size, size, f).project(mlm.points_numpy())[0]
+    fit = fit_landmarks(model, memb, fit_targets, f, landmark_model=mlm)
+    known = fit_landmarks(model, memb, fit_targets, f, shape=shape, fit_shape=False, landmark_model=mlm)
+    corrected = fit_landmarks(model, emb, mirror_plain, f, view_correction="full", landmark_model=lm)
     plain = view_camera(corrected.rotation, corrected.translation, size, size, f).project(
         lm.points_numpy(corrected.shape))[0]
     signed = lambda r: (Rotation.from_rotvec(r) * rot.inv()).as_euler("YXZ", degrees=True)
     return (err(r0), err(fit.rotation), err(known.rotation), err(corrected.rotation),
-            np.median(pixel_errors(px0, targets)), fit.median_error, corrected.median_error,
-            float(np.median(np.linalg.norm(truth_px - targets.xy, axis=1))),
-            float(np.median(pixel_errors(plain, targets))), *signed(fit.rotation), *signed(corrected.rotation),
+            np.median(pixel_errors(px0, fit_targets)), fit.median_error, corrected.median_error,
+            float(np.median(np.linalg.norm(truth_px - mirror_plain.xy, axis=1))),
+            float(np.median(pixel_errors(plain, mirror_plain))), *signed(fit.rotation), *signed(corrected.rotation),
             err(base.rotation), base.median_error,
             float(np.median(np.linalg.norm(truth_px - plain_targets.xy, axis=1))),
-            *rot.as_euler("YXZ", degrees=True))
+            *rot.as_euler("YXZ", degrees=True), err(before.rotation), before.median_error)
 
 
 def summarise(a: np.ndarray) -> None:
     m = np.median(a, axis=0)
     print(f"median rotation error        {m[1]:6.2f} deg   (solvePnP start {m[0]:.2f}; with the view "
-          f"correction {m[3]:.2f}: ratio {m[3] / m[1]:.2f}; baseline, plain face mesh {m[15]:.2f}: ratio "
-          f"{m[1] / m[15]:.2f})   target <= 2 deg")
+          f"correction {m[3]:.2f}: ratio {m[3] / m[1]:.2f}; before: the plain mesh's embedding {m[21]:.2f}: ratio "
+          f"{m[1] / m[21]:.2f}; baseline, plain face mesh {m[15]:.2f}: ratio {m[1] / m[15]:.2f})   target <= 2 deg")
     print(f"median reprojection error    {m[5]:6.2f} px    (solvePnP start {m[4]:.2f}; with the view correction "
-          f"{m[6]:.2f}, its head's plain landmarks {m[8]:.2f}; plain face mesh {m[16]:.2f})   target <= 2 px")
+          f"{m[6]:.2f}, its head's plain landmarks {m[8]:.2f}; the plain mesh's embedding {m[22]:.2f}; "
+          f"plain face mesh {m[16]:.2f})   target <= 2 px")
     print(f"mean signed error (yaw, pitch, roll) deg: fit {np.round(a[:, 9:12].mean(0), 2)}, with the view "
           f"correction {np.round(a[:, 12:15].mean(0), 2)}")
     print(f"median rotation error, shape known {m[2]:6.2f} deg   (pose alone fitted: what is left "
@@ -191,8 +217,6 @@ def accuracy_avatar(cases: int, folder: str) -> None:
     from scipy.spatial.transform import Rotation
 
     from avatarkit.avatar import load_avatar
-    from avatarkit.face.correspondence import template_embedding
-    from avatarkit.face.fit import LandmarkModel
     from avatarkit.head.model import HeadParams
     from avatarkit.motion.clip import MotionClip
     from avatarkit.recon.fit import portrait_focal
@@ -200,8 +224,7 @@ def accuracy_avatar(cases: int, folder: str) -> None:
 
     avatar = load_avatar(folder)
     model, shape = avatar.head_model, np.asarray(avatar.shape, np.float64)
-    emb = template_embedding()
-    lm = LandmarkModel(model, emb)
+    embs = Embeddings(model)
     rng = np.random.default_rng(0)
     size = 512
     f = portrait_focal(size, size)
@@ -215,19 +238,19 @@ def accuracy_avatar(cases: int, folder: str) -> None:
     print(f"\n== fit on {cases} renders of the avatar {folder} ({size}x{size}), same pose ranges, its own shape")
     rows = []
     for i, frame in enumerate(avatar_video(avatar, clip, camera)):
-        targets = detected_targets(frame.rgb, emb, f"  case {i}: no face found (yaw {angles[i, 0]:.0f})")
+        targets = detected_targets(frame.rgb, embs, f"  case {i}: no face found (yaw {angles[i, 0]:.0f})")
         if targets is None:
             continue
         params = HeadParams.from_clip(clip, frames=[i])
         params.shape = shape.astype(np.float32)
-        truth_px = camera.project(emb.points(model.forward(params)[0][0], model.faces))[0]
+        truth_px = camera.project(embs.plain.points(model.forward(params)[0][0], model.faces))[0]
         # the fit's camera looks from the origin; the render's camera is the same pinhole, so
         # rotations compare directly
-        rows.append(fit_case(model, emb, lm, targets, f, size, rots[i], shape, truth_px))
+        rows.append(fit_case(model, embs, targets, f, size, rots[i], shape, truth_px))
         a = rows[-1]
         print(f"  case {i}: yaw {angles[i, 0]:6.1f} pitch {angles[i, 1]:5.1f} roll {angles[i, 2]:5.1f}: rotation "
               f"error {a[1]:5.2f} deg (start {a[0]:5.2f}, shape known {a[2]:5.2f}, view-corrected {a[3]:5.2f}, "
-              f"plain mesh {a[15]:5.2f}), "
+              f"plain embedding {a[21]:5.2f}, plain mesh {a[15]:5.2f}), "
               f"reprojection {a[5]:5.2f} px; true landmarks vs detected {a[7]:5.2f} px")
     summarise(np.array(rows))
 
@@ -279,10 +302,12 @@ def main() -> None:
     shaded = {seed: accuracy(args.cases, LIGHT, seed, "shaded: ") for seed in seeds}
     flat = accuracy(args.cases, None, 0, "flat colours (the renders of sessions 4-6): ")
     print("\n== summary (median rotation error deg / reprojection px; with the view correction in brackets; "
-          "baseline: the plain face mesh)")
+          "before: the mirror-averaged mesh on the plain mesh's embedding, session 9's fit; baseline: the plain "
+          "face mesh)")
     for name, a in pools(shaded) + [("flat, seed 0", flat)]:
         m = np.median(a, axis=0)
-        print(f"  {name:34s} {m[1]:5.2f} deg ({m[3]:.2f})   {m[5]:5.2f} px ({m[6]:.2f})   "
+        print(f"  {name:38s} {m[1]:5.2f} deg ({m[3]:.2f})   {m[5]:5.2f} px ({m[6]:.2f})   "
+              f"before (plain embedding) {m[21]:5.2f} deg {m[22]:5.2f} px   "
               f"plain face mesh {m[15]:5.2f} deg {m[16]:5.2f} px   n={len(a)}")
     print("  targets <= 2 deg, <= 2 px on the shaded renders, all seeds pooled")
     if len(shaded) > 1:
