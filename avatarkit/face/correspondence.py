@@ -18,6 +18,11 @@ cast from the frontal view alone. Triangulating over yaw -45..45 and pitch +-15 
 one point that best agrees with what the mesh model says in all of them (its answers drift
 with the view on a head whose proportions are not a person's); landmarks whose point still
 misses the views' answers by more than `MAX_RESIDUAL` eye distances (RMS) are left out.
+A second file, for the mirror-averaged face mesh (`face_landmarks(mirror=True)`, what
+`avatarkit face` fits), is made the same way from that mesh at the 35 views of
+`MIRROR_TEMPLATE_VIEWS` (`template_embedding(mirror=True)`): on 120 shaded renders of the
+template (benchmarks/face.py) the fit on it reads the pose 2.19 deg median against 2.37 on the
+plain mesh's embedding (docs/face.md, session 10).
 """
 from __future__ import annotations
 
