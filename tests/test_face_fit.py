@@ -72,8 +72,10 @@ def test_bad_embedding_files(tmp_path, model, bad):
         read_embedding(tmp_path / "absent.npz")
 
 
-def test_shipped_template_embedding(model):
-    emb = template_embedding().check(model.num_faces)
+@pytest.mark.parametrize("mirror", [False, True])
+def test_shipped_template_embedding(model, mirror):
+    """Both shipped embeddings: the plain face mesh's and the mirror-averaged one's."""
+    emb = template_embedding(mirror).check(model.num_faces)
     assert len(emb) > 300 and len(np.unique(emb.mesh_index)) == len(emb)
     assert np.abs(emb.bary.sum(1) - 1).max() < 1e-6 and (emb.bary > -1e-9).all()
     pts = emb.points(model.v_template, model.faces)
@@ -203,3 +205,28 @@ def test_outline_weight_scales_only_the_outline_points():
     out = with_outline_weight(t, 0.25)
     assert np.allclose(out.weight, [1.0, 0.5, 0.5, 0.25, 3.0])
     assert out.xy is t.xy and out.normal is t.normal and out.iod == t.iod
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not models.models_available(), reason="face models not installed")
+def test_mirror_embedding_is_what_the_script_makes(model):
+    """The shipped embedding for the mirror-averaged face mesh is `make_template_embedding` with
+    that mesh at `MIRROR_TEMPLATE_VIEWS` (scripts/make_face_correspondence.py --mirror): the
+    same points on the same triangles (the renders and the mesh model are deterministic)."""
+    from avatarkit.face.correspondence import MIRROR_TEMPLATE_VIEWS, make_template_embedding
+
+    made, _ = make_template_embedding(MIRROR_TEMPLATE_VIEWS, mirror=True)
+    shipped = template_embedding(mirror=True)
+    assert np.array_equal(made.mesh_index, shipped.mesh_index)
+    assert np.array_equal(made.face_idx, shipped.face_idx)
+    assert np.abs(made.bary - shipped.bary).max() < 1e-6
+
+
+def test_mirror_embedding_views_cover_the_pitch():
+    """The views the mirror-averaged mesh's embedding is made from: frontal first (the points
+    are cast along its rays), yaw to +-45 and pitch to +-20 degrees, every pair once."""
+    from avatarkit.face.correspondence import MIRROR_TEMPLATE_VIEWS
+
+    v = np.array(MIRROR_TEMPLATE_VIEWS)
+    assert tuple(v[0]) == (0.0, 0.0) and len(set(map(tuple, v))) == len(v) == 35
+    assert v[:, 0].min() == -45 and v[:, 0].max() == 45 and v[:, 1].min() == -20 and v[:, 1].max() == 20

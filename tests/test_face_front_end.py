@@ -112,3 +112,16 @@ def test_build_options_for_the_face_front_end(tmp_path, capsys):
     code, err = _run(["build", SAMPLE, "-o", tmp_path / "a", "--landmark-embedding", bad, "-q"], capsys)
     assert code == 2 and "lmk_b_coords" in err and err.count("\n") == 1
     assert not (tmp_path / "a").exists()
+
+
+@needs_models
+def test_face_overlay_fits_the_mirror_averaged_mesh_on_its_own_embedding():
+    """`avatarkit face` fits the mirror-averaged face mesh with the embedding made from it
+    (`template_embedding(mirror=True)`), not the plain mesh's."""
+    from avatarkit.face.correspondence import template_embedding
+    from avatarkit.face.overlay import look_at_faces
+    from avatarkit.recon.image_io import read_image
+
+    look = look_at_faces(read_image(SAMPLE))
+    assert look.summary["fit"]["landmarks"] == len(template_embedding(mirror=True))
+    assert len(template_embedding(mirror=True)) != len(template_embedding())

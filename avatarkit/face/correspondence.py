@@ -18,6 +18,11 @@ cast from the frontal view alone. Triangulating over yaw -45..45 and pitch +-15 
 one point that best agrees with what the mesh model says in all of them (its answers drift
 with the view on a head whose proportions are not a person's); landmarks whose point still
 misses the views' answers by more than `MAX_RESIDUAL` eye distances (RMS) are left out.
+A second file, for the mirror-averaged face mesh (`face_landmarks(mirror=True)`, what
+`avatarkit face` fits), is made the same way from that mesh at the 35 views of
+`MIRROR_TEMPLATE_VIEWS` (`template_embedding(mirror=True)`): on 120 shaded renders of the
+template (benchmarks/face.py) the fit on it reads the pose 2.19 deg median against 2.37 on the
+plain mesh's embedding (docs/face.md, session 10).
 """
 from __future__ import annotations
 
@@ -47,6 +52,13 @@ TEMPLATE_FILE = Path(__file__).with_name("data") / "template_mediapipe_embedding
 MAX_RESIDUAL = 0.08
 TEMPLATE_VIEWS = ((0.0, 0.0), (-15.0, 0.0), (15.0, 0.0), (-30.0, 0.0), (30.0, 0.0), (-45.0, 0.0),
                   (45.0, 0.0), (0.0, -15.0), (0.0, 15.0))
+#: the embedding for the mirror-averaged face mesh (`face_landmarks(mirror=True)`, what
+#: `avatarkit face` fits): made from that mesh, at every view of a grid (yaw -45..45 by 15,
+#: pitch -20..20 by 10 degrees; the frontal one first), so the vertical placement of each point
+#: is triangulated from pitched views too, not only its horizontal one from turned views
+MIRROR_TEMPLATE_FILE = Path(__file__).with_name("data") / "template_mediapipe_embedding_mirror.npz"
+MIRROR_TEMPLATE_VIEWS = ((0.0, 0.0),) + tuple((float(y), float(p)) for y in range(-45, 46, 15)
+                                             for p in range(-20, 21, 10) if (y, p) != (0, 0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,18 +140,21 @@ def read_embedding(path: str | os.PathLike, num_faces: int | None = None) -> Lan
     return emb.check(num_faces, p) if num_faces is not None else emb
 
 
-def template_embedding() -> LandmarkEmbedding:
-    """The shipped embedding of the built-in template head."""
-    return read_embedding(TEMPLATE_FILE)
+def template_embedding(mirror: bool = False) -> LandmarkEmbedding:
+    """The shipped embedding of the built-in template head: for the plain face mesh, or with
+    `mirror` for the mirror-averaged one (`face_landmarks(mirror=True)`; each made from the
+    mesh it is used with)."""
+    return read_embedding(MIRROR_TEMPLATE_FILE if mirror else TEMPLATE_FILE)
 
 
-def embedding_for(model, path: str | os.PathLike | None = None) -> LandmarkEmbedding | None:
-    """The embedding to use with `model`: `path` if given, the shipped one for the template,
-    None for any other model without a file (the fit then uses the few named landmarks)."""
+def embedding_for(model, path: str | os.PathLike | None = None, mirror: bool = False) -> LandmarkEmbedding | None:
+    """The embedding to use with `model`: `path` if given, the shipped one for the template
+    (for the mirror-averaged face mesh with `mirror`), None for any other model without a file
+    (the fit then uses the few named landmarks)."""
     if path is not None:
         return read_embedding(path, model.num_faces)
     if model.name == "template":
-        return template_embedding().check(model.num_faces, TEMPLATE_FILE)
+        return template_embedding(mirror).check(model.num_faces, MIRROR_TEMPLATE_FILE if mirror else TEMPLATE_FILE)
     return None
 
 
@@ -226,9 +241,12 @@ def _ray_through(frontal, cameras, xy, hits_f, oval):
 
 
 def make_template_embedding(views=TEMPLATE_VIEWS, size: int = 512, n_gaussians: int = 80000,
-                            seed: int = 0, max_residual: float = MAX_RESIDUAL) -> tuple[LandmarkEmbedding, dict]:
+                            seed: int = 0, max_residual: float = MAX_RESIDUAL,
+                            mirror: bool = False) -> tuple[LandmarkEmbedding, dict]:
     """The template's embedding (module docstring) and a report: per view, the detection score,
-    the face-mesh presence and the share of landmarks whose ray hit the head."""
+    the face-mesh presence and the share of landmarks whose ray hit the head. mirror: from the
+    mirror-averaged face mesh (`MIRROR_TEMPLATE_FILE` is made with it and
+    `MIRROR_TEMPLATE_VIEWS`); the views are (yaw, pitch) degrees, the frontal one first."""
     import math
 
     from avatarkit.face.detect import detect_faces
@@ -252,9 +270,9 @@ def make_template_embedding(views=TEMPLATE_VIEWS, size: int = 512, n_gaussians: 
         if not faces:
             raise InputError(f"no face found on the template rendered at yaw {yaw}, pitch {pitch}")
         face = max(faces, key=lambda f: f.score)
-        # the plain mesh, as the shipped embedding was made (session 9 made the mirror-averaged
-        # mesh the stills' default; the tracker runs the plain one)
-        mesh = face_landmarks(view.image, face, mirror=False)
+        # the mesh kind the embedding is for: the plain one (the build, the tracker) or the
+        # mirror-averaged one (`avatarkit face`)
+        mesh = face_landmarks(view.image, face, mirror=mirror)
         centre, dirs = pixel_rays(view.truth.camera, mesh.points[:, :2].astype(np.float64))
         f, b, _ = ray_triangle_hits(centre, dirs, tri)
         hits_f[i], hits_b[i] = f, b

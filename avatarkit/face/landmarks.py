@@ -60,8 +60,10 @@ MESH_MIDLINE = (0, 1, 2, 4, 5, 6, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 
 #: where it was measured to help: the landmark fit of `avatarkit face` (`face.overlay`; the
 #: benchmark's 36 shaded template renders 2.25 -> 1.82 deg, 1.98 -> 1.86 px; 36 renders of
 #: disjoint seeds 3.19 -> 2.63 deg; the avatar from samples/portrait.jpg 10.20 -> 10.12 deg).
-#: Not the build's fit (front-view PSNR 28.30 -> 28.21 dB with it: the shipped embedding was
-#: made from the plain mesh) nor the tracker (`TrackOptions.mirror_landmarks`; docs/face.md).
+#: Not the build's fit (front-view PSNR 28.30 -> 28.21 dB with it on the plain mesh's embedding,
+#: 28.11 on the one made from the averaged mesh, session 10) nor the tracker
+#: (`TrackOptions.mirror_landmarks`; docs/face.md). `avatarkit face` fits it on its own
+#: embedding (`correspondence.template_embedding(mirror=True)`; 120 renders 2.37 -> 2.19 deg).
 MIRROR_AVERAGE = False
 
 

@@ -64,7 +64,8 @@ def look_at_faces(image: np.ndarray, face_index: int | None = None, fit: bool = 
         from avatarkit.recon.fit import portrait_focal, view_camera
 
         model = HeadModel.template() if model is None else model
-        emb = embedding if embedding is not None else embedding_for(model)
+        # the embedding made from the mirror-averaged mesh these are (`correspondence.MIRROR_TEMPLATE_FILE`)
+        emb = embedding if embedding is not None else embedding_for(model, mirror=True)
         if emb is not None:
             h, w = image.shape[:2]
             focal = portrait_focal(w, h)
