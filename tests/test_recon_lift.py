@@ -123,6 +123,42 @@ def test_grazing_discs_take_the_fill_not_the_silhouettes_edge(view):
     np.testing.assert_allclose(bald.colors[head_on], np.clip(photo, 0, 1), atol=1e-6)
 
 
+def test_discs_the_jaw_stretches_open_are_the_mouth_unless_the_photo_saw_them(view):
+    """The lips' faces whose jaw weights differ across them stretch over the parted lips when
+    the jaw opens; a closed-mouth photo does not see most of their discs, which take the mouth's
+    colour (the fill used to spread the lips' pink onto them)."""
+    from avatarkit.recon.bald_discs import MOUTH_RGB, PART_SKIN, _opening_faces, sample_bald
+    from avatarkit.recon.visibility import depth_map, seen_from
+
+    fit = view.truth
+    model = fit.model
+    opening = _opening_faces(model)
+    faces = np.asarray(model.faces)
+    lips = (model.region_mask("lips") | model.region_mask("mouth_interior"))[faces].sum(axis=1) >= 2
+    assert opening.sum() >= 10 and not (opening & ~lips).any()
+
+    def area(v):
+        t = v[faces]
+        return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+    params = model.neutral_params(1)
+    rest = model.forward(params)[0][0]
+    params.jaw[0, 0] = 0.25
+    ratio = area(model.forward(params)[0][0]) / np.maximum(area(rest), 1e-12)
+    assert np.median(ratio[opening]) > 3.0 and np.median(ratio[lips & ~opening]) < 1.5
+    n = 20000
+    bald, _ = lift_bald(view.image, view.analysis, view.segmentation, _plain(view), fit, n,
+                        np.random.default_rng(0))
+    means, quats, scales, ids, normals = sample_bald(fit, n, np.random.default_rng(0))
+    geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
+    depth, _, dcam = depth_map(geo, fit.camera)
+    seen, _, _ = seen_from(means, normals, fit.camera, depth, dcam)
+    on = opening[ids] & (bald.extras["part"] == PART_SKIN)
+    unseen = on & ~seen
+    assert unseen.sum() >= 10
+    np.testing.assert_allclose(bald.colors[unseen], np.broadcast_to(MOUTH_RGB, (int(unseen.sum()), 3)), atol=1e-6)
+
+
 def _hair_view(view_):
     """The synthetic view with a hair cap: the head's projection above the brows, grown 10 px."""
     import cv2

@@ -133,4 +133,8 @@ def test_a_tracked_result_carries_its_calibrated_embedding():
     assert 1e-4 < np.median(np.linalg.norm(off, axis=1)) < 6e-3
     plain = track_frames(frames, model, np.zeros(model.num_shape), (192, 192), 24.0,
                          TrackOptions(smoothing=1.0, calibration_frames=0))
-    assert plain.embedding.offset is None
+    # uncalibrated: only the offsets the template's embedding comes with (its lower inner lip
+    # re-hosted on the jaw, `correspondence.carried_by_jaw`)
+    from avatarkit.face.correspondence import embedding_for
+
+    np.testing.assert_array_equal(plain.embedding.offset, embedding_for(model).offset)

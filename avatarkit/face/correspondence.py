@@ -41,6 +41,10 @@ FACE_OVAL = (10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365
 #: along the upper) and the inner one (from 78)
 LIPS_OUTER = (61, 146, 91, 181, 84, 17, 314, 405, 321, 375, 291, 409, 270, 269, 267, 0, 37, 39, 40, 185)
 LIPS_INNER = (78, 95, 88, 178, 87, 14, 317, 402, 318, 324, 308, 415, 310, 311, 312, 13, 82, 81, 80, 191)
+#: the inner contour's lower half (corners excluded): the edge of the lower lip, which the jaw carries
+LOWER_INNER_LIP = (95, 88, 178, 87, 14, 317, 402, 318, 324)
+#: a vertex the jaw carries: skinning weight to the jaw at least this
+JAW_CARRIED = 0.5
 #: a few named mesh points
 NAMED = {"nose_tip": 1, "chin": 152, "forehead": 10, "mouth_right": 61, "mouth_left": 291,
          "upper_lip": 13, "lower_lip": 14, "right_eye_outer": 33, "right_eye_inner": 133,
@@ -149,13 +153,60 @@ def template_embedding(mirror: bool = False) -> LandmarkEmbedding:
 
 def embedding_for(model, path: str | os.PathLike | None = None, mirror: bool = False) -> LandmarkEmbedding | None:
     """The embedding to use with `model`: `path` if given, the shipped one for the template
-    (for the mirror-averaged face mesh with `mirror`), None for any other model without a file
-    (the fit then uses the few named landmarks)."""
+    (for the mirror-averaged face mesh with `mirror`; its lower inner lip carried by the jaw:
+    `carried_by_jaw`), None for any other model without a file (the fit then uses the few
+    named landmarks)."""
     if path is not None:
         return read_embedding(path, model.num_faces)
     if model.name == "template":
-        return template_embedding(mirror).check(model.num_faces, MIRROR_TEMPLATE_FILE if mirror else TEMPLATE_FILE)
+        file = MIRROR_TEMPLATE_FILE if mirror else TEMPLATE_FILE
+        return carried_by_jaw(template_embedding(mirror).check(model.num_faces, file), model)
     return None
+
+
+def carried_by_jaw(embedding: LandmarkEmbedding, model, mesh_points=LOWER_INNER_LIP,
+                   min_weight: float = JAW_CARRIED) -> LandmarkEmbedding:
+    """The same landmarks with those of `mesh_points` that sit where the jaw does not reach
+    re-hosted on the nearest vertex of the head model's lips that the jaw carries (skinning
+    weight >= `min_weight`), with the offset that keeps each one's rest position.
+
+    Why: the template's embedding is cast from renders of its closed mouth, where the face
+    mesh's lower inner lip lies on the upper lip's surface (jaw weight 0): a fit can then open
+    those points only through expressions that pull the upper lip down, and the avatar's
+    mouth hardly opens (grey clip: the inner-lip gap detected on the renders grew 0.20 px per
+    pixel of the video's). At rest nothing moves; with the jaw open the points follow the lower
+    lip. Rows whose host already has the jaw's weight, and other models' embeddings, are left
+    as they are."""
+    from avatarkit.face.fit import JAW_JOINT
+
+    faces = np.asarray(model.faces)
+    if model.weights.shape[1] <= JAW_JOINT or "lips" not in model.regions:
+        return embedding
+    w = np.asarray(model.weights[:, JAW_JOINT], np.float64)
+    rest = np.asarray(model.v_template, np.float64)
+    carried = np.flatnonzero(model.region_mask("lips") & (w >= min_weight))
+    if len(carried) == 0:
+        return embedding
+    rows = [k for k, m in enumerate(np.asarray(embedding.mesh_index)) if int(m) in set(mesh_points)]
+    bary_w = np.einsum("kj,kj->k", embedding.bary, w[faces[embedding.face_idx]])
+    rows = [k for k in rows if bary_w[k] < min_weight]
+    if not rows:
+        return embedding
+    points = embedding.points(rest, faces)                                   # (K, 3) offsets included
+    face_idx, bary = embedding.face_idx.copy(), embedding.bary.copy()
+    offset = np.zeros((len(embedding), 3)) if embedding.offset is None else embedding.offset.copy()
+    # a triangle holding each vertex, and the vertex's corner in it
+    tri_of = np.full(len(rest), -1, np.int64)
+    corner = np.zeros(len(rest), np.int64)
+    for j in range(3):
+        tri_of[faces[:, j]] = np.arange(len(faces))
+        corner[faces[:, j]] = j
+    for k in rows:
+        v = carried[np.argmin(np.linalg.norm(rest[carried] - points[k], axis=1))]
+        face_idx[k] = tri_of[v]
+        bary[k] = np.eye(3)[corner[v]]
+        offset[k] = points[k] - rest[v]
+    return LandmarkEmbedding(face_idx, bary, embedding.mesh_index, offset)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,7 +12,8 @@ surface and fades to the skin model's mean colour a few centimetres away (the ba
 head). Skin discs seen at a grazing angle (facing the camera less than `GRAZING`) take the
 photo only in part, blended toward that fill made from the discs seen head-on (`photo_weight`):
 their pixels are mostly the silhouette's edge. Eyeballs: seen through the lids, the photo; elsewhere iris (the photo's colour at the
-eye landmarks) or sclera. Mouth interior: a dark red. Extras: `binding` (the sampled triangle,
+eye landmarks) or sclera. Mouth interior, and the unseen discs on the lips' faces that the jaw
+stretches open (`_opening_faces`): a dark red. Extras: `binding` (the sampled triangle,
 int32) and `part` (uint8: 0 skin, 1 eye, 2 mouth interior).
 """
 from __future__ import annotations
@@ -38,6 +39,8 @@ GRAZING = 0.5
 SCLERA_RGB = (0.86, 0.83, 0.8)
 MOUTH_RGB = (0.32, 0.12, 0.12)
 PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
+#: a lips face whose vertices' jaw weights differ by this much opens with the jaw (`_opening_faces`)
+OPENING_SPREAD = 0.5
 
 
 def propagate_colors(points: np.ndarray, colors: np.ndarray, known: np.ndarray, fallback,
@@ -94,6 +97,23 @@ def _face_parts(model) -> np.ndarray:
     if "eyes" in model.regions:
         part[model.region_mask("eyes")[f].sum(axis=1) >= 2] = PART_EYE
     return part
+
+
+def _opening_faces(model) -> np.ndarray:
+    """(F,) bool: the lips' and mouth's faces that open with the jaw: their vertices' skinning
+    weights to the jaw differ by at least `OPENING_SPREAD`, so the jaw stretches them across
+    the parted lips (the template's: 45 faces, 148 mm^2 at rest, 1009 mm^2 at 0.25 rad)."""
+    from avatarkit.face.fit import JAW_JOINT
+
+    f = model.faces
+    if model.weights.shape[1] <= JAW_JOINT:
+        return np.zeros(len(f), bool)
+    mouth = np.zeros(model.num_vertices, bool)
+    for region in ("lips", "mouth_interior"):
+        if region in model.regions:
+            mouth |= model.region_mask(region)
+    w = np.asarray(model.weights[:, JAW_JOINT], np.float64)[f]
+    return (mouth[f].sum(axis=1) >= 2) & (w.max(axis=1) - w.min(axis=1) >= OPENING_SPREAD)
 
 
 def _face_weights(model) -> np.ndarray:
@@ -196,6 +216,10 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
                 fill[iris_face[ids[eye]]] = iris_rgb[k]
         rgb[eye] = np.where(known[eye][:, None], rgb[eye], fill)
     rgb[part == PART_MOUTH] = MOUTH_RGB
+    # the lips' faces that the jaw stretches across the parted lips: unseen in the photo (a
+    # closed mouth hides them), they are the mouth's inside when they show, not the lips'
+    # colour the fill spreads onto them (on the shared clips a pink sheet filled the open mouth)
+    rgb[_opening_faces(model)[ids] & ~known] = MOUTH_RGB
     opacity = rng.uniform(0.95, 1.0, n)
     out = GaussianSet.from_colors(means, quats, scales, opacity, np.clip(rgb, 0, 1),
                                   extras={"binding": ids, "part": part})

@@ -83,7 +83,12 @@ class TrackOptions:
     against 0.034). The face outline's points count at 0.3 of the inner ones (session 7: on the
     shaded template video with a mouth interior, median rotation error over the video and its
     mirror 3.71 -> 3.23 deg, jaw 0.041 -> 0.045 rad; the real clips 2.19 / 1.55 -> 2.17 / 1.53
-    px): the outline is a silhouette that the face mesh places with a pose-dependent bias."""
+    px): the outline is a silhouette that the face mesh places with a pose-dependent bias.
+    The expression prior is 1e-3 (session 10; it was 1e-2, the portrait fit's): a real smile or
+    wide-open mouth needs coefficients the stronger prior held back (glasses clip, chosen there:
+    the fitted mouth width followed the detected one with slope 0.02, now 0.38; landmark error
+    2.16 -> 1.84 px), and the rendered heads do not pay for it (shaded template video 3.11 ->
+    3.10 deg, jaw 0.046 -> 0.047 rad; grey clip 1.48 -> 1.36 px)."""
 
     face_index: int = 0
     smoothing: float = 4.0
@@ -92,7 +97,7 @@ class TrackOptions:
     focal: float | None = None
     iterations: int = 8
     depth_weight: float = 0.0
-    expr_prior: float = 1e-2
+    expr_prior: float = 1e-3
     jaw_prior: float = 1e-3
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
