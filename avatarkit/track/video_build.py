@@ -35,6 +35,9 @@ from typing import Callable
 
 import numpy as np
 
+# a lost stretch is a turn beyond the tracking when a tracked frame beside it turned this much
+from avatarkit.track.keyframes import TURNED_EDGE
+
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
 
@@ -43,9 +46,6 @@ FRAME_COLOURS = True
 IDENTITY_EXPR = 10
 #: register the frames the tracker lost at a turn's ends against a first build (`register_turned`)
 REGISTER_TURNED = True
-#: a stretch of lost frames is a turn beyond the tracking when a tracked frame beside it has
-#: turned at least this much (radians; the tracker follows to ~40-50 degrees)
-TURNED_EDGE = math.radians(25.0)
 #: the coarse yaw search spans this much (radians) before and beyond the last tracked yaw
 SEARCH_BEFORE, SEARCH_BEYOND = math.radians(5.0), math.radians(55.0)
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
