@@ -130,8 +130,7 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     print("  keyframes' yaw, tracked (true): " + ", ".join(
         f"{k['yaw_deg']:.0f} ({true[k['frame']]:.0f})" for k in prov["source_video"]["keyframes"]))
     for r in prov["source_video"].get("registered", []):
-        what = "at the tracking's edge" if r.get("edge") else "past the tracking"
-        print(f"  registered {what}: frame {r['frame']} at yaw {r['yaw_deg']:.1f} (true "
+        print(f"  registered by the first build: frame {r['frame']} at yaw {r['yaw_deg']:.1f} (true "
               f"{true[r['frame']]:.1f}), {r['renders']} renders")
     b = prov["build"]
     hull, dirs = b.get("segment3d", {}).get("hull"), b.get("hair_directions")

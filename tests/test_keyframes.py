@@ -176,23 +176,3 @@ def test_no_edge_without_a_lost_face():
     r = _tracking(np.radians(np.linspace(-20, 20, 30)))
     r.found[14:16] = False
     assert not tracking_edge(r).any()
-
-
-def test_the_edge_frames_registered_first_are_the_under_read_ones_and_their_search_reaches_the_truth():
-    from avatarkit.track.keyframes import tracking_edge
-    from avatarkit.track.video_build import edge_frames, turned_frames
-
-    true, r = _saturating_turn()
-    read = yaw_pitch(r.raw["rotation"])[:, 0]
-    turned = turned_frames(r, read)
-    got = edge_frames(r, turned)
-    assert len(got) == len(turned) == 1                     # the one turn, to the left
-    e = got[0]
-    assert e.clip_index == e.edge == turned[0].edge and tracking_edge(r)[e.edge]
-    assert true[e.edge] - read[e.edge] > np.radians(10)     # the most under-read frame
-    assert e.lo < true[e.edge] < e.hi
-    # a tracking whose edge is read well (no lost face beside it) registers no edge frame first
-    yaw = np.radians(np.concatenate([np.linspace(0, 46, 8), np.linspace(46, 0, 8)]))
-    conf = np.where(np.abs(yaw) > np.radians(40), 0.3, 0.9)
-    r2 = _tracking(yaw, conf=conf)
-    assert edge_frames(r2, turned_frames(r2, yaw)) == []

@@ -45,8 +45,7 @@ def test_video_build_is_no_worse_than_the_single_frame_build_away_from_the_front
     from avatarkit.track.keyframes import yaw_pitch
 
     true = np.degrees(yaw_pitch(eased_turning_clip(96).rotation)[:, 0])
-    # (the frames at the tracking's edge, `video_build.edge_frames`, are registered before them)
-    reg = [r for r in src["registered"] if not r.get("edge")]
+    reg = src["registered"]
     assert len(reg) == 2 and {np.sign(r["yaw_deg"]) for r in reg} == {-1.0, 1.0}
     for r in reg:
         assert abs(true[r["frame"]]) > 70 and abs(r["yaw_deg"] - true[r["frame"]]) < 5.0, reg

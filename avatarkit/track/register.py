@@ -133,37 +133,14 @@ def head_rows(vertices: np.ndarray, neck: np.ndarray | None, camera: Camera) -> 
     return float(np.clip(y.max() / camera.height, 0.0, 1.0))
 
 
-def pivot_params(pose, pivot) -> np.ndarray:
-    """(4, 4) pose -> (6,) yaw, pitch, roll and the view-frame position of the head-frame point
-    `pivot` (3,) (None: the head frame's origin, `params_from_pose`)."""
-    p = params_from_pose(pose)
-    if pivot is not None:
-        m = np.asarray(pose, np.float64)
-        p[3:] = m[:3, :3] @ np.asarray(pivot, np.float64) + m[:3, 3]
-    return p
-
-
-def pose_from_pivot_params(params, pivot) -> np.ndarray:
-    """The inverse of `pivot_params`: the rotation turns the head about `pivot`."""
-    m = pose_from_params(params)
-    if pivot is not None:
-        m[:3, 3] = np.asarray(params, np.float64)[3:6] - m[:3, :3] @ np.asarray(pivot, np.float64)
-    return m
-
-
 def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
                    yaw_range: tuple[float, float], size: int = SIZE, coarse_step: float = COARSE_STEP,
-                   steps=REFINE_STEPS, rounds: int = REFINE_ROUNDS, above: float = 1.0,
-                   pivot=None) -> Registration:
+                   steps=REFINE_STEPS, rounds: int = REFINE_ROUNDS, above: float = 1.0) -> Registration:
     """The head pose at which `gaussians` (the avatar at rest) best reproduce `image` (H, W, 3)
     uint8 (module docstring). guess (4, 4): the starting pose (its pitch, roll and translation
     start the search); yaw_range: (lo, hi) radians, the absolute yaws searched (the coarse grid
     and the refinement's bounds);
-    above: only the image rows above this share of the height count (`head_rows`);
-    pivot: (3,) head-frame point the searched rotations turn the head about, its position the
-    searched translation (None: the head frame's origin). A head turns about its neck: about
-    the origin, a yaw moves the neck sideways, which the search then pays for with a shift
-    traded against the yaw (the mesh subject's 61-degree frame read 48 with a 21 mm shift)."""
+    above: only the image rows above this share of the height count (`head_rows`)."""
     target = _target(image, size)
     bg = background_colour(target)
     cam0 = reference_camera.with_size(target.shape[1], target.shape[0])
@@ -171,10 +148,10 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
 
     def cost(p) -> float:
         n[0] += 1
-        return photometric_error(gaussians, pose_camera(cam0, reference_pose, pose_from_pivot_params(p, pivot)),
-                                 target, bg, above)
+        return photometric_error(gaussians, pose_camera(cam0, reference_pose, pose_from_params(p)), target, bg,
+                                 above)
 
-    start = pivot_params(guess, pivot)
+    start = params_from_pose(guess)
     lo, hi = sorted(yaw_range)
     yaws = np.arange(lo, hi + 1e-9, coarse_step)
     coarse = np.array([[y, cost(np.concatenate([[y], start[1:]]))] for y in yaws])
@@ -196,34 +173,32 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
                         best, err, improved = p, e, True
                         break
         step /= 2.0
-    return Registration(pose_from_pivot_params(best, pivot), err, n[0], coarse)
+    return Registration(pose_from_params(best), err, n[0], coarse)
 
 
 def register_frame_exhaustive(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
                               yaw_range: tuple[float, float], yaw_step: float = math.radians(1.0),
                               pitch_range: float = math.radians(6.0),
-                              pitch_step: float = math.radians(2.0), above: float = 1.0,
-                              pivot=None) -> Registration:
+                              pitch_step: float = math.radians(2.0), above: float = 1.0) -> Registration:
     """The slow obvious reference of `register_frame`: every (yaw, pitch) of a grid (yaw over
-    `yaw_range`, pitch within +-`pitch_range` of the guess's), roll and the position of `pivot`
-    the guess's, rendered at the image's own size; the best of them."""
+    `yaw_range`, pitch within +-`pitch_range` of the guess's), roll and translation the guess's,
+    rendered at the image's own size; the best of them."""
     target = _target(image, None)
     bg = background_colour(target)
-    start = pivot_params(guess, pivot)
+    start = params_from_pose(guess)
     lo, hi = sorted(yaw_range)
     best, err, n = start, math.inf, 0
     for y in np.arange(lo, hi + 1e-9, yaw_step):
         for dp in np.arange(-pitch_range, pitch_range + 1e-9, pitch_step):
             p = np.concatenate([[y, start[1] + dp], start[2:]])
-            e = photometric_error(gaussians, pose_camera(reference_camera, reference_pose,
-                                                         pose_from_pivot_params(p, pivot)), target, bg, above)
+            e = photometric_error(gaussians, pose_camera(reference_camera, reference_pose, pose_from_params(p)),
+                                  target, bg, above)
             n += 1
             if e < err:
                 best, err = p, e
-    return Registration(pose_from_pivot_params(best, pivot), float(err), n)
+    return Registration(pose_from_params(best), float(err), n)
 
 
 __all__ = ["COARSE_STEP", "REFINE_ROUNDS", "REFINE_STEPS", "SIZE", "Registration", "background_colour", "head_rows",
-           "params_from_pose", "photometric_error", "pivot_params", "pose_camera", "pose_from_params",
-           "pose_from_pivot_params", "register_frame",
+           "params_from_pose", "photometric_error", "pose_camera", "pose_from_params", "register_frame",
            "register_frame_exhaustive"]

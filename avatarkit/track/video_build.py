@@ -48,8 +48,6 @@ IDENTITY_EXPR = 10
 REGISTER_TURNED = True
 #: the coarse yaw search spans this much (radians) before and beyond the last tracked yaw
 SEARCH_BEFORE, SEARCH_BEYOND = math.radians(5.0), math.radians(55.0)
-#: an edge frame's search (`edge_frames`) spans this much (radians) beyond its tracked yaw
-EDGE_BEYOND = math.radians(30.0)
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
 FIRST_BUILD_COUNTS = (8000, 4000)
 
@@ -100,31 +98,6 @@ def turned_frames(result, yaw) -> list[TurnedFrame]:
         if side not in best or (t - a, abs(y)) > best[side][0]:
             best[side] = ((t - a, abs(y)), cand)
     return [best[k][1] for k in sorted(best)]
-
-
-def edge_frames(result, turned: list[TurnedFrame]) -> list[TurnedFrame]:
-    """The frames to register before `turned` (the frames past the tracking, `turned_frames`):
-    each one's edge row when it is at the edge of the tracking (`keyframes.tracking_edge`: its
-    tracked yaw saturated, 5-28 degrees short on the synthetic turns), searched from
-    `SEARCH_BEFORE` short of its tracked yaw to `EDGE_BEYOND` beyond it.
-
-    Why (the mesh subject's eased turn, 192 px): against the first build, whose most turned
-    keyframes are at ~40 degrees, the frames at true 60 register at 60, but those at 80 at
-    58-68: the build has no side view to match there (colour error flat within 3 % from 60 to
-    80). Built again with the 60-degree frames, it has."""
-    from avatarkit.track.keyframes import tracking_edge, yaw_pitch
-
-    edge = tracking_edge(result)
-    yaw = yaw_pitch(np.asarray(result.raw["rotation"]))[:, 0]
-    out = []
-    for t in turned:
-        if not edge[t.edge]:
-            continue
-        y = float(yaw[t.edge])
-        side = 1.0 if y > 0 else -1.0
-        near, far = side * (abs(y) - SEARCH_BEFORE), side * (abs(y) + EDGE_BEYOND)
-        out.append(TurnedFrame(t.edge, t.edge, min(near, far), max(near, far)))
-    return out
 
 
 def joint_identity(result, keyframes, size: tuple[int, int]):
@@ -230,19 +203,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                                         n_hair=min(options.n_hair, FIRST_BUILD_COUNTS[1]), preview=False)
             draft = build_avatar(png, first, None, views=views)
             # no face crop to measure a registered frame's sharpness on: the keyframes' median
-            sharpness = float(np.median(kf.sharpness))
-            figures = []
-            edges = edge_frames(result, turned)
-            if edges:
-                # the frames at the tracking's edge first: the first build registers them well
-                # (its sides come from keyframes at ~40 degrees), and built again with them it
-                # has the sides the frames past the tracking are registered against
-                added, figures = register_turned(draft, result, edges, views, video, sharpness)
-                figures = [{**f, "edge": True} for f in figures]
-                views.keyframes.extend(added)
-                draft = build_avatar(png, first, None, views=views)
-            added, more = register_turned(draft, result, turned, views, video, sharpness)
-            figures = figures + more
+            added, figures = register_turned(draft, result, turned, views, video, float(np.median(kf.sharpness)))
             views.keyframes.extend(added)
             views.info["registered"] = figures
             source["registered"] = figures
@@ -280,33 +241,20 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     return avatar
 
 
-def turned_guess(result, edge: int, reference: int, reference_pose, pivot=None) -> np.ndarray:
+def turned_guess(result, edge: int, reference: int, reference_pose) -> np.ndarray:
     """(4, 4) the search's starting pose for a frame lost beyond the tracked row `edge`: the
     reference keyframe's pose (the joint fit's: the frame the registration works in) turned
     about the vertical by the yaw the tracking measured between the reference row and the edge
     row. The head turns in place and about the vertical: the tracker's pitch, roll and depth
     near the edge are not to be trusted (on the eased 80-degree turn at 192 px the edge rows
-    read up to 14 degrees of pitch and 7 cm of depth that the head never had). pivot: (3,) the
-    head-frame point it turns about (`register.register_frame`; None: the origin)."""
+    read up to 14 degrees of pitch and 7 cm of depth that the head never had)."""
     from avatarkit.track.keyframes import yaw_pitch
-    from avatarkit.track.register import pivot_params, pose_from_pivot_params
+    from avatarkit.track.register import params_from_pose, pose_from_params
 
     yaw = yaw_pitch(np.asarray(result.raw["rotation"])[[edge, reference]])[:, 0]
-    p = pivot_params(reference_pose, pivot)
+    p = params_from_pose(reference_pose)
     p[0] += yaw[0] - yaw[1]
-    return pose_from_pivot_params(p, pivot)
-
-
-def neck_pivot(avatar) -> np.ndarray:
-    """(3,) the head model's root joint (the neck, FLAME's J0) of `avatar`'s shaped rest head:
-    what a registered frame's head turns about (`register.register_frame`'s pivot). The
-    tracker's poses turn the head the same way (`track.tracker`, module docstring)."""
-    from avatarkit.head.model import HeadParams
-
-    m = avatar.head_model
-    shape = np.asarray(avatar.shape, np.float32).reshape(-1)
-    joints = m.rest_joints(HeadParams(shape=shape, expr=np.zeros((1, m.num_expr), np.float32)))[0]
-    return np.asarray(joints[0], np.float64)
+    return pose_from_params(p)
 
 
 def register_turned(draft, result, turned: list[TurnedFrame], views, video, sharpness: float):
@@ -326,12 +274,11 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     images = read_frames(video, frames)
     regions = draft.head_model.regions
     neck = draft.head_model.region_mask("neck") if "neck" in regions else None
-    pivot = neck_pivot(draft)
     out, figures = [], []
     for t, f in zip(turned, frames):
-        guess = turned_guess(result, t.edge, int(ref_row), ref.pose, pivot)
+        guess = turned_guess(result, t.edge, int(ref_row), ref.pose)
         above = head_rows(draft.rest_head_vertices, neck, pose_camera(camera, ref.pose, guess))
-        reg = register_frame(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), above=above, pivot=pivot)
+        reg = register_frame(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), above=above)
         y, p, _ = np.degrees(params_from_pose(reg.pose)[:3])
         figures.append({"frame": f, "yaw_deg": round(float(y), 2), "pitch_deg": round(float(p), 2),
                         "error": round(reg.error, 5), "renders": reg.evaluations})
@@ -339,7 +286,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["EDGE_BEYOND", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
+__all__ = ["FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
-           "build_tracking", "build_video_avatar", "edge_frames", "joint_identity", "neck_pivot", "register_turned", "turned_frames",
+           "build_tracking", "build_video_avatar", "joint_identity", "register_turned", "turned_frames",
            "turned_guess"]
