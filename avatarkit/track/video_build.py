@@ -164,8 +164,12 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     images = read_frames(video, kf.frame_index)
     timings["keyframes"] = time.perf_counter() - t0
     ref_frame = int(kf.frame_index[0])
+    from avatarkit.track.keyframes import tracking_edge
+
+    # the frames whose tracked yaw is likely under-read (none where the face is never lost)
+    edge = [int(f) for f in np.asarray(result.frame_index)[tracking_edge(result)]]
     source = {"video": os.path.abspath(video), "frame": ref_frame, "mode": "video",
-              "keyframes": kf.summary()}
+              "keyframes": kf.summary(), "tracking_edge": edge}
     views = None
     if len(kf) > 1:
         t0 = time.perf_counter()
