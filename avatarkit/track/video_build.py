@@ -147,7 +147,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
-    from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness, yaw_pitch
+    from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
+                                           yaw_pitch)
 
     options = options or BuildOptions()
     options.check()
@@ -164,8 +165,6 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     images = read_frames(video, kf.frame_index)
     timings["keyframes"] = time.perf_counter() - t0
     ref_frame = int(kf.frame_index[0])
-    from avatarkit.track.keyframes import tracking_edge
-
     # the frames whose tracked yaw is likely under-read (none where the face is never lost)
     edge = [int(f) for f in np.asarray(result.frame_index)[tracking_edge(result)]]
     source = {"video": os.path.abspath(video), "frame": ref_frame, "mode": "video",
