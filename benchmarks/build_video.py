@@ -129,6 +129,10 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     true = np.degrees(yaw_pitch(clip.rotation)[:, 0])
     print("  keyframes' yaw, tracked (true): " + ", ".join(
         f"{k['yaw_deg']:.0f} ({true[k['frame']]:.0f})" for k in prov["source_video"]["keyframes"]))
+    edge = prov["source_video"].get("tracking_edge", [])
+    if edge:
+        print("  the tracking's edge (yaw likely under-read; keyframes.tracking_edge), true yaw: " + ", ".join(
+            f"{f} ({true[f]:.0f})" for f in edge))
     for r in prov["source_video"].get("registered", []):
         print(f"  registered by the first build: frame {r['frame']} at yaw {r['yaw_deg']:.1f} (true "
               f"{true[r['frame']]:.1f}), {r['renders']} renders")

@@ -23,7 +23,7 @@ def _tracking(yaw, pitch=None, jaw=None, conf=None):
     marks = np.zeros((T, 468, 2))
     marks[:, [33, 133, 362, 263], 0] = [-40, -20, 20, 40]
     return SimpleNamespace(clip=clip, confidence=conf, found=np.ones(T, bool),
-                           frame_index=np.arange(100, 100 + T), num_frames=T, landmarks=marks)
+                           frame_index=np.arange(100, 100 + T), num_frames=T, landmarks=marks, raw={"rotation": rot})
 
 
 def test_yaw_pitch_reads_back_euler_angles():
@@ -127,3 +127,49 @@ def test_a_tracking_that_loses_the_face_only_near_the_front_registers_nothing():
     conf = np.full(50, 0.9)
     conf[23:27] = 0.1                                            # around yaw 0
     assert turned_frames(_tracking(yaw, conf=conf), yaw) == []
+
+
+def _saturating_turn():
+    """An eased turn to 80 degrees and back as the tracker reads it (the mesh subject's eased
+    turn at 192 px, docs/video-build.md): the read yaw follows the head to ~45 degrees, then
+    saturates at 46-49 while the head turns on to ~62 at a confidence that stays 0.75, and the
+    face is lost beyond. Returns (true yaw (T,) radians, the tracking)."""
+    true = np.radians(np.concatenate([np.linspace(0, 80, 14), np.full(8, 80.0), np.linspace(80, 0, 14),
+                                      np.zeros(10)]))
+    deg = np.degrees(true)
+    read = np.where(deg <= 44, deg, 44 + 5.0 * np.tanh((deg - 44) / 10.0))     # saturates below 49
+    conf = np.where(deg <= 44, 0.9, 0.75)
+    found = deg <= 62
+    r = _tracking(np.radians(read), conf=np.where(found, conf, 0.0))
+    r.found = found
+    return true, r
+
+
+def test_the_edge_of_the_tracking_holds_the_frames_whose_yaw_is_under_read():
+    from avatarkit.track.keyframes import eligible_frames, tracking_edge
+
+    true, r = _saturating_turn()
+    read = yaw_pitch(r.raw["rotation"])[:, 0]
+    ok, edge = eligible_frames(r), tracking_edge(r)
+    wrong = ok & (np.abs(true - read) > np.radians(4.0))
+    assert wrong.sum() >= 4                              # the case has under-read eligible frames
+    assert edge[wrong].all()                             # and every one is at the edge
+    assert not edge[np.abs(true) < np.radians(35)].any()   # well-read frames are not
+
+
+def test_no_edge_without_a_lost_face():
+    # a confidence dip at the turn's end with the face still found (the 46-degree whip clip):
+    # the frames beside it are read well and stay keyframes
+    from avatarkit.track.keyframes import tracking_edge
+
+    yaw = np.radians(np.concatenate([np.linspace(0, 46, 8), np.linspace(46, -46, 15), np.linspace(-46, 0, 8)]))
+    conf = np.where(np.abs(yaw) > np.radians(40), 0.3, 0.9)
+    r = _tracking(yaw, conf=conf)
+    assert not tracking_edge(r).any()
+    # the same dip with the face lost there is a turn past the tracking
+    r.found = np.abs(yaw) <= np.radians(40)
+    assert tracking_edge(r).any()
+    # a face lost near the front is no turn past the tracking
+    r = _tracking(np.radians(np.linspace(-20, 20, 30)))
+    r.found[14:16] = False
+    assert not tracking_edge(r).any()

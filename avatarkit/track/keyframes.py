@@ -6,7 +6,10 @@ Choice (`choose_keyframes`), on a tracking of the video (any head, usually the t
    Looser than the single-frame choice's 0.8: the tracker's confidence falls with the turn
    (measured on a synthetic turn at 192 px: 0.95 frontal, 0.65-0.78 at 20-26 degrees, below 0.4
    past 30 degrees where its landmark error passes 4% of the image), and the turned frames are
-   the point; below ~0.6 the fit is too poor to register a view.
+   the point; below ~0.6 the fit is too poor to register a view. The edge of the tracking
+   (`tracking_edge`: the frames on the way to a turn the face mesh lost, whose yaw the fit
+   under-reads with a confidence that does not show it) is eligible too, and reported
+   (`source_video.tracking_edge`): leaving it out measured worse (docs/video-build.md).
 2. The reference keyframe is the single-frame build's frame (`build_frame.frame_costs`: most
    frontal, neutral mouth): the portrait build runs on it, so a video whose head never turns
    builds exactly what `build VIDEO --frame N` builds.
@@ -35,6 +38,12 @@ MIN_CONFIDENCE_SHARE = 0.6
 KEYFRAMES = 6
 #: a new keyframe must add at least this much head pose (radians of yaw/pitch, ~8 degrees)
 MIN_SPREAD = math.radians(8.0)
+#: a lost stretch beside a tracked frame turned at least this much (radians) is a turn past the
+#: tracking (the tracker follows to ~40-50 degrees); `tracking_edge` and `video_build.turned_frames`
+TURNED_EDGE = math.radians(25.0)
+#: the edge of the tracking: frames whose tracked yaw is within this much (radians) of the most
+#: turned one read on the way to the lost face (`tracking_edge`)
+EDGE_MARGIN = math.radians(6.0)
 #: frames this close to a chosen keyframe are not picked (they repeat it)
 MIN_GAP = 3
 #: radians of pose spread one unit of expression cost is worth (an open jaw of 0.2 rad costs
@@ -106,6 +115,52 @@ def eligible_frames(result) -> np.ndarray:
     return conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
 
 
+def tracking_edge(result) -> np.ndarray:
+    """(T,) bool: the eligible frames at the edge of a turn the face mesh lost, whose tracked
+    yaw is not to be trusted although their confidence is.
+
+    Approaching a turn past the face mesh's reach (~55-65 degrees), the landmark fit's yaw
+    saturates: it reads a plateau a few degrees wide while the head turns on, and the fit's
+    residual and the mesh's presence barely move, so the confidence stays 0.6-0.8 of the best
+    (the mesh subject's eased turn at 192 px: true 53 / 60 / 61 / 55 degrees read 48 / 48 / 48 /
+    47 at 0.80 / 0.74 / 0.61 / 0.80; the sample avatar with bob hair: true 60 read 31 at 0.60;
+    measured per frame, neither the face outline's residual nor the inner points' separates
+    these from well-read frames at 40 degrees). What shows it is where they are: next to
+    frames without a face. So, beside every stretch of frames that are not eligible
+    (`eligible_frames`) and hold a frame without a face, walk away over the eligible frames on
+    the turned side (the first one turned at least `TURNED_EDGE`) while their tracked yaw
+    (the per-frame fit's, `raw`) stays within `EDGE_MARGIN` of the most turned one read so
+    far in the walk; those frames are the edge. A video that never loses the face (the real
+    clips, the 46-degree whip clip) has no edge. The video build reports it
+    (`source_video.tracking_edge`) and still takes such frames as keyframes (`choose_keyframes`)."""
+    ok = eligible_frames(result)
+    found = np.asarray(result.found, bool)
+    yaw = yaw_pitch(np.asarray(result.raw["rotation"]))[:, 0]
+    T = len(ok)
+    edge = np.zeros(T, bool)
+    t = 0
+    while t < T:
+        if ok[t]:
+            t += 1
+            continue
+        a = t
+        while t < T and not ok[t]:
+            t += 1
+        if found[a:t].all():
+            continue                    # a confidence dip, not a face the mesh lost
+        for i, step in ((a - 1, -1), (t, 1)):
+            if not (0 <= i < T and ok[i]) or abs(yaw[i]) < TURNED_EDGE:
+                continue
+            side, peak = np.sign(yaw[i]), 0.0
+            while 0 <= i < T and ok[i] and np.sign(yaw[i]) == side:
+                peak = max(peak, abs(yaw[i]))
+                if abs(yaw[i]) < peak - EDGE_MARGIN:
+                    break
+                edge[i] = True
+                i += step
+    return edge
+
+
 def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = KEYFRAMES,
                      min_spread: float = MIN_SPREAD, min_gap: int = MIN_GAP) -> Keyframes:
     """Keyframes of a `TrackResult` (module docstring). sharpness: (T,) raw face sharpness per
@@ -114,6 +169,9 @@ def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = K
 
     T = result.num_frames
     base = frame_costs(result)                       # inf where the single-frame choice would not take it
+    # the edge of the tracking (`tracking_edge`) stays eligible: left out, its frames took the
+    # side views from the first build the frames past the tracking register against (session
+    # 10: the held-out bob's profile gain +1.68 -> +1.26 dB), docs/video-build.md
     eligible = eligible_frames(result)
     pose = yaw_pitch(result.clip.rotation)
     s = np.ones(T) if sharpness is None else np.asarray(sharpness, np.float64).reshape(T)
@@ -167,5 +225,5 @@ def read_frames(video, frame_index) -> dict[int, np.ndarray]:
     return out
 
 
-__all__ = ["KEYFRAMES", "Keyframes", "choose_keyframes", "eligible_frames", "face_sharpness", "read_frames",
-           "video_sharpness", "yaw_pitch"]
+__all__ = ["EDGE_MARGIN", "KEYFRAMES", "TURNED_EDGE", "Keyframes", "choose_keyframes", "eligible_frames",
+           "face_sharpness", "read_frames", "tracking_edge", "video_sharpness", "yaw_pitch"]

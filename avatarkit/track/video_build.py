@@ -35,6 +35,9 @@ from typing import Callable
 
 import numpy as np
 
+# a lost stretch is a turn beyond the tracking when a tracked frame beside it turned this much
+from avatarkit.track.keyframes import TURNED_EDGE
+
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
 
@@ -43,9 +46,6 @@ FRAME_COLOURS = True
 IDENTITY_EXPR = 10
 #: register the frames the tracker lost at a turn's ends against a first build (`register_turned`)
 REGISTER_TURNED = True
-#: a stretch of lost frames is a turn beyond the tracking when a tracked frame beside it has
-#: turned at least this much (radians; the tracker follows to ~40-50 degrees)
-TURNED_EDGE = math.radians(25.0)
 #: the coarse yaw search spans this much (radians) before and beyond the last tracked yaw
 SEARCH_BEFORE, SEARCH_BEYOND = math.radians(5.0), math.radians(55.0)
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
@@ -147,7 +147,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
-    from avatarkit.track.keyframes import KEYFRAMES, choose_keyframes, read_frames, video_sharpness, yaw_pitch
+    from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
+                                           yaw_pitch)
 
     options = options or BuildOptions()
     options.check()
@@ -164,8 +165,10 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     images = read_frames(video, kf.frame_index)
     timings["keyframes"] = time.perf_counter() - t0
     ref_frame = int(kf.frame_index[0])
+    # the frames whose tracked yaw is likely under-read (none where the face is never lost)
+    edge = [int(f) for f in np.asarray(result.frame_index)[tracking_edge(result)]]
     source = {"video": os.path.abspath(video), "frame": ref_frame, "mode": "video",
-              "keyframes": kf.summary()}
+              "keyframes": kf.summary(), "tracking_edge": edge}
     views = None
     if len(kf) > 1:
         t0 = time.perf_counter()
