@@ -173,6 +173,17 @@ MUTATIONS = [
       "    p = np.asarray(px, np.float32).reshape(-1, 2) - 0.5",
       "    p = np.asarray(px, np.float32).reshape(-1, 2)", ["tests/test_recon_lift.py", "-k", "bald_lifting"],
       "photo colours sampled half a pixel off"),
+    # --- face, track (session 10) ---------------------------------------------------------------
+    M("face.lower_lip_not_carried", "avatarkit/face/correspondence.py",
+      "    rows = [k for k in rows if bary_w[k] < min_weight]", "    rows = []",
+      ["tests/test_face_lower_lip.py"], "the lower inner lip left on the upper lip, where the jaw does not reach"),
+    M("face.overlay_plain_embedding", "avatarkit/face/overlay.py",
+      "embedding_for(model, mirror=True)", "embedding_for(model)",
+      ["tests/test_face_front_end.py", "-k", "mirror_averaged"],
+      "`avatarkit face` fits the mirror-averaged mesh on the plain mesh's embedding"),
+    M("track.edge_walks_on", "avatarkit/track/keyframes.py",
+      "                if abs(yaw[i]) < peak - EDGE_MARGIN:", "                if False:",
+      ["tests/test_keyframes.py", "-k", "edge"], "the tracking's edge takes every eligible frame on the turned side"),
 ]
 
 
