@@ -65,6 +65,7 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     from avatarkit.track.video_build import build_video_avatar
 
     video_build.REGISTER_TURNED = register
+    video_build.REGISTER_MODE = os.environ.get("AVATARKIT_REGISTER_MODE", video_build.REGISTER_MODE)
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()

@@ -80,3 +80,47 @@ def test_the_fast_registration_agrees_with_the_exhaustive_grid(scene):
     target = image.astype(np.float64) / 255.0
     assert photometric_error(gs, pose_camera(camera, ref_pose, slow.pose), target, (1.0, 1.0, 1.0)) == \
         pytest.approx(slow.error, rel=1e-9)
+
+
+def _scaled(gs, k: float, centre):
+    """The Gaussians grown by k about centre (3,): a build whose head is k times too large."""
+    import dataclasses
+
+    c = np.asarray(centre, np.float32)
+    return dataclasses.replace(gs, means=c + k * (gs.means - c), scales=gs.scales * k,
+                               extras=dict(gs.extras))
+
+
+def test_a_silhouette_moved_by_a_known_similarity_is_laid_back_exactly():
+    import cv2
+
+    from avatarkit.track.register import _similarity, align_silhouette
+
+    yy, xx = np.mgrid[:96, :96]
+    # an off-centre, lopsided blob (a disc and a bar), so neither scale nor shift is ambiguous
+    blob = (((xx - 44) ** 2 + (yy - 40) ** 2 < 18 ** 2) | ((abs(xx - 60) < 4) & (abs(yy - 55) < 14))).astype(np.float32)
+    mask = cv2.warpAffine(blob, _similarity(1.1, 3, -4, 96, 96), (96, 96)) > 0.5
+    s, dx, dy, iou = align_silhouette(blob, mask, 96)
+    assert (s, dx, dy) == (pytest.approx(1.1), 3, -4) and iou == pytest.approx(1.0)
+
+
+def test_a_build_too_large_registers_at_the_frames_yaw_and_its_pose_lays_it_over_the_frame(scene):
+    from avatarkit.render import render
+    from avatarkit.track.register import SIZE, _target, background_colour, register_aligned, silhouette
+
+    gs, camera, ref_pose, truth, image = scene
+    centre = gs.means.mean(0)
+    big = _scaled(gs, 1.08, centre)             # the one photo's guess of the head's size, 8 % off
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    reg = register_aligned(big, image, camera, ref_pose, guess, window, centre)
+    found, want = np.degrees(params_from_pose(reg.pose)[:3]), np.degrees(params_from_pose(truth)[:3])
+    assert abs(found[0] - want[0]) < 2.0, (found, want)
+    assert abs(found[1] - want[1]) < 2.0, (found, want)
+    # the pose found puts the large head where the frame's is, at the depth that makes it the
+    # frame's size: its silhouette overlays the frame's
+    target = _target(image, SIZE)
+    cam = pose_camera(camera.with_size(target.shape[1], target.shape[0]), ref_pose, reg.pose)
+    a = render(big, cam).alpha > 0.5
+    m = silhouette(target, background_colour(target))
+    assert (a & m).sum() / (a | m).sum() > 0.9

@@ -48,6 +48,11 @@ IDENTITY_EXPR = 10
 REGISTER_TURNED = True
 #: the coarse yaw search spans this much (radians) before and beyond the last tracked yaw
 SEARCH_BEFORE, SEARCH_BEYOND = math.radians(5.0), math.radians(55.0)
+#: how a turned frame is registered: "plain" (`register.register_frame`: the colour error, the
+#: whole pose searched) or "aligned" (`register.register_aligned`: each render laid over the
+#: frame's silhouette by an image similarity first, so a first build of the wrong size or
+#: centre still matches; docs/video-build.md, session 10)
+REGISTER_MODE = "plain"
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
 FIRST_BUILD_COUNTS = (8000, 4000)
 
@@ -267,7 +272,8 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     from avatarkit.recon.multiview import Keyframe
     from avatarkit.render.camera import Camera
     from avatarkit.track.keyframes import read_frames
-    from avatarkit.track.register import head_rows, params_from_pose, pose_camera, register_frame
+    from avatarkit.track.register import (head_rows, params_from_pose, pose_camera, register_frame,
+                                          register_aligned)
 
     gs = draft.rest_gaussians()
     camera = Camera.from_dict(draft.provenance["build"]["camera"])
@@ -281,7 +287,11 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     for t, f in zip(turned, frames):
         guess = turned_guess(result, t.edge, int(ref_row), ref.pose)
         above = head_rows(draft.rest_head_vertices, neck, pose_camera(camera, ref.pose, guess))
-        reg = register_frame(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), above=above)
+        if REGISTER_MODE == "plain":
+            reg = register_frame(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), above=above)
+        else:
+            centre = draft.rest_head_vertices[~neck].mean(0) if neck is not None else draft.rest_head_vertices.mean(0)
+            reg = register_aligned(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), centre, above=above)
         y, p, _ = np.degrees(params_from_pose(reg.pose)[:3])
         figures.append({"frame": f, "yaw_deg": round(float(y), 2), "pitch_deg": round(float(p), 2),
                         "error": round(reg.error, 5), "renders": reg.evaluations})
