@@ -65,7 +65,7 @@ def look_at_faces(image: np.ndarray, face_index: int | None = None, fit: bool = 
 
         model = HeadModel.template() if model is None else model
         # the embedding made from the mirror-averaged mesh these are (`correspondence.MIRROR_TEMPLATE_FILE`)
-        emb = embedding if embedding is not None else embedding_for(model, mirror=True)
+        emb = embedding if embedding is not None else embedding_for(model, mirror=True, carry_jaw=False)
         if emb is not None:
             h, w = image.shape[:2]
             focal = portrait_focal(w, h)

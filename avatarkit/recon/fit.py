@@ -298,7 +298,8 @@ def _mesh_targets(analysis, model: HeadModel, embedding=None):
     from avatarkit.face.correspondence import embedding_for
     from avatarkit.face.fit import LandmarkModel, LandmarkTargets
 
-    emb = embedding if embedding is not None else embedding_for(model)
+    # no jaw in the portrait fit: the file's lower-lip hosting (`embedding_for`'s carry_jaw)
+    emb = embedding if embedding is not None else embedding_for(model, carry_jaw=False)
     if emb is None:
         return None, None
     emb.check(model.num_faces)
