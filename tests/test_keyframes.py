@@ -173,3 +173,25 @@ def test_no_edge_without_a_lost_face():
     r = _tracking(np.radians(np.linspace(-20, 20, 30)))
     r.found[14:16] = False
     assert not tracking_edge(r).any()
+
+
+def test_ineligible_stretches_match_a_plain_walk():
+    from avatarkit.track.keyframes import ineligible_stretches
+
+    def walk(ok):
+        out, t = [], 0
+        while t < len(ok):
+            if ok[t]:
+                t += 1
+                continue
+            a = t
+            while t < len(ok) and not ok[t]:
+                t += 1
+            out.append((a, t))
+        return out
+
+    assert ineligible_stretches(np.array([1, 1, 0, 0, 1, 0], bool)) == [(2, 4), (5, 6)]
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        ok = rng.random(rng.integers(0, 30)) < rng.random()
+        assert ineligible_stretches(ok) == walk(ok)

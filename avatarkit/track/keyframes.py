@@ -115,6 +115,13 @@ def eligible_frames(result) -> np.ndarray:
     return conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
 
 
+def ineligible_stretches(ok: np.ndarray) -> list[tuple[int, int]]:
+    """The maximal runs of False in ok (T,) bool, as half-open (start, stop) frame ranges."""
+    ok = np.asarray(ok, bool)
+    d = np.diff(np.r_[0, (~ok).astype(np.int8), 0])
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
 def tracking_edge(result) -> np.ndarray:
     """(T,) bool: the eligible frames at the edge of a turn the face mesh lost, whose tracked
     yaw is not to be trusted although their confidence is.
@@ -138,14 +145,7 @@ def tracking_edge(result) -> np.ndarray:
     yaw = yaw_pitch(np.asarray(result.raw["rotation"]))[:, 0]
     T = len(ok)
     edge = np.zeros(T, bool)
-    t = 0
-    while t < T:
-        if ok[t]:
-            t += 1
-            continue
-        a = t
-        while t < T and not ok[t]:
-            t += 1
+    for a, t in ineligible_stretches(ok):
         if found[a:t].all():
             continue                    # a confidence dip, not a face the mesh lost
         for i, step in ((a - 1, -1), (t, 1)):
@@ -226,4 +226,4 @@ def read_frames(video, frame_index) -> dict[int, np.ndarray]:
 
 
 __all__ = ["EDGE_MARGIN", "KEYFRAMES", "TURNED_EDGE", "Keyframes", "choose_keyframes", "eligible_frames",
-           "face_sharpness", "read_frames", "tracking_edge", "video_sharpness", "yaw_pitch"]
+           "face_sharpness", "ineligible_stretches", "read_frames", "tracking_edge", "video_sharpness", "yaw_pitch"]

@@ -157,7 +157,18 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
         return photometric_error(gaussians, pose_camera(cam0, reference_pose, pose_from_params(p)), target, bg,
                                  above)
 
-    start = params_from_pose(guess)
+    best, err, coarse = yaw_then_pattern_search(cost, params_from_pose(guess), yaw_range, coarse_step, steps, rounds)
+    return Registration(pose_from_params(best), err, n[0], coarse)
+
+
+def yaw_then_pattern_search(cost, start: np.ndarray, yaw_range: tuple[float, float], coarse_step: float, steps,
+                            rounds: int) -> tuple[np.ndarray, float, np.ndarray]:
+    """The search `register_frame` and `register_aligned` share: the yaw (start[0], radians)
+    every `coarse_step` over yaw_range with the other parameters start's, then from the best a
+    pattern search over the first len(steps) parameters with halving steps (`rounds` halvings;
+    the yaw kept within the range). Returns (best parameters, their cost, coarse (n, 2): yaw,
+    cost)."""
+    start = np.asarray(start, np.float64)
     lo, hi = sorted(yaw_range)
     yaws = np.arange(lo, hi + 1e-9, coarse_step)
     coarse = np.array([[y, cost(np.concatenate([[y], start[1:]]))] for y in yaws])
@@ -168,7 +179,7 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
         improved = True
         while improved:
             improved = False
-            for i in range(6):
+            for i in range(len(step)):
                 for s in (+step[i], -step[i]):
                     p = best.copy()
                     p[i] += s
@@ -179,7 +190,7 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
                         best, err, improved = p, e, True
                         break
         step /= 2.0
-    return Registration(pose_from_params(best), err, n[0], coarse)
+    return best, err, coarse
 
 
 def register_frame_exhaustive(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
@@ -346,27 +357,7 @@ def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, ref
                                       above)
         return seen[key][0]
 
-    lo, hi = sorted(yaw_range)
-    yaws = np.arange(lo, hi + 1e-9, coarse_step)
-    coarse = np.array([[y, cost(np.array([y, start[1], start[2]]))] for y in yaws])
-    best = np.array([coarse[int(np.argmin(coarse[:, 1])), 0], start[1], start[2]])
-    err = cost(best)
-    step = np.asarray(steps, np.float64).copy()
-    for _ in range(rounds + 1):
-        improved = True
-        while improved:
-            improved = False
-            for i in range(3):
-                for s in (+step[i], -step[i]):
-                    p = best.copy()
-                    p[i] += s
-                    if i == 0 and not lo <= p[0] <= hi:
-                        continue
-                    e = cost(p)
-                    if e < err - 1e-12:
-                        best, err, improved = p, e, True
-                        break
-        step /= 2.0
+    best, err, coarse = yaw_then_pattern_search(cost, start[:3], yaw_range, coarse_step, steps, rounds)
     p = start.copy()
     p[:3] = best
     pose = pose_with_alignment(pose_from_params(p), cam0, reference_pose, centre, seen[tuple(np.round(best, 9))][1])
@@ -376,4 +367,4 @@ def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, ref
 __all__ = ["ALIGN_SCALES", "ALIGN_SHIFT", "COARSE_STEP", "SILHOUETTE_STEP", "align_silhouette", "aligned_error",
            "pose_with_alignment", "register_aligned", "silhouette", "REFINE_ROUNDS", "REFINE_STEPS", "SIZE", "Registration", "background_colour", "head_rows",
            "params_from_pose", "photometric_error", "pose_camera", "pose_from_params", "register_frame",
-           "register_frame_exhaustive"]
+           "register_frame_exhaustive", "yaw_then_pattern_search"]

@@ -73,19 +73,12 @@ def turned_frames(result, yaw) -> list[TurnedFrame]:
     (`keyframes.eligible_frames`) with a tracked frame beside them turned at least `TURNED_EDGE`
     (yaw (T,) radians, the tracked yaw); per side (left, right) the longest such stretch (ties:
     the one whose edge turned most); its middle frame."""
-    from avatarkit.track.keyframes import eligible_frames
+    from avatarkit.track.keyframes import eligible_frames, ineligible_stretches
 
     ok = eligible_frames(result)
     T = len(ok)
     best: dict[int, tuple[float, TurnedFrame]] = {}
-    t = 0
-    while t < T:
-        if ok[t]:
-            t += 1
-            continue
-        a = t
-        while t < T and not ok[t]:
-            t += 1
+    for a, t in ineligible_stretches(ok):
         edges = [e for e in (a - 1, t) if 0 <= e < T and ok[e]]
         if not edges:
             continue
