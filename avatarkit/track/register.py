@@ -173,24 +173,34 @@ def yaw_then_pattern_search(cost, start: np.ndarray, yaw_range: tuple[float, flo
     yaws = np.arange(lo, hi + 1e-9, coarse_step)
     coarse = np.array([[y, cost(np.concatenate([[y], start[1:]]))] for y in yaws])
     best = np.concatenate([[coarse[int(np.argmin(coarse[:, 1])), 0]], start[1:]])
-    err = float(coarse[:, 1].min())
+    # the yaw stays within the range it was given
+    best, err = pattern_search(cost, best, float(coarse[:, 1].min()), steps, rounds + 1,
+                               allowed=lambda p: lo <= p[0] <= hi)
+    return best, err, coarse
+
+
+def pattern_search(cost, x: np.ndarray, err: float, steps, rounds: int, allowed=None) -> tuple[np.ndarray, float]:
+    """Coordinate pattern search from x (n,) whose cost is err: each parameter tried +- its
+    step, the first improvement taken, until none improves; then the steps halve, `rounds`
+    times in all. allowed(p) -> bool rules candidates out. Returns (x, cost)."""
+    x = np.asarray(x, np.float64)
     step = np.asarray(steps, np.float64).copy()
-    for _ in range(rounds + 1):
+    for _ in range(rounds):
         improved = True
         while improved:
             improved = False
             for i in range(len(step)):
                 for s in (+step[i], -step[i]):
-                    p = best.copy()
+                    p = x.copy()
                     p[i] += s
-                    if i == 0 and not lo <= p[0] <= hi:
-                        continue                  # the yaw stays within the range it was given
+                    if allowed is not None and not allowed(p):
+                        continue
                     e = cost(p)
                     if e < err - 1e-12:
-                        best, err, improved = p, e, True
+                        x, err, improved = p, e, True
                         break
         step /= 2.0
-    return best, err, coarse
+    return x, err
 
 
 def register_frame_exhaustive(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
@@ -285,21 +295,7 @@ def aligned_error(gaussians, camera: Camera, target: np.ndarray, background, abo
     # the silhouette's grid is whole pixels: the colours are then laid to a sixteenth of a pixel
     # (a textured render half a pixel off costs more than a few degrees of yaw)
     q = np.array([s, float(dx), float(dy)])
-    e = err(q)
-    step = np.array([0.0125, 0.5, 0.5])
-    for _ in range(4):
-        improved = True
-        while improved:
-            improved = False
-            for i in range(3):
-                for d in (+step[i], -step[i]):
-                    c = q.copy()
-                    c[i] += d
-                    ec = err(c)
-                    if ec < e - 1e-12:
-                        q, e, improved = c, ec, True
-                        break
-        step /= 2.0
+    q, e = pattern_search(err, q, err(q), (0.0125, 0.5, 0.5), 4)
     return e, (float(q[0]), float(q[1]), float(q[2]), iou)
 
 
@@ -367,4 +363,4 @@ def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, ref
 __all__ = ["ALIGN_SCALES", "ALIGN_SHIFT", "COARSE_STEP", "SILHOUETTE_STEP", "align_silhouette", "aligned_error",
            "pose_with_alignment", "register_aligned", "silhouette", "REFINE_ROUNDS", "REFINE_STEPS", "SIZE", "Registration", "background_colour", "head_rows",
            "params_from_pose", "photometric_error", "pose_camera", "pose_from_params", "register_frame",
-           "register_frame_exhaustive", "yaw_then_pattern_search"]
+           "pattern_search", "register_frame_exhaustive", "yaw_then_pattern_search"]
