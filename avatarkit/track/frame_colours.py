@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from avatarkit.track.neck import head_rotation
+
 #: head-model regions whose bald Gaussians are coloured from the frames (module docstring);
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
 REGIONS = ("neck", "lips", "mouth_interior")
@@ -175,7 +177,7 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
     if span is not None:
         ok &= (frames >= span[0]) & (frames < span[1])
     if reference is not None:
-        yp = yaw_pitch(result.clip.rotation)
+        yp = yaw_pitch(head_rotation(result.clip.rotation, result.clip.neck))
         ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
     rows = np.flatnonzero(ok)
     if len(rows) <= count:

@@ -1,0 +1,97 @@
+"""The tracked head motion carried by the neck joint (`track.neck`): the head lands exactly where
+the global pose put it, the body keeps the reference rotation and only translates."""
+import numpy as np
+
+from avatarkit.head.model import HeadParams, load_template
+from avatarkit.rotations import axis_angle_to_matrix
+from avatarkit.track.neck import head_on_neck, head_rotation, median_rotation
+
+
+def _random_clip(rng, model, T=12, neck=False):
+    return dict(rotation=rng.normal(scale=0.4, size=(T, 3)), translation=rng.normal(scale=0.05, size=(T, 3)),
+                neck=rng.normal(scale=0.2, size=(T, 3)) if neck else np.zeros((T, 3)),
+                jaw=rng.normal(scale=0.1, size=(T, 3)), eyes=rng.normal(scale=0.1, size=(T, 6)),
+                expr=rng.normal(scale=1.0, size=(T, model.num_expr)),
+                shape=rng.normal(scale=1.0, size=model.num_shape))
+
+
+def _pose(model, c):
+    p = HeadParams(**{k: np.asarray(v, np.float32) for k, v in c.items()})
+    return model.forward(p)[0].astype(np.float64), model.shaped_vertices(p).astype(np.float64)
+
+
+def test_head_lands_where_the_global_pose_put_it_and_the_body_only_translates():
+    model = load_template()
+    w = model.weights
+    head = w[:, 0] == 0           # every vertex on the neck, jaw and eyes only
+    body = w[:, 0] == 1           # the neck's base ring: root only
+    assert head.sum() > 1000 and body.sum() > 50
+    for seed, with_neck in ((0, False), (1, False), (2, True)):
+        rng = np.random.default_rng(seed)
+        c = _random_clip(rng, model, neck=with_neck)
+        before, shaped = _pose(model, c)
+        joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
+                                              expr=c["expr"].astype(np.float32))).astype(np.float64)
+        ref = rng.normal(scale=0.3, size=3)
+        rot, neck, tau = head_on_neck(c["rotation"], c["translation"], c["neck"], joints, ref)
+        after, _ = _pose(model, {**c, "rotation": rot, "neck": neck, "translation": tau})
+        # float32 posing of ~0.2 m coordinates: ~1e-7 m apart
+        np.testing.assert_allclose(after[:, head], before[:, head], atol=2e-6)
+        np.testing.assert_allclose(rot, np.broadcast_to(ref, rot.shape), atol=1e-12)
+        np.testing.assert_allclose(head_rotation(rot, neck), head_rotation(c["rotation"], c["neck"]), atol=1e-9)
+        R0 = axis_angle_to_matrix(ref).astype(np.float64)
+        offset = after[:, body] - shaped[:, body] @ R0.T             # (T, n, 3): one translation per frame
+        np.testing.assert_allclose(offset, np.broadcast_to(offset[:, :1], offset.shape), atol=2e-6)
+        # and before, the body turned with the head (what this change removes)
+        assert np.abs(before[:, body] - after[:, body]).max() > 0.01
+
+
+def test_body_follows_the_neck_joint_and_the_reference_frame_is_unchanged():
+    model = load_template()
+    rng = np.random.default_rng(3)
+    c = _random_clip(rng, model)
+    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
+                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    row = 4
+    rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, c["rotation"][row])
+    np.testing.assert_allclose(neck[row], 0, atol=1e-9)
+    np.testing.assert_allclose(tau[row], c["translation"][row], atol=1e-12)
+    _, A_before = model.forward(HeadParams(**{k: np.asarray(v, np.float32) for k, v in c.items()}))
+    _, A_after = model.forward(HeadParams(**{k: np.asarray(v, np.float32) for k, v in
+                                             {**c, "rotation": rot, "neck": neck, "translation": tau}.items()}))
+    J1 = joints[:, 1]
+    p_before = np.einsum("tab,tb->ta", A_before[:, 1, :3, :3], J1) + A_before[:, 1, :3, 3]
+    p_root = np.einsum("tab,tb->ta", A_after[:, 0, :3, :3], J1) + A_after[:, 0, :3, 3]
+    # the neck joint sits where the tracked head put it, and the root carries it there
+    np.testing.assert_allclose(p_root, p_before, atol=1e-5)
+
+
+def test_median_rotation_is_the_middle_of_a_spread_about_any_centre():
+    rng = np.random.default_rng(5)
+    centre = np.array([0.2, -0.5, 0.1])
+    C = axis_angle_to_matrix(centre).astype(np.float64)
+    from avatarkit.rotations import matrix_to_axis_angle
+
+    offs = rng.normal(scale=0.15, size=(41, 3))
+    offs -= np.median(offs, axis=0)                         # the spread's median is exactly zero
+    rots = matrix_to_axis_angle(C @ axis_angle_to_matrix(offs).astype(np.float64)).astype(np.float64)
+    got = axis_angle_to_matrix(median_rotation(rots)).astype(np.float64)
+    angle = np.degrees(np.arccos(np.clip((np.trace(got.T @ C) - 1) / 2, -1, 1)))
+    assert angle < 0.5
+    # frames without a face are left out
+    junk = np.vstack([rots, np.tile([2.0, 0.0, 0.0], (60, 1))])
+    keep = np.r_[np.ones(41), np.zeros(60)]
+    np.testing.assert_allclose(median_rotation(junk, keep), median_rotation(rots), atol=1e-12)
+
+
+def test_per_frame_reference_puts_the_head_back_on_the_global_rotation():
+    model = load_template()
+    rng = np.random.default_rng(7)
+    c = _random_clip(rng, model)
+    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
+                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, np.array([0.1, -0.2, 0.05]))
+    back = head_on_neck(rot, tau, neck, joints, head_rotation(rot, neck))
+    np.testing.assert_allclose(back[0], c["rotation"], atol=1e-9)
+    np.testing.assert_allclose(back[1], 0.0, atol=1e-9)
+    np.testing.assert_allclose(back[2], c["translation"], atol=1e-9)
