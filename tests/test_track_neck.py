@@ -95,3 +95,35 @@ def test_per_frame_reference_puts_the_head_back_on_the_global_rotation():
     np.testing.assert_allclose(back[0], c["rotation"], atol=1e-9)
     np.testing.assert_allclose(back[1], 0.0, atol=1e-9)
     np.testing.assert_allclose(back[2], c["translation"], atol=1e-9)
+
+
+def test_holding_the_base_keeps_the_head_and_puts_the_neck_base_on_the_segment():
+    """`hold_base`: the head where it was; the root joint posed on the line from `base` to the
+    neck joint, one rest neck length from the neck joint (so at `base` when the neck joint is
+    that far from it)."""
+    from avatarkit.track.neck import hold_base
+
+    model = load_template()
+    rng = np.random.default_rng(11)
+    c = _random_clip(rng, model)
+    head = model.weights[:, 0] == 0
+    before, _ = _pose(model, c)
+    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
+                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, np.zeros(3))
+    base = joints[3, 0] + tau[3]
+    rot, neck, tau = hold_base(rot, tau, neck, joints, base)
+    after, _ = _pose(model, {**c, "rotation": rot, "neck": neck, "translation": tau})
+    np.testing.assert_allclose(after[:, head], before[:, head], atol=2e-6)
+    _, A = model.forward(HeadParams(**{k: np.asarray(v, np.float32) for k, v in
+                                       {**c, "rotation": rot, "neck": neck, "translation": tau}.items()}))
+    A = A.astype(np.float64)
+    root = np.einsum("tab,tb->ta", A[:, 0, :3, :3], joints[:, 0]) + A[:, 0, :3, 3]
+    nk = np.einsum("tab,tb->ta", A[:, 1, :3, :3], joints[:, 1]) + A[:, 1, :3, 3]
+    length = np.linalg.norm(joints[:, 1] - joints[:, 0], axis=1)
+    np.testing.assert_allclose(np.linalg.norm(nk - root, axis=1), length, atol=1e-5)
+    u, v = root - base, nk - base
+    np.testing.assert_allclose(np.cross(u, v), 0.0, atol=1e-5)
+    np.testing.assert_allclose(root[3], base, atol=1e-5)
+    # the random clips move the neck joint by centimetres: the base moves by less than it
+    assert np.linalg.norm(root - base, axis=1).max() < np.linalg.norm(nk - nk[3], axis=1).max()

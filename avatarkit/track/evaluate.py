@@ -50,7 +50,7 @@ import numpy as np
 from avatarkit.errors import OutputError
 from avatarkit.track import metrics
 from avatarkit.track.build_pose import align_to_build, recorded_build_frame
-from avatarkit.track.neck import place_head
+from avatarkit.track.neck import DEFAULT_HEAD_ON, place_head
 
 REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
 #: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
@@ -67,7 +67,9 @@ class EvalOptions:
     background: the constant colour (linear RGB in [0, 1]) outside the person mask in both
     images; alpha_threshold: render alpha above which a pixel is the person; simulate_hair: run
     the hair simulation in the bake (default: hair rides the head rigidly); side_by_side: write
-    side_by_side.mp4; n_bald, n_hair: Gaussians of the build."""
+    side_by_side.mp4; n_bald, n_hair: Gaussians of the build; head_on: where the tracked head
+    motion goes (`track.neck.place_head`: "neck", the body held at the build frame's pose, or
+    "global")."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -79,7 +81,7 @@ class EvalOptions:
     n_hair: int = 40_000
     compare_single: bool = False
     colour_share: float = 0.5
-    head_on: str = "neck"
+    head_on: str = DEFAULT_HEAD_ON
 
 
 @dataclass

@@ -35,6 +35,11 @@ from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 #: `--head-on` choices: where the tracked head motion goes
 HEAD_ON = ("neck", "global")
+#: what `track`, `evaluate` and the video build's frame colours use (docs/tracking.md: measured)
+DEFAULT_HEAD_ON = "neck"
+#: with the head on the neck, also keep the neck's base where the reference frame has it
+#: (`hold_base`) rather than letting it follow the neck joint's tracked position
+HOLD_BASE = False
 
 
 def _matrices(aa: np.ndarray) -> np.ndarray:
@@ -102,23 +107,31 @@ def clip_joints(model, clip) -> np.ndarray:
     return model.rest_joints(params).astype(np.float64)
 
 
-def carry_on_neck(result, reference_row: int | None = None) -> dict:
+def carry_on_neck(result, reference_row: int | None = None, hold: bool | None = None) -> dict:
     """Put a `TrackResult`'s head motion on the neck joint, in place (`head_on_neck`), with the
     joints of the head model it was tracked with (`result.model`). reference_row: the clip row
     whose pose the body keeps (the avatar's build frame); None: the clip's median rotation over
-    the frames with a face. Returns {"reference": "frame N" | "median", "rotation": [3 floats]}."""
+    the frames with a face. hold: then keep the neck's base where the reference frame has it
+    (`hold_base`; for the median, the median of its positions); None: `HOLD_BASE`. Returns {"reference": "frame
+    N" | "median", "rotation": [3 floats], "hold_base": hold}."""
     clip = result.clip
+    found = np.asarray(result.found, bool)
+    hold = HOLD_BASE if hold is None else hold
     if reference_row is None:
-        reference = median_rotation(clip.rotation, np.asarray(result.found, bool))
+        reference = median_rotation(clip.rotation, found)
         kind = "median"
     else:
         reference = head_rotation(clip.rotation, clip.neck)[int(reference_row)]
         kind = f"frame {int(result.frame_index[int(reference_row)])}"
     joints = clip_joints(result.model, clip)
     rot, neck, tau = head_on_neck(clip.rotation, clip.translation, clip.neck, joints, reference)
+    if hold:
+        bases = joints[:, 0] + tau                                  # the root joint, posed
+        base = bases[int(reference_row)] if reference_row is not None else np.median(bases[found], axis=0)
+        rot, neck, tau = hold_base(rot, tau, neck, joints, base)
     dt = np.asarray(clip.rotation).dtype
     clip.rotation, clip.neck, clip.translation = rot.astype(dt), neck.astype(dt), tau.astype(dt)
-    return {"reference": kind, "rotation": [float(v) for v in reference]}
+    return {"reference": kind, "rotation": [float(v) for v in reference], "hold_base": bool(hold)}
 
 
 def place_head(result, build_frame: int | None, head_on: str) -> dict | None:
@@ -132,3 +145,39 @@ def place_head(result, build_frame: int | None, head_on: str) -> dict | None:
         raise ValueError(f"head_on must be one of {HEAD_ON}, not {head_on!r}")
     rows = np.flatnonzero(np.asarray(result.frame_index) == build_frame) if build_frame is not None else []
     return carry_on_neck(result, int(rows[0]) if len(rows) else None)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(T, 3, 3): the smallest rotations taking the directions of a (T, 3) onto those of b."""
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis, axis=1)
+    angle = np.arctan2(s, np.einsum("ti,ti->t", a, b))
+    aa = np.where(s[:, None] > 1e-12, axis / np.maximum(s, 1e-300)[:, None] * angle[:, None], 0.0)
+    return _matrices(aa)
+
+
+def hold_base(rotation: np.ndarray, translation: np.ndarray, neck: np.ndarray | None,
+              joints: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep the root joint (the neck's base) at world point `base` (3,) as far as the neck's
+    length allows: each frame's global rotation turned by the smallest rotation that points the
+    root-to-neck segment at where the neck joint is, the neck rotation taking the rest of the
+    head's rotation, and the translation keeping the neck joint (and so the head) exactly where
+    it was. What the segment's length cannot reach (the neck joint nearer or farther from the
+    base than the rest neck is long) moves the base along the segment. Returns (rotation,
+    neck, translation) (T, 3) float64."""
+    rot = np.asarray(rotation, np.float64).reshape(-1, 3)
+    T = len(rot)
+    Rg = _matrices(rot)
+    R = _matrices(head_rotation(rot, neck))
+    J = np.asarray(joints, np.float64)
+    J = np.broadcast_to(J, (T,) + J.shape[-2:]) if J.ndim == 2 else J.reshape(T, -1, 3)
+    J0, d = J[:, 0], J[:, 1] - J[:, 0]
+    tau = np.asarray(translation, np.float64).reshape(T, 3)
+    a = np.einsum("tij,tj->ti", Rg, d)
+    p = a + J0 + tau                                             # the neck joint, posed
+    Rg_new = _min_rotation(a, p - np.asarray(base, np.float64).reshape(1, 3)) @ Rg
+    neck_new = matrix_to_axis_angle(np.einsum("tji,tjk->tik", Rg_new, R)).astype(np.float64).reshape(T, 3)
+    tau_new = p - J0 - np.einsum("tij,tj->ti", Rg_new, d)
+    return matrix_to_axis_angle(Rg_new).astype(np.float64).reshape(T, 3), neck_new, tau_new
