@@ -127,3 +127,40 @@ def test_holding_the_base_keeps_the_head_and_puts_the_neck_base_on_the_segment()
     np.testing.assert_allclose(root[3], base, atol=1e-5)
     # the random clips move the neck joint by centimetres: the base moves by less than it
     assert np.linalg.norm(root - base, axis=1).max() < np.linalg.norm(nk - nk[3], axis=1).max()
+
+
+def test_what_reads_the_head_pose_reads_it_the_same_with_the_head_on_the_neck():
+    """The build frame's choice, the keyframes and the frames the colours are fused from read the
+    head's rotation (global then neck): a clip carrying the head on the neck chooses the same
+    frames as the same motion written globally."""
+    from types import SimpleNamespace
+
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.track.build_frame import frame_costs
+    from avatarkit.track.frame_colours import colour_frames
+    from avatarkit.track.keyframes import choose_keyframes
+
+    T = 40
+    t = np.linspace(0, 1, T)
+    rot = np.stack([0.15 * np.sin(6 * t), 1.2 * np.sin(3 * t), 0.05 * t], axis=1)   # turns to 69 deg
+    z = np.zeros((T, 3))
+    marks = np.zeros((T, 468, 2))
+    marks[:, [33, 133, 362, 263], 0] = [-40, -20, 20, 40]
+    marks[:, 61, 0], marks[:, 291, 0] = -24, 24
+    marks[:, 13, 1], marks[:, 14, 1] = 50, 50
+
+    def result(rotation, neck):
+        clip = MotionClip(fps=30, rotation=rotation, translation=z, neck=neck, jaw=z, eyes=np.zeros((T, 6)),
+                          expr=np.zeros((T, 4)))
+        return SimpleNamespace(clip=clip, confidence=np.linspace(0.9, 1.0, T), found=np.ones(T, bool),
+                               frame_index=np.arange(T), landmarks=marks, raw={"rotation": rot}, num_frames=T)
+
+    model = load_template()
+    glob = result(rot, z)
+    r, n, _ = head_on_neck(rot, z, None, model.rest_joints()[0], np.array([0.0, 0.6, 0.0]))
+    on_neck = result(r, n)
+    np.testing.assert_allclose(frame_costs(on_neck), frame_costs(glob), atol=1e-5)
+    np.testing.assert_array_equal(colour_frames(on_neck, count=8, reference=5), colour_frames(glob, count=8, reference=5))
+    a, b = choose_keyframes(on_neck), choose_keyframes(glob)
+    assert len(b.frame_index) > 1
+    np.testing.assert_array_equal(a.frame_index, b.frame_index)
