@@ -108,7 +108,9 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
             parts = [n for n, k in (("eyes", "eyes"), ("head pose", "head_pose")) if aligned[k]]
             click.echo(f"aligned to the avatar's build frame {aligned['frame']} ({' and '.join(parts)})", err=True)
         if carried is not None:
-            click.echo(f"head turns on the neck; the body keeps the {carried['reference']}'s pose", err=True)
+            from avatarkit.track.neck import describe
+
+            click.echo(f"head on the {describe(carried)}", err=True)
         click.echo(f"wrote {output}" + (f" and {preview}" if preview else ""), err=True)
 
 

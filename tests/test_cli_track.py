@@ -46,7 +46,7 @@ def test_track_writes_a_clip_bake_reads_and_a_preview(tmp_path, capsys, head_mp4
     assert np.all(np.diff(head[:, 1]) > 0)
     np.testing.assert_allclose(r.clip.rotation, np.broadcast_to(median_rotation(head), (5, 3)), atol=1e-6)
     assert np.abs(r.clip.neck[[0, -1], 1]).min() > 0.05
-    assert "head turns on the neck; the body keeps the median's pose" in cap.err
+    assert "head on the neck (the body held at the clip's median pose)" in cap.err
     assert load_clip(out).n_frames == 5
     with open_video(prev) as v:
         assert v.info.frame_count == 5 and v.info.codec == "h264"

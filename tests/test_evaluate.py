@@ -241,6 +241,8 @@ def test_evaluate_synthetic_video_end_to_end(synthetic, tmp_path, capsys):
     assert s["psnr_full"] > s["psnr"] + 2            # constant background matches exactly
     assert s["landmark_error_px"] is not None and s["landmark_error_px"] < 3.0, s
     assert doc["summary"]["lpips"] is None and "LPIPS" in doc["lpips"]
+    # the head turns on the neck, the body held at the build frame's pose (`track.neck`)
+    assert doc["settings"]["head_on"] == "neck (the body held at frame 0's pose)"
     rows = list(csv.DictReader((out / "frames.csv").open()))
     assert len(rows) == 12 and [r["excluded"] for r in rows[:4]] == ["1", "1", "1", "0"]
     assert np.mean([float(r["psnr"]) for r in rows if r["excluded"] == "0"]) == pytest.approx(s["psnr"], rel=1e-4)

@@ -50,7 +50,7 @@ import numpy as np
 from avatarkit.errors import OutputError
 from avatarkit.track import metrics
 from avatarkit.track.build_pose import align_to_build, recorded_build_frame
-from avatarkit.track.neck import DEFAULT_HEAD_ON, place_head
+from avatarkit.track.neck import DEFAULT_HEAD_ON, describe, place_head
 
 REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
 #: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
@@ -310,8 +310,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "eyes": ("tracked gaze relative to the build frame's" if relative else "tracked gaze as it is"),
             "head_pose": ("tracked motion, the build frame posed as the build's fit" if posed
                           else "tracked pose as it is"),
-            "head_on": (f"neck (body held at the {carried['reference']}'s pose)" if carried
-                        else "global (the body turns with the head)"),
+            "head_on": describe(carried),
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),
         }

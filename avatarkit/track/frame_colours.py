@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avatarkit.track.neck import DEFAULT_HEAD_ON, head_rotation, place_head
+from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 
 #: head-model regions whose bald Gaussians are coloured from the frames (module docstring);
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
@@ -178,7 +178,7 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
     if span is not None:
         ok &= (frames >= span[0]) & (frames < span[1])
     if reference is not None:
-        yp = yaw_pitch(head_rotation(result.clip.rotation, result.clip.neck))
+        yp = yaw_pitch(clip_head_rotation(result.clip))
         ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
     rows = np.flatnonzero(ok)
     if len(rows) <= count:

@@ -57,6 +57,20 @@ def head_rotation(rotation: np.ndarray, neck: np.ndarray | None) -> np.ndarray:
     return matrix_to_axis_angle(_matrices(rot) @ _matrices(neck)).astype(np.float64).reshape(-1, 3)
 
 
+def clip_head_rotation(clip) -> np.ndarray:
+    """(T, 3) `head_rotation` of a `MotionClip` (or any object with `rotation` and, optionally,
+    `neck`)."""
+    return head_rotation(clip.rotation, getattr(clip, "neck", None))
+
+
+def describe(info: dict | None) -> str:
+    """Where `carry_on_neck`'s answer holds the body, in words."""
+    if info is None:
+        return "global (the body turns with the head)"
+    where = "the clip's median pose" if info["reference"] == "median" else f"{info['reference']}'s pose"
+    return f"neck (the body held at {where})"
+
+
 def median_rotation(rotation: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """(3,) axis-angle: a robust middle of rotations (T, 3): the per-axis median of the rotation
     vectors taken relative to their chordal mean (small spreads: a talking head turns tens of
