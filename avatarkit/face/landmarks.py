@@ -160,16 +160,30 @@ def _sigmoid(x: float) -> float:
     return float(1.0 / (1.0 + np.exp(-np.clip(x, -100.0, 100.0))))
 
 
+#: run the two eyes' iris inputs, and a region's face-mesh input with its mirror image, as one
+#: batch of two (the same answers, bit for bit, as one run each: `test_face_speed`); False runs
+#: them one by one (the reference)
+BATCH = True
+
+
+def _run_pair(name: str, x0: np.ndarray, x1: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+    """Model `name` on two (S, S, 3) inputs: per input, its outputs (each flattened)."""
+    if BATCH:
+        outs = get_model(name, 2).run(np.stack([x0, x1]))
+        return [tuple(o.reshape(2, -1)[i] for o in outs) for i in range(2)]
+    model = get_model(name)
+    return [tuple(o.reshape(-1) for o in model.run(x[None])) for x in (x0, x1)]
+
+
 def _iris(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[Roi, Roi]]:
-    model = get_model("iris")
-    size = model.input_size[0]
-    contours, irises, rois = [], [], []
+    size = get_model("iris").input_size[0]
+    contours, irises, rois, inputs = [], [], [], []
     for side, (a, b) in enumerate(EYE_CORNERS):
         p0, p1 = points[a, :2], points[b, :2]
-        roi = roi_from_points(p0, p1, np.stack([p0, p1]), IRIS_ROI_SCALE)
+        rois.append(roi_from_points(p0, p1, np.stack([p0, p1]), IRIS_ROI_SCALE))
+        inputs.append(crop(image, rois[-1], size, flip=side == 1) / 255.0)
+    for side, (outs, roi) in enumerate(zip(_run_pair("iris", *inputs), rois)):
         flip = side == 1
-        x = crop(image, roi, size, flip=flip) / 255.0
-        outs = model.run(x[None])
         contour = next(o for o in outs if o.size == 71 * 3).reshape(71, 3).astype(np.float64) / size
         iris = next(o for o in outs if o.size == 5 * 3).reshape(5, 3).astype(np.float64) / size
         for arr, out in ((contour, contours), (iris, irises)):
@@ -178,20 +192,21 @@ def _iris(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
                 uv[:, 0] = 1.0 - uv[:, 0]
             xy = roi.to_image(uv)
             out.append(np.concatenate([xy, arr[:, 2:] * roi.side], axis=1))
-        rois.append(roi)
     return (np.stack(irises).astype(np.float32), np.stack(contours).astype(np.float32),
             (rois[0], rois[1]))
+
+
+def _mesh_outputs(outs, size: int) -> tuple[np.ndarray, float]:
+    raw = next(o for o in outs if o.size == N_LANDMARKS * 3).reshape(N_LANDMARKS, 3).astype(np.float64) / size
+    flag = next(o for o in outs if o.size == 1)
+    return raw, float(flag.reshape(-1)[0])
 
 
 def _run_mesh(x: np.ndarray) -> tuple[np.ndarray, float]:
     """The mesh model on one (S, S, 3) input in [0, 1]: (468, 3) region-normalised points
     (u, v, z / side) and the presence logit."""
     model = get_model("landmarks")
-    size = model.input_size[0]
-    outs = model.run(np.ascontiguousarray(x[None], np.float32))
-    raw = next(o for o in outs if o.size == N_LANDMARKS * 3).reshape(N_LANDMARKS, 3).astype(np.float64) / size
-    flag = next(o for o in outs if o.size == 1)
-    return raw, float(flag.reshape(-1)[0])
+    return _mesh_outputs(model.run(np.ascontiguousarray(x[None], np.float32)), model.input_size[0])
 
 
 def _mesh(image: np.ndarray, roi: Roi, mirror: bool = False) -> tuple[np.ndarray, float]:
@@ -199,14 +214,15 @@ def _mesh(image: np.ndarray, roi: Roi, mirror: bool = False) -> tuple[np.ndarray
     (mirror: averaged with the answer on the region's mirror image)."""
     size = get_model("landmarks").input_size[0]
     x = crop(image, roi, size) / 255.0
-    raw, logit = _run_mesh(x)
     if mirror:
         # the region's mirror image is the input column-reversed (pixel centres are symmetric
         # about u = 0.5); its answer mirrored back: u -> 1 - u, left <-> right re-indexed
-        raw_m, logit_m = _run_mesh(x[:, ::-1])
+        (raw, logit), (raw_m, logit_m) = (_mesh_outputs(o, size) for o in _run_pair("landmarks", x, x[:, ::-1]))
         raw_m = raw_m[mirror_pairs()]
         raw_m[:, 0] = 1.0 - raw_m[:, 0]
         raw, logit = 0.5 * (raw + raw_m), 0.5 * (logit + logit_m)
+    else:
+        raw, logit = _run_mesh(x)
     xy = roi.to_image(raw[:, :2])
     points = np.concatenate([xy, raw[:, 2:] * roi.side], axis=1).astype(np.float32)
     return points, logit
