@@ -31,3 +31,17 @@ def test_batched_runs_give_the_one_by_one_answers(monkeypatch):
             for name in ("points", "iris", "eye_contours"):
                 np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=f"{name} {kw}")
             assert a.presence == b.presence and a.roi == b.roi and a.eye_rois == b.eye_rois
+
+
+@needs_models
+def test_model_outputs_are_not_overwritten_by_the_next_run():
+    """`Model.run` hands out LiteRT's `get_tensor` arrays without copying them again: they are
+    the caller's (a later run leaves them alone)."""
+    rng = np.random.default_rng(0)
+    model = models.get_model("landmarks")
+    first = model.run(rng.random(model.input_shape, dtype=np.float32))
+    kept = [o.copy() for o in first]
+    second = model.run(rng.random(model.input_shape, dtype=np.float32))
+    for a, b, c in zip(first, kept, second):
+        np.testing.assert_array_equal(a, b)
+    assert any(not np.array_equal(b, c) for b, c in zip(kept, second))

@@ -120,7 +120,8 @@ class Model:
     def run(self, x: np.ndarray) -> list[np.ndarray]:
         self._it.set_tensor(self._input, np.ascontiguousarray(x, np.float32).reshape(self.input_shape))
         self._it.invoke()
-        return [self._it.get_tensor(i).copy() for i in self._outputs]
+        # get_tensor returns a copy already (it owns its data: a later invoke leaves it alone)
+        return [self._it.get_tensor(i) for i in self._outputs]
 
 
 # An interpreter is not safe to share between threads: one set per thread.
