@@ -1,6 +1,7 @@
 """What the face front end sees, drawn over the photo (`avatarkit face`).
 
-`look_at_faces` runs detection, the face mesh and iris on every face and fits the head model's
+`look_at_faces` runs detection, the face mesh and iris on every face, reads the chosen one again
+with test-time augmentation (`face_landmarks(augment=True)`) and fits the head model's
 landmarks (`face.fit.fit_landmarks`: pose and shape from the landmarks alone; the build adds
 its silhouette terms) to the chosen one; `draw_overlay` draws it all:
 boxes (yellow; the chosen face thicker) with the detector's six keypoints (magenta), the 468
