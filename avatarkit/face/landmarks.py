@@ -161,7 +161,7 @@ def _sigmoid(x: float) -> float:
 
 
 #: run the two eyes' iris inputs, and a region's face-mesh input with its mirror image, as one
-#: batch of two (the same answers, bit for bit, as one run each: `test_face_speed`); False runs
+#: batch of two (the same answers, bit for bit, as one run each: `tests/test_face_batch.py`); False runs
 #: them one by one (the reference)
 BATCH = True
 
