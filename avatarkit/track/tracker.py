@@ -101,7 +101,7 @@ class TrackOptions:
     jaw_prior: float = 1e-3
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
-    view_correction: bool = False
+    view_correction: Any = False
     mirror_landmarks: bool = False
 
 
@@ -203,7 +203,11 @@ class FrameTracker:
 
         from avatarkit.face.view_correction import resolve
 
-        self.correction = resolve("full" if options.view_correction else None, self.embedding)
+        # True: the built-in template's correction; a ViewCorrection (e.g. calibrated on this
+        # subject, `track.subject_calibration`): that one
+        self.correction = resolve(options.view_correction or None, self.embedding)
+        if options.view_correction not in (None, False, True) and not options.view_correction.matches(self.embedding):
+            raise InputError("the view correction was calibrated for another landmark embedding")
         self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components
                                                         ).with_view(self.correction)
         self.prev_mesh = None
