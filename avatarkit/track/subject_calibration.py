@@ -134,25 +134,28 @@ def render_samples(render: Renderer, model, shape: np.ndarray, embedding, camera
     `view_correction.samples_from_renders` takes (mesh (N, 468, 3) px, truth_cam (N, K, 3)
     the embedding's points in the OpenCV camera frame, head_to_cam (N, 3, 3), jaw (N,), focal,
     size, principal (2,), found (N,))."""
+    meshes = [read_face_mesh(rgb) for rgb in render(pose_clip(rotation, jaw), camera)]
+    res = truth(model, shape, embedding, camera, rotation, jaw)
+    res.update(found=np.array([m is not None for m in meshes]),
+               mesh=np.stack([np.full((468, 3), np.nan) if m is None else np.asarray(m.points, np.float64)
+                              for m in meshes]))
+    return res
+
+
+def truth(model, shape: np.ndarray, embedding, camera: Camera, rotation: np.ndarray, jaw: np.ndarray) -> dict:
+    """Where the embedding's points are at each pose: truth_cam (N, K, 3) OpenCV camera frame,
+    head_to_cam (N, 3, 3), jaw (N,), focal, size, principal (2,)."""
     from scipy.spatial.transform import Rotation
 
     from avatarkit.head.model import HeadParams
 
-    clip = pose_clip(rotation, jaw)
-    params = HeadParams.from_clip(clip)
+    params = HeadParams.from_clip(pose_clip(rotation, jaw))
     params.shape = np.asarray(shape, np.float32).reshape(-1)
-    verts = model.forward(params)[0]                                                 # (N, V, 3) world
-    out = {k: [] for k in ("mesh", "truth_cam", "head_to_cam", "found")}
-    for i, rgb in enumerate(render(clip, camera)):
-        mesh = read_face_mesh(rgb)
-        out["found"].append(mesh is not None)
-        out["mesh"].append(np.full((468, 3), np.nan) if mesh is None else np.asarray(mesh.points, np.float64))
-        out["truth_cam"].append(camera.to_camera(embedding.points(verts[i].astype(np.float64), model.faces)))
-        out["head_to_cam"].append(camera.rotation @ Rotation.from_rotvec(rotation[i]).as_matrix())
-    res = {k: np.asarray(v) for k, v in out.items()}
-    res.update(jaw=np.asarray(jaw, np.float64), focal=np.float64(camera.fx), size=np.int64(camera.width),
-               principal=np.array([camera.cx, camera.cy]))
-    return res
+    verts = model.forward(params)[0].astype(np.float64)                              # (N, V, 3) world
+    return dict(truth_cam=np.stack([camera.to_camera(embedding.points(v, model.faces)) for v in verts]),
+                head_to_cam=camera.rotation @ Rotation.from_rotvec(rotation).as_matrix(),
+                jaw=np.asarray(jaw, np.float64), focal=np.float64(camera.fx), size=np.int64(camera.width),
+                principal=np.array([camera.cx, camera.cy]))
 
 
 @dataclass(eq=False)
