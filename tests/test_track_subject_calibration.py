@@ -142,3 +142,12 @@ def test_calibration_on_the_subject_reads_held_out_renders_better(template):
     (r0, j0), (r1, j1) = figures["none"], figures["subject"]
     assert r1 < 2.6 and r1 < r0 - 0.5, figures
     assert abs(j1) < 0.02 and abs(j0) > 0.03, figures
+
+
+def test_border_colour_is_the_background_around_the_head():
+    """A frame whose head and torso fill most of it: the colour read is the background's."""
+    img = np.zeros((100, 80, 3), np.uint8)
+    img[:] = (30, 60, 90)
+    img[8:, 10:70] = (200, 150, 120)                       # head
+    img[60:, :] = (10, 10, 10)                             # torso across the bottom
+    np.testing.assert_allclose(sc.border_colour(img), np.array([30, 60, 90]) / 255.0)

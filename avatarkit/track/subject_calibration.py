@@ -31,9 +31,11 @@ import numpy as np
 from avatarkit.render.camera import Camera
 
 _C = np.diag([1.0, -1.0, -1.0])
-#: half the crop's side in metres at the head (the head is ~0.2 m wide; the detector wants
-#: some margin around the face)
-CROP_HALF_WIDTH = 0.14
+#: half the crop's side in metres at the head (the head is ~0.2 m wide with its hair; the
+#: detector wants margin around the face: at 0.14 the chin met the crop's edge with the jaw
+#: open, and the calibrated avatar tracked the grey clip worse, 24.48 against 24.94 dB at 0.2
+#: with the video's background)
+CROP_HALF_WIDTH = 0.2
 #: the height above the head model's origin (its neck joint) the camera looks at: the eyes sit
 #: ~5 cm above it (as `synthetic.head_video.head_video_camera`)
 LOOK_HEIGHT = 0.05
@@ -63,6 +65,14 @@ class CalibrationGrid:
         y, p, j = np.meshgrid(self.yaw, self.pitch, self.jaw, indexing="ij")
         euler = np.stack([y.ravel(), p.ravel(), np.zeros(y.size)], 1)
         return Rotation.from_euler("YXZ", euler, degrees=True).as_rotvec(), j.ravel().astype(np.float64)
+
+
+#: the grid `track --avatar --subject-calibration` renders an avatar at: the jaw closed. An
+#: avatar's open mouth is its build's guess (no mouth interior: a stretched lip) and does not
+#: look like the person's, so the jaw's reading on it does not carry over to the video
+#: (session 11, `avatarkit evaluate`, glasses clip: 23.66 dB with the default grid's jaw
+#: openings, 23.86 with the jaw closed; grey clip 24.94 / 24.90 dB)
+AVATAR_GRID = CalibrationGrid((-30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0), (-15.0, -7.5, 0.0, 7.5, 15.0), (0.0,))
 
 
 def pose_clip(rotation: np.ndarray, jaw: np.ndarray, fps: float = 30.0):
@@ -110,6 +120,17 @@ def avatar_renderer(avatar, background=(1.0, 1.0, 1.0)) -> Renderer:
         for f in avatar_video(avatar, clip, camera, background=background):
             yield f.rgb
     return draw
+
+
+def border_colour(rgb: np.ndarray, share: float = 0.05) -> tuple[float, float, float]:
+    """The background a video shows around a head, as a render's background colour in [0, 1]:
+    the per-channel median of the top rows and, down to half the height, the outer columns
+    (`share` of the size each; a portrait's torso fills the bottom). rgb: (H, W, 3) uint8."""
+    a = np.asarray(rgb)
+    h, w = a.shape[:2]
+    bh, bw = max(1, int(share * h)), max(1, int(share * w))
+    band = np.concatenate([a[:bh].reshape(-1, 3), a[:h // 2, :bw].reshape(-1, 3), a[:h // 2, -bw:].reshape(-1, 3)])
+    return tuple(float(v) for v in np.median(band, axis=0) / 255.0)
 
 
 def read_face_mesh(rgb: np.ndarray):

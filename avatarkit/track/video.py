@@ -114,7 +114,8 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         if avatar is not None and options.subject_calibration and options.view_correction is False:
             import dataclasses
 
-            calibration = calibrate_on_avatar(avatar, model, shape, embedding, size, options)
+            first = next(iter(video.frames(start, start + 1)))
+            calibration = calibrate_on_avatar(avatar, model, shape, embedding, size, options, first.rgb)
             if calibration.correction is not None:
                 options = dataclasses.replace(options, view_correction=calibration.correction)
         frames = video.frames(start, end)
@@ -131,15 +132,19 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         return result
 
 
-def calibrate_on_avatar(avatar, model, shape, embedding, size: tuple[int, int], options: TrackOptions):
+def calibrate_on_avatar(avatar, model, shape, embedding, size: tuple[int, int], options: TrackOptions,
+                        first_rgb: np.ndarray | None = None):
     """The avatar's own view correction (`subject_calibration.calibrate_subject`), rendered with
-    the tracker's focal length for this video size."""
+    the tracker's focal length for this video size over the background the video's first frame
+    shows around the head (`subject_calibration.border_colour`; white without a frame)."""
     from avatarkit.avatar import load_avatar
     from avatarkit.recon.fit import portrait_focal
-    from avatarkit.track.subject_calibration import avatar_renderer, calibrate_subject
+    from avatarkit.track import subject_calibration as sc
 
     focal = float(options.focal) if options.focal else portrait_focal(*size)
-    return calibrate_subject(avatar_renderer(load_avatar(avatar)), model, shape, embedding, focal)
+    background = (1.0, 1.0, 1.0) if first_rgb is None else sc.border_colour(first_rgb)
+    return sc.calibrate_subject(sc.avatar_renderer(load_avatar(avatar), background), model, shape, embedding,
+                                focal, grid=sc.AVATAR_GRID)
 
 
 class _Indexed:
