@@ -6,9 +6,10 @@
    Target: detection + landmarks + iris <= 30 ms on 2 cores.
 2. Fit accuracy on renders of the template head with known pose and shape (512x512): rotation
    error (degrees) and the fitted head's landmark reprojection error (pixels, median), for the
-   landmark fit (`face.fit.fit_landmarks`) on the mirror-averaged face mesh and the embedding
-   made from it (`template_embedding(mirror=True)`, session 10; as `avatarkit face` runs them,
-   `face.overlay`) next to the closed-form solvePnP start it begins
+   landmark fit (`face.fit.fit_landmarks`) on the mirror-averaged face mesh read with test-time
+   augmentation (`face_landmarks(augment=True)`, session 11) and the embedding made from the
+   averaged mesh (`template_embedding(mirror=True)`, session 10; as `avatarkit face` runs them,
+   `face.overlay`) next to the same without the augmentation (session 10's fit), and to the closed-form solvePnP start it begins
    from, the pose alone fitted with the true shape given, the same mesh on the plain mesh's
    embedding (session 9's fit: "before"), and the fit with the template's view
    correction (`fit_landmarks(view_correction="full")`, `face.view_correction`: calibrated on
@@ -61,6 +62,7 @@ def speed(repeats: int) -> None:
     faces = detect_faces(image)
     t_det = median_time(lambda: detect_faces(image), repeats)
     t_mesh = median_time(lambda: face_landmarks(image, faces[0], mirror=True), repeats)
+    t_aug = median_time(lambda: face_landmarks(image, faces[0], mirror=True, augment=True), max(3, repeats // 3))
     t_all = median_time(lambda: face_landmarks(image, detect_faces(image)[0], mirror=True), repeats)
     t_plain = median_time(lambda: face_landmarks(image, detect_faces(image)[0], mirror=False), repeats)
     t_cascade = median_time(lambda: cascade_faces(image), max(3, repeats // 3))
@@ -68,6 +70,8 @@ def speed(repeats: int) -> None:
     print(f"detection (short + full range)      {t_det * 1e3:7.1f} ms")
     print(f"face mesh (2 passes, the kept one mirror-averaged) + iris (2) {t_mesh * 1e3:7.1f} ms")
     print(f"all together                        {t_all * 1e3:7.1f} ms   target <= 30 ms")
+    print(f"face mesh with test-time augmentation (9 regions, mirror-averaged: avatarkit face's fit) + iris "
+          f"{t_aug * 1e3:7.1f} ms (ratio to the mesh without it {t_aug / t_mesh:.2f})")
     print(f"baseline: all together, plain mesh  {t_plain * 1e3:7.1f} ms   (ratio mirror-averaged/plain "
           f"{t_all / t_plain:.2f})")
     print(f"baseline: cascade face detection    {t_cascade * 1e3:7.1f} ms   (ratio all/cascade {t_all / t_cascade:.2f})")
@@ -90,8 +94,9 @@ class Embeddings:
 
 def detected_targets(image: np.ndarray, embs: Embeddings, missing: str):
     """The fits' landmark targets from the best face found in image (H, W, 3): a dict of
-    "fit" (the mirror-averaged face mesh on its own embedding, as `avatarkit face` runs them,
-    `face.overlay`), "mirror_plain" (the same mesh on the plain mesh's embedding: the fit of
+    "fit" (the mirror-averaged face mesh read with test-time augmentation on the averaged mesh's
+    embedding, as `avatarkit face` runs them, `face.overlay`; session 11), "unaugmented" (the
+    same without the augmentation: session 10's fit), "mirror_plain" (the same mesh on the plain mesh's embedding: the fit of
     session 9, and the view correction's rows) and "plain" (the plain mesh on its embedding),
     or None (and the line `missing` printed) when there is none."""
     from avatarkit.face import detect_faces, face_landmarks
@@ -104,7 +109,9 @@ def detected_targets(image: np.ndarray, embs: Embeddings, missing: str):
     face = max(faces, key=lambda q: q.score)
     size = image.shape[:2][::-1]
     averaged, plain = (face_landmarks(image, face, mirror=m) for m in (True, False))
-    return {"fit": LandmarkTargets.from_mesh(averaged, embs.mirror, size),
+    augmented = face_landmarks(image, face, mirror=True, augment=True)
+    return {"fit": LandmarkTargets.from_mesh(augmented, embs.mirror, size),
+            "unaugmented": LandmarkTargets.from_mesh(averaged, embs.mirror, size),
             "mirror_plain": LandmarkTargets.from_mesh(averaged, embs.plain, size),
             "plain": LandmarkTargets.from_mesh(plain, embs.plain, size)}
 
@@ -141,7 +148,7 @@ def accuracy(cases: int, light=None, seed: int = 0, title: str = "") -> np.ndarr
         a = rows[-1]
         print(f"  case {i}: yaw {yaw:6.1f} pitch {pitch:5.1f} roll {roll:5.1f}: rotation error {a[1]:5.2f} deg "
               f"(start {a[0]:5.2f}, shape known {a[2]:5.2f}, view-corrected {a[3]:5.2f}, plain embedding "
-              f"{a[21]:5.2f}, plain mesh {a[15]:5.2f}), "
+              f"{a[21]:5.2f}, not augmented {a[23]:5.2f}, plain mesh {a[15]:5.2f}), "
               f"reprojection {a[5]:5.2f} px (view-corrected {a[6]:5.2f}); true landmarks vs detected {a[7]:5.2f} px")
     a = np.array(rows)
     summarise(a)
@@ -158,6 +165,7 @@ def fit_case(model, embs: Embeddings, targets: dict, f: float, size: int, rot, s
     baseline on the plain face mesh (`detected_targets`): its rotation error, reprojection and
     its detected landmarks' distance to the true ones; the true (yaw, pitch, roll) (deg); the fit
     of the mirror-averaged mesh on the plain mesh's embedding (session 9's): its rotation error
+    and reprojection; the fit without test-time augmentation (session 10's): its rotation error
     and reprojection. The view correction's rows are the plain embedding's, so the corrected fit
     runs on it; truth_px (K, 2) are the plain embedding's true points."""
     from scipy.spatial.transform import Rotation
@@ -169,6 +177,7 @@ def fit_case(model, embs: Embeddings, targets: dict, f: float, size: int, rot, s
     fit_targets, mirror_plain, plain_targets = targets["fit"], targets["mirror_plain"], targets["plain"]
     base = fit_landmarks(model, emb, plain_targets, f, landmark_model=lm)
     before = fit_landmarks(model, emb, mirror_plain, f, landmark_model=lm)
+    unaugmented = fit_landmarks(model, memb, targets["unaugmented"], f, landmark_model=mlm)
 
     err = lambda r: math.degrees((Rotation.from_rotvec(r) * rot.inv()).magnitude())
     r0, t0 = initial_pose(mlm.points_numpy(), fit_targets, f)
@@ -185,15 +194,18 @@ def fit_case(model, embs: Embeddings, targets: dict, f: float, size: int, rot, s
             float(np.median(pixel_errors(plain, mirror_plain))), *signed(fit.rotation), *signed(corrected.rotation),
             err(base.rotation), base.median_error,
             float(np.median(np.linalg.norm(truth_px - plain_targets.xy, axis=1))),
-            *rot.as_euler("YXZ", degrees=True), err(before.rotation), before.median_error)
+            *rot.as_euler("YXZ", degrees=True), err(before.rotation), before.median_error,
+            err(unaugmented.rotation), unaugmented.median_error)
 
 
 def summarise(a: np.ndarray) -> None:
     m = np.median(a, axis=0)
-    print(f"median rotation error        {m[1]:6.2f} deg   (solvePnP start {m[0]:.2f}; with the view "
+    print(f"median rotation error        {m[1]:6.2f} deg   (without test-time augmentation, session 10's fit "
+          f"{m[23]:.2f}: ratio {m[1] / m[23]:.2f}; solvePnP start {m[0]:.2f}; with the view "
           f"correction {m[3]:.2f}: ratio {m[3] / m[1]:.2f}; before: the plain mesh's embedding {m[21]:.2f}: ratio "
           f"{m[1] / m[21]:.2f}; baseline, plain face mesh {m[15]:.2f}: ratio {m[1] / m[15]:.2f})   target <= 2 deg")
-    print(f"median reprojection error    {m[5]:6.2f} px    (solvePnP start {m[4]:.2f}; with the view correction "
+    print(f"median reprojection error    {m[5]:6.2f} px    (without test-time augmentation {m[24]:.2f}; "
+          f"solvePnP start {m[4]:.2f}; with the view correction "
           f"{m[6]:.2f}, its head's plain landmarks {m[8]:.2f}; the plain mesh's embedding {m[22]:.2f}; "
           f"plain face mesh {m[16]:.2f})   target <= 2 px")
     print(f"mean signed error (yaw, pitch, roll) deg: fit {np.round(a[:, 9:12].mean(0), 2)}, with the view "
@@ -250,7 +262,7 @@ def accuracy_avatar(cases: int, folder: str) -> None:
         a = rows[-1]
         print(f"  case {i}: yaw {angles[i, 0]:6.1f} pitch {angles[i, 1]:5.1f} roll {angles[i, 2]:5.1f}: rotation "
               f"error {a[1]:5.2f} deg (start {a[0]:5.2f}, shape known {a[2]:5.2f}, view-corrected {a[3]:5.2f}, "
-              f"plain embedding {a[21]:5.2f}, plain mesh {a[15]:5.2f}), "
+              f"plain embedding {a[21]:5.2f}, not augmented {a[23]:5.2f}, plain mesh {a[15]:5.2f}), "
               f"reprojection {a[5]:5.2f} px; true landmarks vs detected {a[7]:5.2f} px")
     summarise(np.array(rows))
 
@@ -302,11 +314,12 @@ def main() -> None:
     shaded = {seed: accuracy(args.cases, LIGHT, seed, "shaded: ") for seed in seeds}
     flat = accuracy(args.cases, None, 0, "flat colours (the renders of sessions 4-6): ")
     print("\n== summary (median rotation error deg / reprojection px; with the view correction in brackets; "
-          "before: the mirror-averaged mesh on the plain mesh's embedding, session 9's fit; baseline: the plain "
+          "not augmented: session 10's fit; before: the mirror-averaged mesh on the plain mesh's embedding, session 9's fit; baseline: the plain "
           "face mesh)")
     for name, a in pools(shaded) + [("flat, seed 0", flat)]:
         m = np.median(a, axis=0)
         print(f"  {name:38s} {m[1]:5.2f} deg ({m[3]:.2f})   {m[5]:5.2f} px ({m[6]:.2f})   "
+              f"not augmented (session 10) {m[23]:5.2f} deg {m[24]:5.2f} px   "
               f"before (plain embedding) {m[21]:5.2f} deg {m[22]:5.2f} px   "
               f"plain face mesh {m[15]:5.2f} deg {m[16]:5.2f} px   n={len(a)}")
     print("  targets <= 2 deg, <= 2 px on the shaded renders, all seeds pooled")

@@ -9,7 +9,11 @@ Prints
     jaw error (rad), landmark error (px); next to each, in the same process, the tracker with
     the template's view correction (`TrackOptions(view_correction=True)`, `face.view_correction`:
     calibrated on template renders of seeds disjoint from these; off by default), the tracker
-    without its landmark calibration (`TrackOptions(calibration_frames=0)`) and the tracker on
+    without its landmark calibration (`TrackOptions(calibration_frames=0)`), the tracker with a
+    view correction calibrated on the subject itself (`track.subject_calibration`: the renderer
+    that made the video - same head, skin sample and light, or the avatar - at the default
+    grid's 45 poses, mirrored for the mirrored video; with and without the landmark
+    calibration; what `track --avatar` does with `--subject-calibration`), and the tracker on
     the plain face mesh (`TrackOptions(mirror_landmarks=False)`: not averaged with its mirror
     image, the default before session 9), and ratios.
     The target figure is on the template rendered person-like (`synthetic.shading`: Lambert shading
@@ -71,6 +75,8 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
     from avatarkit.synthetic.head_video import HeadVideo, SyntheticFrame, avatar_video, head_video_camera
     from avatarkit.synthetic.shading import LIGHT
     from avatarkit.track import TrackOptions, track_frames
+    from avatarkit.track import subject_calibration as sc
+    from avatarkit.track.tracker import model_embedding
     from avatarkit.track.neck import head_rotation
 
     clip = mixed_clip(frames, 30.0)
@@ -98,16 +104,31 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
         t_render = time.perf_counter() - t0
         print(f"synthetic ({what}, mixed clip, {frames} frames at {size}x{size}; render {t_render:.1f} s):")
         mirrored = [SyntheticFrame(f.index, f.time, np.ascontiguousarray(f.rgb[:, ::-1])) for f in video]
+        render = subject_renderer(subject, avatar if subject not in ("shaded", "flat") else None)
         # the head's rotation (global then neck) on both sides: the same whichever joint carries it
         true_head = head_rotation(clip.rotation, clip.neck)
-        for view, frames_in, truth in (("as rendered", video, true_head),
-                                       ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
+        for view, frames_in, truth, draw in (("as rendered", video, true_head, render),
+                                             ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]),
+                                              sc.mirrored(render))):
+            # the subject's own calibration: its model (the renderer that made the video; for
+            # the mirrored video, its mirror image) at the grid's poses, never the video's frames
+            cal = sc.calibrate_subject(draw, model, shape, model_embedding(model), camera.fx, 0.55)
+            closed = sc.calibrate_subject(draw, model, shape, model_embedding(model), camera.fx, 0.55,
+                                          sc.AVATAR_GRID)
+            for c, g in ((cal, "default grid"), (closed, "jaw-closed grid (track --avatar)")):
+                print(f"  {view:11s} own calibration, {g}: {c.found}/{c.renders} renders with a face, render + "
+                      f"face mesh {c.seconds[0]:.1f} s at {sc.calibration_camera(camera.fx, 0.55).width} px, fit "
+                      f"{c.seconds[1]:.1f} s")
             figures = {}
             for label, options in (("tracker", TrackOptions()),
                                    ("with the view correction",
                                     TrackOptions(view_correction=True)),
                                    ("baseline, no landmark calibration", TrackOptions(calibration_frames=0)),
-                                   ("baseline, plain face mesh", TrackOptions(mirror_landmarks=False))):
+                                   ("baseline, plain face mesh", TrackOptions(mirror_landmarks=False)),
+                                   ("with its own calibration", TrackOptions(view_correction=cal.correction)),
+                                   ("own calibration, no landmark calibration",
+                                    TrackOptions(view_correction=cal.correction, calibration_frames=0)),
+                                   ("own calibration, jaw-closed grid", TrackOptions(view_correction=closed.correction))):
                 t0 = time.perf_counter()
                 r = track_frames(frames_in, model, shape, (size, size), 30.0, options)
                 t_track = time.perf_counter() - t0
@@ -118,19 +139,34 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                       f"(p90 {np.percentile(rot, 90):.2f}), jaw error median {np.median(jaw):.3f} rad, "
                       f"landmark error median {np.nanmedian(r.landmark_error):.2f} px, faces found "
                       f"{int(r.found.sum())}/{frames}; track {t_track:.1f} s")
-            a, b, c, d = figures.values()
-            table.append((subject, view) + a + b + d)
+            a, b, c, d, e, g, h = figures.values()
+            table.append((subject, view) + a + b + d + e + h)
             print(f"  {view:11s} ratios view-corrected/tracker: rotation {b[0] / a[0]:.2f}, jaw {b[1] / a[1]:.2f}, "
                   f"landmarks {b[2] / a[2]:.2f}; tracker/no calibration: rotation {a[0] / c[0]:.2f}, "
-                  f"jaw {a[1] / c[1]:.2f}; tracker/plain face mesh: rotation {a[0] / d[0]:.2f}, jaw {a[1] / d[1]:.2f}")
-    print("synthetic, median over as rendered + mirrored (tracker; with the view correction in brackets; "
-          "baseline on the plain face mesh):")
+                  f"jaw {a[1] / c[1]:.2f}; tracker/plain face mesh: rotation {a[0] / d[0]:.2f}, jaw {a[1] / d[1]:.2f}; "
+                  f"own calibration/tracker: rotation {e[0] / a[0]:.2f}, jaw {e[1] / a[1]:.2f}")
+    print("synthetic, median over as rendered + mirrored (tracker; with the template's view correction in "
+          "brackets; with the subject's own calibration; baseline on the plain face mesh):")
     for subject in subjects:
         t = np.array([row[2:] for row in table if row[0] == subject])
         name = {"shaded": "TARGET shaded + mouth", "flat": "flat colours"}.get(subject, subject)
         print(f"  {name:22s} rotation {np.median(t[:, 0]):.2f} deg ({np.median(t[:, 3]):.2f}), jaw "
-              f"{np.median(t[:, 1]):.3f} rad ({np.median(t[:, 4]):.3f}); plain face mesh {np.median(t[:, 6]):.2f} deg, "
+              f"{np.median(t[:, 1]):.3f} rad ({np.median(t[:, 4]):.3f}); own calibration {np.median(t[:, 9]):.2f} deg, "
+              f"{np.median(t[:, 10]):.3f} rad (jaw-closed grid {np.median(t[:, 12]):.2f} deg, {np.median(t[:, 13]):.3f} rad); plain face mesh {np.median(t[:, 6]):.2f} deg, "
               f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
+
+
+def subject_renderer(subject: str, avatar=None):
+    """What rendered the video of `subject`, as a `subject_calibration` renderer: the same head
+    renderer with the same skin sample (seed 0) and light, or the avatar's splat renderer."""
+    from avatarkit.synthetic.head_video import HeadVideo
+    from avatarkit.synthetic.shading import LIGHT
+    from avatarkit.track import subject_calibration as sc
+
+    if avatar is not None:
+        return sc.avatar_renderer(avatar)
+    kw = dict(light=LIGHT, mouth=True) if subject == "shaded" else {}
+    return lambda clip, camera: (f.rgb for f in HeadVideo(clip, camera, **kw).frames())
 
 
 def real(limit: int | None, videos: str = VIDEOS) -> None:

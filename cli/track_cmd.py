@@ -32,6 +32,9 @@ _FILE = click.Path(dir_okay=False)
               help="With --avatar built from this same video: drive its eyes relative to the build "
               "frame's gaze and pose the head so the build frame is seen as the build saw it "
               "(docs/tracking.md).")
+@click.option("--subject-calibration/--no-subject-calibration", default=False, show_default=True,
+              help="With --avatar: calibrate the face mesh's reading on renders of the avatar at known "
+              "poses first (~30 s) and track with that correction (docs/tracking.md).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
               "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "
@@ -39,7 +42,7 @@ _FILE = click.Path(dir_okay=False)
               "model, neck and shoulders with the head (docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, align_to_build, head_on, quiet):
+              smoothing, preview, align_to_build, subject_calibration, head_on, quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
 
@@ -65,7 +68,9 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
 
         video_format(preview)
         check_output_folder(Path(preview).parent)
-    options = TrackOptions(face_index=face_index, smoothing=smoothing)
+    if subject_calibration and avatar is None:
+        raise click.UsageError("--subject-calibration renders the avatar: it needs --avatar")
+    options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration)
     with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,

@@ -93,3 +93,8 @@ def test_wrong_output_extension(tmp_path, capsys, head_mp4):
 def test_missing_video(tmp_path, capsys):
     code, cap = run(capsys, "track", str(tmp_path / "none.mp4"), "-o", str(tmp_path / "c.npz"))
     assert code == 2 and "not found" in one_error_line(cap)
+
+
+def test_subject_calibration_needs_an_avatar(tmp_path, capsys, head_mp4):
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--subject-calibration")
+    assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()

@@ -91,13 +91,18 @@ def _quiet_stderr():
 
 
 class Model:
-    """One LiteRT interpreter: `run(x)` takes the input (1, H, W, 3) float32 and returns the
-    outputs as a list of arrays in the model's output order."""
+    """One LiteRT interpreter: `run(x)` takes the input (batch, H, W, 3) float32 and returns the
+    outputs as a list of arrays in the model's output order. batch: images per invocation (the
+    file's is 1; a larger one resizes the input tensor, e.g. the face mesh of a region and of
+    its mirror image in one run: the same answers as one run each, bit for bit, in less time)."""
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, batch: int = 1):
         cls, path = _interpreter_class(), str(model_path(name))
         with _quiet_stderr():   # LiteRT's C++ logs "Created TensorFlow Lite XNNPACK delegate"
             interpreter = cls(model_path=path, num_threads=NUM_THREADS)
+            if batch != 1:
+                inp = interpreter.get_input_details()[0]
+                interpreter.resize_tensor_input(inp["index"], [int(batch)] + [int(v) for v in inp["shape"][1:]])
             interpreter.allocate_tensors()
         self.name = name
         self._it = interpreter
@@ -115,18 +120,21 @@ class Model:
     def run(self, x: np.ndarray) -> list[np.ndarray]:
         self._it.set_tensor(self._input, np.ascontiguousarray(x, np.float32).reshape(self.input_shape))
         self._it.invoke()
-        return [self._it.get_tensor(i).copy() for i in self._outputs]
+        # get_tensor returns a copy already (it owns its data: a later invoke leaves it alone)
+        return [self._it.get_tensor(i) for i in self._outputs]
 
 
 # An interpreter is not safe to share between threads: one set per thread.
 _local = threading.local()
 
 
-def get_model(name: str) -> Model:
-    """The (cached, per thread) interpreter of model `name`. Raises ModelsMissing."""
+def get_model(name: str, batch: int = 1) -> Model:
+    """The (cached, per thread) interpreter of model `name` for `batch` images a run. Raises
+    ModelsMissing."""
     cache = getattr(_local, "models", None)
     if cache is None:
         cache = _local.models = {}
-    if name not in cache:
-        cache[name] = Model(name)
-    return cache[name]
+    key = name if batch == 1 else (name, int(batch))
+    if key not in cache:
+        cache[key] = Model(name, batch)
+    return cache[key]

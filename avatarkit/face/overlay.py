@@ -1,6 +1,7 @@
 """What the face front end sees, drawn over the photo (`avatarkit face`).
 
-`look_at_faces` runs detection, the face mesh and iris on every face and fits the head model's
+`look_at_faces` runs detection, the face mesh and iris on every face, reads the chosen one again
+with test-time augmentation (`face_landmarks(augment=True)`) and fits the head model's
 landmarks (`face.fit.fit_landmarks`: pose and shape from the landmarks alone; the build adds
 its silhouette terms) to the chosen one; `draw_overlay` draws it all:
 boxes (yellow; the chosen face thicker) with the detector's six keypoints (magenta), the 468
@@ -15,6 +16,10 @@ import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.face.correspondence import FACE_OVAL, LIPS_INNER, LIPS_OUTER
+
+#: `look_at_faces` fits the chosen face's mesh read with test-time augmentation
+#: (`face.landmarks.face_landmarks(augment=True)`; session 11)
+AUGMENT = True
 
 
 @dataclass(eq=False)
@@ -69,6 +74,9 @@ def look_at_faces(image: np.ndarray, face_index: int | None = None, fit: bool = 
         if emb is not None:
             h, w = image.shape[:2]
             focal = portrait_focal(w, h)
+            # the fitted face read with test-time augmentation (`face_landmarks(augment=True)`):
+            # 120 shaded template renders 2.19 -> 1.86 deg median rotation error (docs/face.md)
+            meshes[index] = face_landmarks(image, faces[index], mirror=True, augment=AUGMENT)
             targets = LandmarkTargets.from_mesh(meshes[index], emb, (w, h))
             result = fit_landmarks(model, emb, targets, focal)
             pts = LandmarkModel(model, emb).points_numpy(result.shape)

@@ -203,11 +203,13 @@ class Samples:
 def samples_from_renders(data: dict, embedding) -> Samples:
     """`data`: what scripts/make_view_correction.py renders: mesh (N, 468, 3) pixels, truth_cam
     (N, K, 3) true landmarks in the OpenCV camera frame, head_to_cam (N, 3, 3), jaw (N,), focal,
-    size, found (N,)."""
+    size, found (N,), and optionally principal (2,) px (default: size / 2 on both axes)."""
     f, size = float(data["focal"]), float(data["size"])
+    # the principal point: the image's centre unless given (a crop's, `track.subject_calibration`)
+    c = np.asarray(data["principal"], np.float64) if "principal" in data else np.array([size / 2, size / 2])
     X = np.asarray(data["truth_cam"], np.float64)                                    # (N, K, 3)
     z = X[..., 2]
-    px = f * X[..., :2] / z[..., None] + size / 2
+    px = f * X[..., :2] / z[..., None] + c
     det = np.asarray(data["mesh"], np.float64)[:, np.asarray(embedding.mesh_index), :2]
     r = det - px
     # d pixel / d camera point, times head -> camera: (N, K, 2, 3)

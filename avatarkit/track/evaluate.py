@@ -67,9 +67,10 @@ class EvalOptions:
     background: the constant colour (linear RGB in [0, 1]) outside the person mask in both
     images; alpha_threshold: render alpha above which a pixel is the person; simulate_hair: run
     the hair simulation in the bake (default: hair rides the head rigidly); side_by_side: write
-    side_by_side.mp4; n_bald, n_hair: Gaussians of the build; head_on: where the tracked head
-    motion goes (`track.neck.place_head`: "neck", the body held at the build frame's pose, or
-    "global")."""
+    side_by_side.mp4; n_bald, n_hair: Gaussians of the build; subject_calibration: track with a
+    view correction calibrated on renders of the avatar (`track.subject_calibration`); head_on:
+    where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
+    build frame's pose, or "global")."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -81,6 +82,7 @@ class EvalOptions:
     n_hair: int = 40_000
     compare_single: bool = False
     colour_share: float = 0.5
+    subject_calibration: bool = False
     head_on: str = DEFAULT_HEAD_ON
 
 
@@ -269,7 +271,10 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         from avatarkit.track.video import track_video
 
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
-        result = track_video(video, avatar=avatar_dir, progress=step,
+        from avatarkit.track.tracker import TrackOptions
+
+        track_options = TrackOptions(subject_calibration=options.subject_calibration)
+        result = track_video(video, avatar=avatar_dir, progress=step, options=track_options,
                              meshes=tracking.meshes if tracking is not None else None)
         aligned = align_to_build(result, avatar_dir, build_frame)
         relative, posed = aligned["eyes"], aligned["head_pose"]
@@ -289,7 +294,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             single_dir, _, _ = _build(video, staged, build_frame, options, None, {}, "avatar_single_frame")
             single_result = track_video(video, avatar=single_dir,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
-                                        if progress else None, meshes=tracking.meshes)
+                                        if progress else None, meshes=tracking.meshes, options=track_options)
             align_to_build(single_result, single_dir, build_frame)
             place_head(single_result, build_frame, options.head_on)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
@@ -303,6 +308,9 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "build_frame": build_frame, "keyframes": keyframes, "colour_frames": colour_frames,
             "build": ("video (keyframes fused)" if keyframes else "single frame" if built else "given"),
             "exclude": options.exclude,
+            "subject_calibration": (None if result.subject_calibration is None else
+                                    f"{result.subject_calibration.found}/{result.subject_calibration.renders} renders, "
+                                    f"{sum(result.subject_calibration.seconds):.1f} s"),
             "mask": f"render alpha > {options.alpha_threshold} (same mask for both images)",
             "background": list(options.background),
             "ssim": {k: v for k, v in metrics.SSIM_SETTINGS.items()},

@@ -70,6 +70,10 @@ class TrackOptions:
     Off by default: calibrated on renders of the template head, it removes the template's
     bias (shaded template video: rotation 3.23 -> 2.15 deg, jaw 0.045 -> 0.034 rad) but puts
     it on other faces (the avatar built from samples/portrait.jpg: 4.15 -> 7.46 deg).
+    view_correction may also be a `ViewCorrection` (e.g. one fitted for this subject).
+    subject_calibration: with an avatar (`track_video(avatar=)`), fit a view correction for it
+    from renders of the avatar at known poses (`track.subject_calibration`) and track with it
+    (unless view_correction is set).
     mirror_landmarks: the face mesh averaged with its answer on the mirror image
     (`face.landmarks`, module docstring; what `avatarkit face` fits). Off (session 9,
     benchmarks/track.py, median over the video and its mirror): it hardly moves the shaded
@@ -101,8 +105,9 @@ class TrackOptions:
     jaw_prior: float = 1e-3
     calibration_frames: int = CALIBRATION_FRAMES
     outline_weight: float = 0.3
-    view_correction: bool = False
+    view_correction: Any = False
     mirror_landmarks: bool = False
+    subject_calibration: bool = False
 
 
 @dataclass(eq=False)
@@ -127,6 +132,7 @@ class TrackResult:
     model: Any = None          # the head model tracked with (not stored in the file)
     embedding: Any = None      # its landmark embedding, calibrated offsets included (not stored)
     meshes: list | None = None  # the per-frame face meshes (None: no face), for `track_frames(meshes=)`
+    subject_calibration: Any = None  # `subject_calibration.SubjectCalibration` when one was made
 
     @property
     def num_frames(self) -> int:
@@ -203,7 +209,11 @@ class FrameTracker:
 
         from avatarkit.face.view_correction import resolve
 
-        self.correction = resolve("full" if options.view_correction else None, self.embedding)
+        # True: the built-in template's correction; a ViewCorrection (e.g. calibrated on this
+        # subject, `track.subject_calibration`): that one
+        self.correction = resolve(options.view_correction or None, self.embedding)
+        if options.view_correction not in (None, False, True) and not options.view_correction.matches(self.embedding):
+            raise InputError("the view correction was calibrated for another landmark embedding")
         self.problem = FrameProblem.from_landmark_model(self.lm, self.shape, self.expr_components
                                                         ).with_view(self.correction)
         self.prev_mesh = None

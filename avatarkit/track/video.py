@@ -8,6 +8,10 @@ so a talking mouth does not bend the face shape) by the tracker's Levenberg-Marq
 (shape coefficients join the expression ones in `solve.FrameProblem`), and the shape is their
 per-coefficient median.
 
+Subject calibration. With an avatar and `TrackOptions(subject_calibration=True)`, the face
+mesh's reading bias is calibrated on renders of the avatar at known poses before tracking
+(`track.subject_calibration`), and the fit uses that view correction.
+
 Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
 (`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
 each clip frame); a constant-rate one keeps its frames and rate.
@@ -106,6 +110,14 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         embedding = model_embedding(model, landmark_embedding)
         if shape is None:
             shape = fit_identity(_identity_frames(video, start, end), model, size, options, embedding)
+        calibration = None
+        if avatar is not None and options.subject_calibration and options.view_correction is False:
+            import dataclasses
+
+            first = next(iter(video.frames(start, start + 1)))
+            calibration = calibrate_on_avatar(avatar, model, shape, embedding, size, options, first.rgb)
+            if calibration.correction is not None:
+                options = dataclasses.replace(options, view_correction=calibration.correction)
         frames = video.frames(start, end)
         fps = info.fps
         total = end - start
@@ -115,7 +127,24 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         frames = _with_source_index(frames)
         step = (lambda i: progress(i + 1, total)) if progress is not None else None
         name = os.path.splitext(os.path.basename(p.rstrip("/")))[0]
-        return track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes)
+        result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes)
+        result.subject_calibration = calibration
+        return result
+
+
+def calibrate_on_avatar(avatar, model, shape, embedding, size: tuple[int, int], options: TrackOptions,
+                        first_rgb: np.ndarray | None = None):
+    """The avatar's own view correction (`subject_calibration.calibrate_subject`), rendered with
+    the tracker's focal length for this video size over the background the video's first frame
+    shows around the head (`subject_calibration.border_colour`; white without a frame)."""
+    from avatarkit.avatar import load_avatar
+    from avatarkit.recon.fit import portrait_focal
+    from avatarkit.track import subject_calibration as sc
+
+    focal = float(options.focal) if options.focal else portrait_focal(*size)
+    background = (1.0, 1.0, 1.0) if first_rgb is None else sc.border_colour(first_rgb)
+    return sc.calibrate_subject(sc.avatar_renderer(load_avatar(avatar), background), model, shape, embedding,
+                                focal, grid=sc.AVATAR_GRID)
 
 
 class _Indexed:
