@@ -126,8 +126,9 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     print(f"synthetic turning video ({clip_kind} clip, {frames} frames {size}x{size}, {what}; keyframes "
           f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair, each in its own process")
     from avatarkit.track.keyframes import yaw_pitch
+    from avatarkit.track.neck import head_rotation
 
-    true = np.degrees(yaw_pitch(clip.rotation)[:, 0])
+    true = np.degrees(yaw_pitch(head_rotation(clip.rotation, clip.neck))[:, 0])
     print("  keyframes' yaw, tracked (true): " + ", ".join(
         f"{k['yaw_deg']:.0f} ({true[k['frame']]:.0f})" for k in prov["source_video"]["keyframes"]))
     edge = prov["source_video"].get("tracking_edge", [])

@@ -77,6 +77,7 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
     from avatarkit.track import TrackOptions, track_frames
     from avatarkit.track import subject_calibration as sc
     from avatarkit.track.tracker import model_embedding
+    from avatarkit.track.neck import head_rotation
 
     clip = mixed_clip(frames, 30.0)
     camera = head_video_camera(size, distance=0.55)
@@ -104,8 +105,10 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
         print(f"synthetic ({what}, mixed clip, {frames} frames at {size}x{size}; render {t_render:.1f} s):")
         mirrored = [SyntheticFrame(f.index, f.time, np.ascontiguousarray(f.rgb[:, ::-1])) for f in video]
         render = subject_renderer(subject, avatar if subject not in ("shaded", "flat") else None)
-        for view, frames_in, truth, draw in (("as rendered", video, clip.rotation, render),
-                                             ("mirrored", mirrored, clip.rotation * np.array([1.0, -1.0, -1.0]),
+        # the head's rotation (global then neck) on both sides: the same whichever joint carries it
+        true_head = head_rotation(clip.rotation, clip.neck)
+        for view, frames_in, truth, draw in (("as rendered", video, true_head, render),
+                                             ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]),
                                               sc.mirrored(render))):
             # the subject's own calibration: its model (the renderer that made the video; for
             # the mirrored video, its mirror image) at the grid's poses, never the video's frames
@@ -129,7 +132,7 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                 t0 = time.perf_counter()
                 r = track_frames(frames_in, model, shape, (size, size), 30.0, options)
                 t_track = time.perf_counter() - t0
-                rot = [angle_deg(a, b) for a, b in zip(r.clip.rotation, truth)]
+                rot = [angle_deg(a, b) for a, b in zip(head_rotation(r.clip.rotation, r.clip.neck), truth)]
                 jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
                 figures[label] = (np.median(rot), np.median(jaw), np.nanmedian(r.landmark_error))
                 print(f"  {view:11s} {label}: rotation error median {np.median(rot):.2f} deg "

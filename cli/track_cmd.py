@@ -35,9 +35,14 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--subject-calibration/--no-subject-calibration", default=False, show_default=True,
               help="With --avatar: calibrate the face mesh's reading on renders of the avatar at known "
               "poses first (~30 s) and track with that correction (docs/tracking.md).")
+@click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
+              help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
+              "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "
+              "--avatar built from this video, else the clip's median; 'global' turns the whole "
+              "model, neck and shoulders with the head (docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, align_to_build, subject_calibration, quiet):
+              smoothing, preview, align_to_build, subject_calibration, head_on, quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
 
@@ -70,20 +75,26 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,
                              options=options, progress=bar.step)
-    aligned, saved = None, result
-    if avatar is not None and align_to_build:
-        import dataclasses
+    import dataclasses
 
+    # the overlay keeps drawing the fit to the video; the file gets the aligned clip
+    aligned, saved = None, dataclasses.replace(result, clip=result.clip.replace())
+    if avatar is not None and align_to_build:
         from avatarkit.track.build_pose import align_to_build as align, recorded_build_frame
 
         frame = recorded_build_frame(avatar, video)
         if frame is not None:
-            # the overlay keeps drawing the fit to the video; the file gets the aligned clip
-            saved = dataclasses.replace(result, clip=result.clip.replace())
             aligned = align(saved, avatar, frame)
             if aligned["frame"] is None and not quiet:
                 click.echo(f"warning: {avatar} was built from frame {frame} of this video, outside the "
                            "tracked frames: the clip is not aligned to it", err=True)
+    carried = None
+    if head_on == "neck":
+        from avatarkit.track.neck import place_head
+
+        # the body keeps the build frame's pose only when the clip was aligned to that frame
+        frame = aligned["frame"] if aligned is not None else None
+        carried = place_head(saved, frame, "neck")
     with cli_warnings(quiet):
         save_tracking(output, saved)
         if preview is not None:
@@ -101,6 +112,10 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         if aligned is not None and aligned["frame"] is not None:
             parts = [n for n, k in (("eyes", "eyes"), ("head pose", "head_pose")) if aligned[k]]
             click.echo(f"aligned to the avatar's build frame {aligned['frame']} ({' and '.join(parts)})", err=True)
+        if carried is not None:
+            from avatarkit.track.neck import describe
+
+            click.echo(f"head on the {describe(carried)}", err=True)
         click.echo(f"wrote {output}" + (f" and {preview}" if preview else ""), err=True)
 
 

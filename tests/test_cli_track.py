@@ -38,8 +38,15 @@ def test_track_writes_a_clip_bake_reads_and_a_preview(tmp_path, capsys, head_mp4
     r = load_tracking(out)
     assert r.num_frames == 5 and r.found.all() and list(r.frame_index) == [1, 2, 3, 4, 5]
     assert r.camera.width == 192 and r.clip.fps == pytest.approx(24.0)
-    # yaw increases over the clip as the rendered head turns
-    assert np.all(np.diff(r.clip.rotation[:, 1]) > 0)
+    # yaw increases over the clip as the rendered head turns; the head turns on the neck, the
+    # body keeps the clip's median pose (`track --head-on neck`, the default)
+    from avatarkit.track.neck import head_rotation, median_rotation
+
+    head = head_rotation(r.clip.rotation, r.clip.neck)
+    assert np.all(np.diff(head[:, 1]) > 0)
+    np.testing.assert_allclose(r.clip.rotation, np.broadcast_to(median_rotation(head), (5, 3)), atol=1e-6)
+    assert np.abs(r.clip.neck[[0, -1], 1]).min() > 0.05
+    assert "head on the neck (the body held at the clip's median pose)" in cap.err
     assert load_clip(out).n_frames == 5
     with open_video(prev) as v:
         assert v.info.frame_count == 5 and v.info.codec == "h264"

@@ -241,6 +241,8 @@ def test_evaluate_synthetic_video_end_to_end(synthetic, tmp_path, capsys):
     assert s["psnr_full"] > s["psnr"] + 2            # constant background matches exactly
     assert s["landmark_error_px"] is not None and s["landmark_error_px"] < 3.0, s
     assert doc["summary"]["lpips"] is None and "LPIPS" in doc["lpips"]
+    # the head turns on the neck, the body held at the build frame's pose (`track.neck`)
+    assert doc["settings"]["head_on"] == "neck (the body held at frame 0's pose)"
     rows = list(csv.DictReader((out / "frames.csv").open()))
     assert len(rows) == 12 and [r["excluded"] for r in rows[:4]] == ["1", "1", "1", "0"]
     assert np.mean([float(r["psnr"]) for r in rows if r["excluded"] == "0"]) == pytest.approx(s["psnr"], rel=1e-4)
@@ -436,6 +438,16 @@ def test_track_with_the_avatar_built_from_the_video_aligns_to_its_build_frame(sy
     assert main([*args, "-o", str(out)]) == 0
     assert f"aligned to the avatar's build frame {b} (eyes and head pose)" in capsys.readouterr().err
     raw, got = load_tracking(raw_out), load_tracking(out)
+    # both carry the head on the neck, the body at the build frame's pose: the head back on the
+    # global rotation (neck 0) for the view transforms
+    from avatarkit.track.neck import clip_joints, head_on_neck, head_rotation
+
+    np.testing.assert_allclose(got.clip.rotation, np.broadcast_to(got.clip.rotation[b], (8, 3)), atol=1e-7)
+    np.testing.assert_allclose(got.clip.neck[b], 0.0, atol=1e-6)
+    for r in (raw, got):
+        head = head_rotation(r.clip.rotation, r.clip.neck)
+        r.clip.rotation, r.clip.neck, r.clip.translation = head_on_neck(
+            r.clip.rotation, r.clip.translation, r.clip.neck, clip_joints(model, r.clip), head)
     R, t = view_transforms(got.clip.rotation, got.clip.translation, got.camera.world_to_camera, J0)
     np.testing.assert_allclose(R[b], R_f, atol=2e-5)
     np.testing.assert_allclose(t[b], t_f, atol=2e-5)
@@ -450,4 +462,5 @@ def test_track_with_the_avatar_built_from_the_video_aligns_to_its_build_frame(sy
     assert main(["track", video, "--avatar", str(_built_from(synthetic, tmp_path / "b", 10, w2c)),
                  "--end", "8", "-o", str(tmp_path / "late.npz")]) == 0
     assert "outside the tracked frames" in capsys.readouterr().err
-    np.testing.assert_array_equal(load_tracking(tmp_path / "late.npz").clip.rotation, raw.clip.rotation)
+    late = load_tracking(tmp_path / "late.npz").clip
+    np.testing.assert_allclose(head_rotation(late.rotation, late.neck), raw.clip.rotation, atol=1e-6)

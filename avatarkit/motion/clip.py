@@ -6,9 +6,11 @@ neck (T, 3), jaw (T, 3) axis-angle; eyes (T, 6) left then right eye axis-angle; 
 expression coefficients; shape (S,) static identity coefficients (S may be 0: "keep the
 avatar's own shape").
 
-Like FLAME trackers (VHAP, GaussianAvatars) we put the head pose in `rotation` and keep `neck`
-near zero; a clip that turns the head through `neck` works too but bends the neck mesh instead
-of turning the whole head.
+Procedural clips, like FLAME trackers (VHAP, GaussianAvatars), put the head pose in `rotation`
+and keep `neck` near zero: the whole model, neck and shoulders, turns with the head. `avatarkit
+track` (default `--head-on neck`) holds `rotation` at one pose and turns the head through `neck`,
+so the neck's base and what the build saw around it stay with the body (`track.neck`); the
+head's own rotation is then `track.neck.head_rotation(rotation, neck)`.
 """
 from __future__ import annotations
 

@@ -29,6 +29,8 @@ from typing import Callable
 
 import numpy as np
 
+from avatarkit.track.neck import clip_head_rotation
+
 MIN_CONFIDENCE_SHARE = 0.8
 #: radians of head turn one eye distance of lip gap or mouth widening is worth: lips 0.1 eye
 #: distances apart (the teeth show) weigh like a ~6 degree turn
@@ -64,7 +66,7 @@ def frame_costs(result) -> np.ndarray:
     clip = result.clip
     conf = np.where(result.found, np.asarray(result.confidence, np.float64), 0.0)
     mouth = mouth_cost(result.landmarks)
-    cost = (np.linalg.norm(clip.rotation, axis=1) + 2.0 * np.linalg.norm(clip.jaw, axis=1)
+    cost = (np.linalg.norm(clip_head_rotation(clip), axis=1) + 2.0 * np.linalg.norm(clip.jaw, axis=1)
             + 0.1 * np.linalg.norm(clip.expr, axis=1) + MOUTH_WEIGHT * np.nan_to_num(mouth, nan=np.inf))
     ok = conf >= MIN_CONFIDENCE_SHARE * conf.max() if conf.max() > 0 else np.zeros(len(conf), bool)
     return np.where(ok, cost, np.inf)

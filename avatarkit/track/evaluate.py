@@ -50,6 +50,7 @@ import numpy as np
 from avatarkit.errors import OutputError
 from avatarkit.track import metrics
 from avatarkit.track.build_pose import align_to_build, recorded_build_frame
+from avatarkit.track.neck import DEFAULT_HEAD_ON, describe, place_head
 
 REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
 #: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
@@ -67,7 +68,9 @@ class EvalOptions:
     images; alpha_threshold: render alpha above which a pixel is the person; simulate_hair: run
     the hair simulation in the bake (default: hair rides the head rigidly); side_by_side: write
     side_by_side.mp4; n_bald, n_hair: Gaussians of the build; subject_calibration: track with a
-    view correction calibrated on renders of the avatar (`track.subject_calibration`)."""
+    view correction calibrated on renders of the avatar (`track.subject_calibration`); head_on:
+    where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
+    build frame's pose, or "global")."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -80,6 +83,7 @@ class EvalOptions:
     compare_single: bool = False
     colour_share: float = 0.5
     subject_calibration: bool = False
+    head_on: str = DEFAULT_HEAD_ON
 
 
 @dataclass
@@ -274,6 +278,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
                              meshes=tracking.meshes if tracking is not None else None)
         aligned = align_to_build(result, avatar_dir, build_frame)
         relative, posed = aligned["eyes"], aligned["head_pose"]
+        carried = place_head(result, build_frame, options.head_on)
         timings["track"] = time.perf_counter() - t0
         centres = sorted(set(keyframes) | set(colour_frames) | ({build_frame} if build_frame is not None else set()))
         frames, rest = render_and_compare(video, avatar_dir, result, centres or None, options, staged, progress)
@@ -291,6 +296,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
                                         progress=(lambda d, t: progress("tracking (single-frame build)", d, t))
                                         if progress else None, meshes=tracking.meshes, options=track_options)
             align_to_build(single_result, single_dir, build_frame)
+            place_head(single_result, build_frame, options.head_on)
             single_opts = EvalOptions(**{**asdict(options), "side_by_side": False})
             single_frames, _ = render_and_compare(video, single_dir, single_result, centres, single_opts,
                                                   staged, progress)
@@ -312,6 +318,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "eyes": ("tracked gaze relative to the build frame's" if relative else "tracked gaze as it is"),
             "head_pose": ("tracked motion, the build frame posed as the build's fit" if posed
                           else "tracked pose as it is"),
+            "head_on": describe(carried),
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),
         }

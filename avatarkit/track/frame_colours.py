@@ -17,7 +17,8 @@ registered detail) 18-19 %. Fitting every Gaussian's colour to many frames blurs
 above gained +0.11 / +0.63 dB on the two clips' second halves.
 
 The stage (`fuse_frame_colours`): track the video with the built avatar (as `avatarkit evaluate`
-does: `track_video(avatar=)`, the clip aligned to the reference keyframe), pose the avatar at up
+does: `track_video(avatar=)`, the clip aligned to the reference keyframe, the head carried on
+the neck as `track.neck.DEFAULT_HEAD_ON` says), pose the avatar at up
 to `FRAMES` frames spread evenly over the eligible frames of the span (face found, confidence at
 least `track.keyframes.MIN_CONFIDENCE_SHARE` of the best, head pose within `MAX_TURN` of the reference's), render
 each from the tracked camera, and refine the colours of the selected Gaussians
@@ -37,6 +38,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 
 #: head-model regions whose bald Gaussians are coloured from the frames (module docstring);
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
@@ -175,7 +178,7 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
     if span is not None:
         ok &= (frames >= span[0]) & (frames < span[1])
     if reference is not None:
-        yp = yaw_pitch(result.clip.rotation)
+        yp = yaw_pitch(clip_head_rotation(result.clip))
         ok &= np.linalg.norm(yp - yp[int(reference)], axis=1) <= max_turn
     rows = np.flatnonzero(ok)
     if len(rows) <= count:
@@ -281,6 +284,9 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
             avatar.preview = preview
         result = track_video(video, avatar=folder, meshes=tracking.meshes)
         align_to_build(result, folder, reference_frame)
+        # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
+        # are fitted where the neck will be
+        place_head(result, reference_frame, DEFAULT_HEAD_ON)
         saved = load_avatar(folder)
     ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
     rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)

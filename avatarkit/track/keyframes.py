@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avatarkit.track.neck import clip_head_rotation
+
 #: eligible frames have at least this share of the best confidence (module docstring)
 MIN_CONFIDENCE_SHARE = 0.6
 #: at most this many keyframes (the reference included)
@@ -173,7 +175,7 @@ def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = K
     # side views from the first build the frames past the tracking register against (session
     # 10: the held-out bob's profile gain +1.68 -> +1.26 dB), docs/video-build.md
     eligible = eligible_frames(result)
-    pose = yaw_pitch(result.clip.rotation)
+    pose = yaw_pitch(clip_head_rotation(result.clip))
     s = np.ones(T) if sharpness is None else np.asarray(sharpness, np.float64).reshape(T)
     top = s[eligible].max() if eligible.any() else 0.0
     sharp = np.clip(s / top, 0.0, 1.0) if top > 0 else np.ones(T)

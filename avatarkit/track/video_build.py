@@ -37,6 +37,7 @@ import numpy as np
 
 # a lost stretch is a turn beyond the tracking when a tracked frame beside it turned this much
 from avatarkit.track.keyframes import TURNED_EDGE
+from avatarkit.track.neck import clip_head_rotation
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
@@ -192,7 +193,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             options.name = Path(video).stem
         turned = []
         if views is not None and (REGISTER_TURNED if register is None else register):
-            turned = turned_frames(result, yaw_pitch(result.clip.rotation)[:, 0])
+            turned = turned_frames(result, yaw_pitch(clip_head_rotation(result.clip))[:, 0])
         if turned:
             from avatarkit.recon.pipeline import STAGES
 
