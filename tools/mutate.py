@@ -188,6 +188,21 @@ MUTATIONS = [
     M("track.edge_walks_on", "avatarkit/track/keyframes.py",
       "                if abs(yaw[i]) < peak - EDGE_MARGIN:", "                if False:",
       ["tests/test_keyframes.py", "-k", "edge"], "the tracking's edge takes every eligible frame on the turned side"),
+    # --- face, track (session 11) ---------------------------------------------------------------
+    M("face.overlay_not_augmented", "avatarkit/face/overlay.py", "AUGMENT = True", "AUGMENT = False",
+      ["tests/test_face_augment.py"], "`avatarkit face` fits the face mesh read in one region, not the nine"),
+    M("track.neck_no_translation_fix", "avatarkit/track/neck.py",
+      "    tau = np.asarray(translation, np.float64).reshape(T, 3) + np.einsum(\"tij,tj->ti\", R_old - R0, rel)",
+      "    tau = np.asarray(translation, np.float64).reshape(T, 3)",
+      ["tests/test_track_neck.py"], "the head moved onto the neck without moving the translation: the head lands off the fit"),
+    M("track.neck_composed_backwards", "avatarkit/track/neck.py",
+      "    return matrix_to_axis_angle(_matrices(rot) @ _matrices(neck))",
+      "    return matrix_to_axis_angle(_matrices(neck) @ _matrices(rot))",
+      ["tests/test_track_neck.py"], "the head's rotation read as neck then global"),
+    M("track.calibration_centred_crop", "avatarkit/face/view_correction.py",
+      "    c = np.asarray(data[\"principal\"], np.float64) if \"principal\" in data else np.array([size / 2, size / 2])",
+      "    c = np.array([size / 2, size / 2])",
+      ["tests/test_track_subject_calibration.py"], "the subject calibration's crops read as if centred on the head"),
 ]
 
 
