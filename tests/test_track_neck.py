@@ -20,6 +20,12 @@ def _pose(model, c):
     return model.forward(p)[0].astype(np.float64), model.shaped_vertices(p).astype(np.float64)
 
 
+def _joints(model, c):
+    """(T, J, 3) rest joints of clip dict c (its shape, each frame's expression)."""
+    return model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
+                                        expr=c["expr"].astype(np.float32))).astype(np.float64)
+
+
 def test_head_lands_where_the_global_pose_put_it_and_the_body_only_translates():
     model = load_template()
     w = model.weights
@@ -30,8 +36,7 @@ def test_head_lands_where_the_global_pose_put_it_and_the_body_only_translates():
         rng = np.random.default_rng(seed)
         c = _random_clip(rng, model, neck=with_neck)
         before, shaped = _pose(model, c)
-        joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
-                                              expr=c["expr"].astype(np.float32))).astype(np.float64)
+        joints = _joints(model, c)
         ref = rng.normal(scale=0.3, size=3)
         rot, neck, tau = head_on_neck(c["rotation"], c["translation"], c["neck"], joints, ref)
         after, _ = _pose(model, {**c, "rotation": rot, "neck": neck, "translation": tau})
@@ -50,8 +55,7 @@ def test_body_follows_the_neck_joint_and_the_reference_frame_is_unchanged():
     model = load_template()
     rng = np.random.default_rng(3)
     c = _random_clip(rng, model)
-    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
-                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    joints = _joints(model, c)
     row = 4
     rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, c["rotation"][row])
     np.testing.assert_allclose(neck[row], 0, atol=1e-9)
@@ -88,8 +92,7 @@ def test_per_frame_reference_puts_the_head_back_on_the_global_rotation():
     model = load_template()
     rng = np.random.default_rng(7)
     c = _random_clip(rng, model)
-    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
-                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    joints = _joints(model, c)
     rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, np.array([0.1, -0.2, 0.05]))
     back = head_on_neck(rot, tau, neck, joints, head_rotation(rot, neck))
     np.testing.assert_allclose(back[0], c["rotation"], atol=1e-9)
@@ -108,8 +111,7 @@ def test_holding_the_base_keeps_the_head_and_puts_the_neck_base_on_the_segment()
     c = _random_clip(rng, model)
     head = model.weights[:, 0] == 0
     before, _ = _pose(model, c)
-    joints = model.rest_joints(HeadParams(shape=c["shape"].astype(np.float32),
-                                          expr=c["expr"].astype(np.float32))).astype(np.float64)
+    joints = _joints(model, c)
     rot, neck, tau = head_on_neck(c["rotation"], c["translation"], None, joints, np.zeros(3))
     base = joints[3, 0] + tau[3]
     rot, neck, tau = hold_base(rot, tau, neck, joints, base)
