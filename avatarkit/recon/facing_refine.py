@@ -31,7 +31,9 @@ synthetic front views 0.3.
 The neck's Gaussians are left alone (the head turns, the neck and the clothes do not).
 
 Measured (docs/video-build.md, session 12): +0.1 dB at the profile of the synthetic turning
-videos, the mesh subject's front -0.2; off (`pipeline.FACING_REFINE`). Colours fitted to the
+videos, the mesh subject's front -0.2, the held-out bob's -1.2 (its hair hangs beside the face:
+seen squarely from the front where the head's normal says grazing); off
+(`pipeline.FACING_REFINE`). Colours fitted to the
 known subject's own renders at the profile, on the same geometry, buy +1.0-1.4 dB there on the
 sample avatar (the outline carries 55-64 % of the error) and +4-6 dB on the mesh subject, whose
 turned frames' pixels land on the wrong Gaussians (its 80-degree frames registered 10-15 degrees

@@ -73,7 +73,8 @@ GROW_HAIR_HULL = True
 #: Gaussian's update led by the keyframes that face it best (`recon.facing_refine`). Off:
 #: measured on the synthetic turning videos (eased clip, gain front / +-45 / +-90 degrees) the
 #: sample avatar -0.03 / +0.07 / +0.04 / +0.10 / +0.10 dB, the mesh subject -0.22 / +0.26 /
-#: +0.39 / +0.07 / +0.18 (docs/video-build.md, session 12)
+#: +0.39 / +0.07 / +0.18; in the whole build the held-out bob lost 1.17 dB at the front
+#: (docs/video-build.md, session 12)
 FACING_REFINE = False
 #: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
 #: (`recon.coverage`), before the colour matching
