@@ -2,7 +2,8 @@
 run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip] [--frames N] [--skip-real]
-[--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]`
+[--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
+[--facing-refine]`
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -66,6 +67,9 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
 
     video_build.REGISTER_TURNED = register
     video_build.REGISTER_MODE = os.environ.get("AVATARKIT_REGISTER_MODE", video_build.REGISTER_MODE)
+    # the facing-weighted refine over the keyframes (`recon.facing_refine`, off by default)
+    if os.environ.get("AVATARKIT_FACING_REFINE") in ("0", "1"):
+        pipeline.FACING_REFINE = os.environ["AVATARKIT_FACING_REFINE"] == "1"
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()
@@ -196,6 +200,9 @@ def timing(video: str, counts: tuple[int, int], tmp: str) -> None:
           f"{counts[0]} + {counts[1]} Gaussians): wall {wall:.1f} s, CPU {cpu:.1f} s "
           "(target <= 120 s on 2 cores)")
     print("  stages (wall s): " + ", ".join(f"{k} {s:.1f}" for k, s in stages.items()))
+    fr = avatar.provenance["build"].get("facing_refine")
+    if fr is not None:
+        print(f"  of the colours stage, the facing refine over {fr['views']} keyframes: {fr['seconds']:.1f} s")
     print(f"  baseline single-frame build of frame {ref}: wall {swall:.1f} s, CPU {scpu:.1f} s; "
           f"ratio video / single: wall {wall / swall:.2f}x, CPU {cpu / scpu:.2f}x")
 
@@ -217,10 +224,20 @@ def main() -> None:
     ap.add_argument("--no-multiview-hair", action="store_true",
                     help="video builds without the multi-view hair directions and shell growth (the 'before' "
                          "figures)")
+    ap.add_argument("--facing-refine", action="store_true",
+                    help="video builds with the facing-weighted colour refine over the keyframes "
+                         "(recon.facing_refine; AVATARKIT_FACING_REFINE=1 does the same)")
     ap.add_argument("--time-synthetic", action="store_true",
                     help="also time the build of a 250-frame 480x480 synthetic turning video")
     a = ap.parse_args()
     print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
+    if a.facing_refine:
+        os.environ["AVATARKIT_FACING_REFINE"] = "1"      # read by each build's own process
+    if os.environ.get("AVATARKIT_FACING_REFINE") == "1":
+        from avatarkit.recon import pipeline
+
+        pipeline.FACING_REFINE = True                     # the timed builds run in this process
+        print("facing-weighted colour refine over the keyframes: on")
     if a.no_multiview_hair:
         print("multi-view hair directions and shell growth: off")
     counts = (40_000, 40_000)

@@ -601,15 +601,23 @@ class VideoViews:
     def summary(self, views: list[View]) -> dict:
         return {**self.info, "views": len(views), "segmented": int(sum(v.labels is not None for v in views))}
 
-    def colour(self, bald, hair, views: list[View], fit, sdf):
-        """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
-        figures)."""
-        _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
+    @staticmethod
+    def neck_rows(bald, hair, fit) -> np.ndarray:
+        """(N_bald + N_hair,) bool: the bald Gaussians bound to the neck (every vertex of the
+        host face in the head model's "neck" region): the tracked head turns, the neck does not,
+        so the keyframes' views of it are not the rest avatar's."""
         keep = np.zeros(len(bald) + len(hair), bool)
         model = fit.model
         if "neck" in model.regions and "binding" in bald.extras:
             neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
             keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
+        return keep
+
+    def colour(self, bald, hair, views: list[View], fit, sdf):
+        """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
+        figures)."""
+        _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
+        keep = self.neck_rows(bald, hair, fit)
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep)
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures

@@ -69,6 +69,13 @@ MULTIVIEW_HAIR_DIRECTIONS = True
 #: reference photo's colour matching (`multiview.VideoViews.keep_view_colours`)
 KEEP_VIEW_COLOURS = True
 GROW_HAIR_HULL = True
+#: a video build (several keyframes) then matches its colours to every keyframe at once, each
+#: Gaussian's update led by the keyframes that face it best (`recon.facing_refine`). Off:
+#: measured on the synthetic turning videos (eased clip, gain front / +-45 / +-90 degrees) the
+#: sample avatar -0.03 / +0.07 / +0.04 / +0.10 / +0.10 dB, the mesh subject -0.22 / +0.26 /
+#: +0.39 / +0.07 / +0.18; in the whole build the held-out bob lost 1.17 dB at the front
+#: (docs/video-build.md, session 12)
+FACING_REFINE = False
 #: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
 #: (`recon.coverage`), before the colour matching
 COVER_SILHOUETTE = True
@@ -428,6 +435,15 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         if keyviews and KEEP_VIEW_COLOURS:
             # what only the other keyframes saw keeps their colours (`VideoViews.keep_view_colours`)
             bald, hair, report.info["multiview_colours"]["kept_after_refine"] = views.keep_view_colours(bald, hair)
+        if len(keyviews) > 1 and FACING_REFINE and options.refine_iterations > 0:
+            # the render matched to every keyframe, each Gaussian led by the view facing it best
+            from avatarkit.recon.facing_refine import refine_facing
+
+            t0 = time.perf_counter()
+            keep = views.neck_rows(bald, hair, fit)
+            bald, hair, figures = refine_facing(bald, hair, keyviews,
+                                                sdf.query(np.concatenate([bald.means, hair.means]))[1], keep)
+            report.info["facing_refine"] = {**figures, "seconds": round(time.perf_counter() - t0, 3)}
     with stage("hair_rig"):
         if len(hair) == 0:  # a bald person: nothing to cage or rig
             mode = "none"
