@@ -185,24 +185,69 @@ def truth(model, shape: np.ndarray, embedding, camera: Camera, rotation: np.ndar
 class SubjectCalibration:
     """correction: the fitted `ViewCorrection` (None: too few renders had a face); renders,
     found: how many renders and how many had a face; seconds: rendering + face mesh, fit;
-    report: `fit_correction`'s held-out figures."""
+    report: `fit_correction`'s held-out figures; data: the renders' readings
+    (`render_samples`)."""
 
     correction: object
     renders: int
     found: int
     seconds: tuple
     report: str
+    data: dict | None = None    # `render_samples`' data, to fit another part without rendering again
+
+
+#: what of the fitted correction is kept (`calibrate_subject(part=)`): "full", every landmark's
+#: own offsets; "rigid", only a turn and shift of the whole face as a function of the view and
+#: jaw (`view_correction.solve_rigid`: the part that moves the fitted pose); "nonrigid", the full
+#: correction less that rigid part (the landmarks' places relative to each other, which leave
+#: the pose as it is read)
+PARTS = ("full", "rigid", "nonrigid")
+
+
+def rest_landmarks(model, shape: np.ndarray, embedding) -> np.ndarray:
+    """(K, 3) the embedding's points on the subject at rest (the frame the offsets live in)."""
+    from avatarkit.head.model import HeadParams
+
+    params = HeadParams.from_clip(pose_clip(np.zeros((1, 3)), np.zeros(1)))
+    params.shape = np.asarray(shape, np.float32).reshape(-1)
+    return embedding.points(model.forward(params)[0][0].astype(np.float64), model.faces)
+
+
+def fit_subject(data: dict, model, shape: np.ndarray, embedding, part: str = "full",
+                ridge: float | None = None, outline_weight: float = 0.3):
+    """(ViewCorrection, report) from `render_samples`' data (`PARTS`). The rigid part: the turn
+    and shift of the whole face, fitted to the residuals with the face outline's points
+    weighted as the tracker weights them (`TrackOptions.outline_weight`: the pose the tracker
+    reads leans on them that much), with `view_correction.RIGID_RIDGE`; `ridge` is the full
+    correction's."""
+    from avatarkit.face.correspondence import FACE_OVAL
+    from avatarkit.face.view_correction import ViewCorrection, fit_correction, samples_from_renders
+
+    if part not in PARTS:
+        raise ValueError(f"subject calibration part: {part!r} (one of {', '.join(PARTS)})")
+    samples = samples_from_renders(data, embedding)
+    if part == "full":
+        return fit_correction(samples, embedding.mesh_index, ridge)
+    weight = np.where(np.isin(embedding.mesh_index, FACE_OVAL), outline_weight, 1.0)
+    rigid, report = fit_correction(samples, embedding.mesh_index, rigid=rest_landmarks(model, shape, embedding),
+                                   weight=weight)
+    if part == "rigid":
+        return rigid, report
+    full, report = fit_correction(samples, embedding.mesh_index, ridge)
+    return ViewCorrection(full.mesh_index, full.coef - rigid.coef, full.static - rigid.static), \
+        f"the full correction less its rigid part; the full one's {report}"
 
 
 def calibrate_subject(render: Renderer, model, shape: np.ndarray, embedding, focal: float,
                       distance: float = 0.55, grid: CalibrationGrid | None = None,
-                      ridge: float | None = None) -> SubjectCalibration:
+                      ridge: float | None = None, part: str = "full") -> SubjectCalibration:
     """Fit a `ViewCorrection` for this subject from renders at `grid`'s poses (module
-    docstring). embedding: the tracker's landmark embedding WITHOUT its per-landmark
-    calibration offsets (the correction is relative to the embedding's points)."""
+    docstring); `part`: what of it is kept (`PARTS`). embedding: the tracker's landmark
+    embedding WITHOUT its per-landmark calibration offsets (the correction is relative to the
+    embedding's points)."""
     import time
 
-    from avatarkit.face.view_correction import BASIS, RIDGE, fit_correction, samples_from_renders
+    from avatarkit.face.view_correction import BASIS
 
     grid = grid or CalibrationGrid()
     rotation, jaw = grid.poses()
@@ -214,6 +259,5 @@ def calibrate_subject(render: Renderer, model, shape: np.ndarray, embedding, foc
     if found < 2 * len(BASIS):
         return SubjectCalibration(None, len(rotation), found, (t1 - t0, 0.0),
                                   f"{found} of {len(rotation)} renders had a face: too few to fit")
-    samples = samples_from_renders(data, embedding)
-    corr, report = fit_correction(samples, embedding.mesh_index, RIDGE if ridge is None else ridge)
-    return SubjectCalibration(corr, len(rotation), found, (t1 - t0, time.perf_counter() - t1), report)
+    corr, report = fit_subject(data, model, shape, embedding, part, ridge)
+    return SubjectCalibration(corr, len(rotation), found, (t1 - t0, time.perf_counter() - t1), report, data)
