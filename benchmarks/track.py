@@ -174,7 +174,7 @@ def subject_renderer(subject: str, avatar=None):
     from avatarkit.track import subject_calibration as sc
 
     if avatar is not None:
-        return sc.avatar_renderer(avatar)
+        return sc.rigid_avatar_renderer(avatar)     # the bake's renders; without it for rigid turns
     kw = dict(light=LIGHT, mouth=True) if subject == "shaded" else {}
     return lambda clip, camera: (f.rgb for f in HeadVideo(clip, camera, **kw).frames())
 

@@ -240,3 +240,40 @@ def test_border_colour_is_the_background_around_the_head():
     img[8:, 10:70] = (200, 150, 120)                       # head
     img[60:, :] = (10, 10, 10)                             # torso across the bottom
     np.testing.assert_allclose(sc.border_colour(img), np.array([250, 240, 230]) / 255.0)
+
+
+@pytest.mark.slow
+def test_rigid_renderer_draws_what_the_bake_draws():
+    """The calibration's renderer without the bake (`rigid_avatar_renderer`: the avatar at rest
+    turned as a whole, the principal-axis hair by its smallest turn) against the bake's at
+    turned, nodded and shifted poses of the small sample avatar: the same Gaussians (centres,
+    orientations) and the same images to a level of rounding."""
+    from test_avatar import small_avatar
+
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.head.model import HeadParams
+    from avatarkit.rotations import quat_to_matrix
+    from avatarkit.sim.config import SimConfig
+
+    avatar = small_avatar()
+    assert avatar.has_hair and avatar.rig.deformer.method == "principal_axis"   # the twist is exercised
+    rot = Rotation.from_euler("YXZ", [[0.0, 0.0, 0.0], [30.0, -15.0, 0.0], [-20.0, 10.0, 5.0]],
+                              degrees=True).as_rotvec()
+    clip = sc.pose_clip(rot, np.zeros(3))
+    clip.translation[:, 2] = [0.0, 0.01, -0.02]
+    static, frames = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    params = HeadParams.from_clip(clip)
+    params.shape = np.asarray(avatar.shape, np.float32).reshape(-1)
+    root = avatar.head_model.forward(params)[1][:, 0].astype(np.float64)
+    rest = sc._rest_person(avatar)
+    for frame, a in zip(frames, root):
+        want, got = frame.person(static, True), sc._turned(*rest, a)
+        np.testing.assert_allclose(got.means, want.means, atol=1e-6)
+        np.testing.assert_allclose(quat_to_matrix(np.asarray(got.quats, np.float64)),
+                                   quat_to_matrix(np.asarray(want.quats, np.float64)), atol=2e-4)
+    cam = sc.calibration_camera(portrait_focal(160, 160), 0.55)
+    fast = list(sc.rigid_avatar_renderer(avatar, (0.2, 0.3, 0.4))(clip, cam))
+    slow = list(sc.avatar_renderer(avatar, (0.2, 0.3, 0.4))(clip, cam))
+    for a, b in zip(fast, slow):
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
+        assert (a != b[0, 0]).any(-1).mean() > 0.05                         # the avatar is in the picture
