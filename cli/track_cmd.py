@@ -34,7 +34,7 @@ _FILE = click.Path(dir_okay=False)
               "(docs/tracking.md).")
 @click.option("--subject-calibration/--no-subject-calibration", default=False, show_default=True,
               help="With --avatar: calibrate the face mesh's reading on renders of the avatar at known "
-              "poses first (~30 s) and track with that correction (docs/tracking.md).")
+              "poses first (~10 s) and track with that correction (docs/tracking.md).")
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")

@@ -22,8 +22,8 @@ The camera (`calibration_camera`): the tracker's focal length for the video's si
 480 x 480 video at 0.55 m: about the frame's size, so the crop bounds the cost rather than
 cutting it; a far-away head in a large frame gains more). Cost (session 11, 2 busy cores): 45
 renders + face mesh 11.5-16.9 s, the fit 0.1-0.4 s. An avatar at `AVATAR_GRID`'s poses is drawn
-by `rigid_avatar_renderer` (no bake: session 12, a fresh `track --avatar --subject-calibration`
-on the grey clip's avatar 28.5 -> 9.7 s at load 8).
+by `rigid_avatar_renderer` (no bake: session 12, a fresh calibration on the real clips'
+avatars 11.2-28.5 -> 9.4-10.1 s at load 6.5-8; what is left is the 35 splat renders).
 
 What of the correction is used (`PARTS`, `fit_subject`): all of it; its rigid part, one turn and
 shift of the whole face per basis term (the reading bias of the pose); or the rest. Session 12
