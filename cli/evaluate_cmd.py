@@ -53,6 +53,8 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
     if compare_single and (avatar is not None or build_frame is not None):
         raise click.UsageError("--compare-single compares the video build with the single-frame build: "
                                "it does not go with --avatar or --build-frame")
+    if subject_part != "full" and not subject_calibration:
+        raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,
                           subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on)

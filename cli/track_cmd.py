@@ -73,6 +73,8 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         check_output_folder(Path(preview).parent)
     if subject_calibration and avatar is None:
         raise click.UsageError("--subject-calibration renders the avatar: it needs --avatar")
+    if subject_part != "full" and not subject_calibration:
+        raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
     options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration,
                            subject_part=subject_part)
     with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:

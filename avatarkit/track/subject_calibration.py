@@ -138,8 +138,8 @@ def rigid_avatar_renderer(avatar, background=(1.0, 1.0, 1.0)) -> Renderer:
     with the jaw closed, as `AVATAR_GRID`), every frame is the avatar at rest as a whole
     turned and shifted by the frame's root transform; the avatar at rest is posed once (its
     bald Gaussians on the rest head, its hair as it rests). Why: the bake computes the hair
-    cage's mean-value weights on its first frame (~17 s of a ~25 s calibration on 2 busy
-    cores) and poses 80k Gaussians per frame; neither changes what a rigid turn shows (static
+    cage's mean-value weights on its first frame and poses 80k Gaussians per frame (together
+    1-19 s of a fresh calibration on 2 busy cores, session 12); neither changes what a rigid turn shows (static
     hair rides the head; no pose corrective moves without a neck, jaw or eye turn). Any other
     clip is drawn by `avatar_renderer`; tests compare the two on a rigid clip."""
     slow = avatar_renderer(avatar, background)
