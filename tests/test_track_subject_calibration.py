@@ -76,6 +76,20 @@ def test_fit_recovers_a_known_reading_bias(template):
         (np.median(bias), np.median(left), left.max())
 
 
+def test_rigid_basis_is_a_small_turn_and_shift():
+    """`rigid_basis` against scipy's rotation of the points about their mean: L_k [w; t] is the
+    motion of point k under a turn w (small: the difference is second order) and a shift t."""
+    from avatarkit.face.view_correction import rigid_basis
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(0, 0.05, (30, 3)) + [0.0, 0.05, 0.1]
+    q = pts - pts.mean(0)
+    for _ in range(3):
+        w, t = rng.normal(0, 1e-3, 3), rng.normal(0, 1e-3, 3)
+        exact = Rotation.from_rotvec(w).apply(q) - q + t
+        np.testing.assert_allclose(rigid_basis(pts) @ np.concatenate([w, t]), exact, atol=1e-6)   # motion ~1e-4
+
+
 def _rigid_and_not(L):
     """(theta, rigid, both): a made-up rigid reading bias (a constant 2 degree nod, a pitch read
     15 % short, a yaw gain with a sideways shift: theta(yaw, pitch) the turn and shift, rigid the
