@@ -13,7 +13,9 @@ Prints
     view correction calibrated on the subject itself (`track.subject_calibration`: the renderer
     that made the video - same head, skin sample and light, or the avatar - at the default
     grid's 45 poses, mirrored for the mirrored video; with and without the landmark
-    calibration; what `track --avatar` does with `--subject-calibration`), and the tracker on
+    calibration; what `track --avatar` does with `--subject-calibration`; and the rigid part
+    alone of the jaw-closed grid's, `subject_calibration.fit_subject(part="rigid")`, with and
+    without the landmark calibration), and the tracker on
     the plain face mesh (`TrackOptions(mirror_landmarks=False)`: not averaged with its mirror
     image, the default before session 9), and ratios.
     The target figure is on the template rendered person-like (`synthetic.shading`: Lambert shading
@@ -115,6 +117,9 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
             cal = sc.calibrate_subject(draw, model, shape, model_embedding(model), camera.fx, 0.55)
             closed = sc.calibrate_subject(draw, model, shape, model_embedding(model), camera.fx, 0.55,
                                           sc.AVATAR_GRID)
+            # the rigid part alone (`subject_calibration.fit_subject(part="rigid")`), from the
+            # jaw-closed grid's renders (a jaw opening is not a turn of the head)
+            rigid, _ = sc.fit_subject(closed.data, model, shape, model_embedding(model), "rigid")
             for c, g in ((cal, "default grid"), (closed, "jaw-closed grid (track --avatar)")):
                 print(f"  {view:11s} own calibration, {g}: {c.found}/{c.renders} renders with a face, render + "
                       f"face mesh {c.seconds[0]:.1f} s at {sc.calibration_camera(camera.fx, 0.55).width} px, fit "
@@ -128,7 +133,10 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                                    ("with its own calibration", TrackOptions(view_correction=cal.correction)),
                                    ("own calibration, no landmark calibration",
                                     TrackOptions(view_correction=cal.correction, calibration_frames=0)),
-                                   ("own calibration, jaw-closed grid", TrackOptions(view_correction=closed.correction))):
+                                   ("own calibration, jaw-closed grid", TrackOptions(view_correction=closed.correction)),
+                                   ("own calibration's rigid part, jaw-closed grid", TrackOptions(view_correction=rigid)),
+                                   ("own calibration's rigid part, no landmark calibration",
+                                    TrackOptions(view_correction=rigid, calibration_frames=0))):
                 t0 = time.perf_counter()
                 r = track_frames(frames_in, model, shape, (size, size), 30.0, options)
                 t_track = time.perf_counter() - t0
@@ -139,8 +147,8 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
                       f"(p90 {np.percentile(rot, 90):.2f}), jaw error median {np.median(jaw):.3f} rad, "
                       f"landmark error median {np.nanmedian(r.landmark_error):.2f} px, faces found "
                       f"{int(r.found.sum())}/{frames}; track {t_track:.1f} s")
-            a, b, c, d, e, g, h = figures.values()
-            table.append((subject, view) + a + b + d + e + h)
+            a, b, c, d, e, g, h, k, m = figures.values()
+            table.append((subject, view) + a + b + d + e + h + k + m)
             print(f"  {view:11s} ratios view-corrected/tracker: rotation {b[0] / a[0]:.2f}, jaw {b[1] / a[1]:.2f}, "
                   f"landmarks {b[2] / a[2]:.2f}; tracker/no calibration: rotation {a[0] / c[0]:.2f}, "
                   f"jaw {a[1] / c[1]:.2f}; tracker/plain face mesh: rotation {a[0] / d[0]:.2f}, jaw {a[1] / d[1]:.2f}; "
@@ -152,7 +160,9 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
         name = {"shaded": "TARGET shaded + mouth", "flat": "flat colours"}.get(subject, subject)
         print(f"  {name:22s} rotation {np.median(t[:, 0]):.2f} deg ({np.median(t[:, 3]):.2f}), jaw "
               f"{np.median(t[:, 1]):.3f} rad ({np.median(t[:, 4]):.3f}); own calibration {np.median(t[:, 9]):.2f} deg, "
-              f"{np.median(t[:, 10]):.3f} rad (jaw-closed grid {np.median(t[:, 12]):.2f} deg, {np.median(t[:, 13]):.3f} rad); plain face mesh {np.median(t[:, 6]):.2f} deg, "
+              f"{np.median(t[:, 10]):.3f} rad (jaw-closed grid {np.median(t[:, 12]):.2f} deg, {np.median(t[:, 13]):.3f} rad; "
+              f"its rigid part {np.median(t[:, 15]):.2f} deg, {np.median(t[:, 16]):.3f} rad, without the landmark calibration "
+              f"{np.median(t[:, 18]):.2f} deg, {np.median(t[:, 19]):.3f} rad); plain face mesh {np.median(t[:, 6]):.2f} deg, "
               f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
 
 
@@ -164,7 +174,7 @@ def subject_renderer(subject: str, avatar=None):
     from avatarkit.track import subject_calibration as sc
 
     if avatar is not None:
-        return sc.avatar_renderer(avatar)
+        return sc.rigid_avatar_renderer(avatar)     # the bake's renders; without it for rigid turns
     kw = dict(light=LIGHT, mouth=True) if subject == "shaded" else {}
     return lambda clip, camera: (f.rgb for f in HeadVideo(clip, camera, **kw).frames())
 

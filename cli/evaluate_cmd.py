@@ -27,12 +27,15 @@ from avatarkit.cli.options import cli_warnings, quiet_option
               help="Write side_by_side.mp4 (video | our render | error heat map).")
 @click.option("--subject-calibration/--no-subject-calibration", default=False, show_default=True,
               help="Track with a view correction calibrated on renders of the avatar (docs/tracking.md).")
+@click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
+              show_default=True, help="With --subject-calibration: what of the correction is used: all "
+              "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
               "body held at the build frame's pose; 'global' turns the whole model with the head.")
 @quiet_option
 def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, simulate_hair, side_by_side,
-                 subject_calibration, head_on, quiet):
+                 subject_calibration, subject_part, head_on, quiet):
     """Self-reenactment: build an avatar from VIDEO (or one frame of it), drive it with the motion
     tracked from the whole video, render every frame from the tracked camera and compare with the video
     (PSNR and SSIM on the person region, face-mesh landmark error). See docs/evaluation.md.
@@ -50,9 +53,11 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
     if compare_single and (avatar is not None or build_frame is not None):
         raise click.UsageError("--compare-single compares the video build with the single-frame build: "
                                "it does not go with --avatar or --build-frame")
+    if subject_part != "full" and not subject_calibration:
+        raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,
-                          subject_calibration=subject_calibration, head_on=head_on)
+                          subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on)
     current: dict = {}           # the stage whose bar is shown (one bar per stage, in turn)
 
     def progress(stage, done, total):

@@ -34,7 +34,10 @@ _FILE = click.Path(dir_okay=False)
               "(docs/tracking.md).")
 @click.option("--subject-calibration/--no-subject-calibration", default=False, show_default=True,
               help="With --avatar: calibrate the face mesh's reading on renders of the avatar at known "
-              "poses first (~30 s) and track with that correction (docs/tracking.md).")
+              "poses first (~10 s) and track with that correction (docs/tracking.md).")
+@click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
+              show_default=True, help="With --subject-calibration: what of the correction is used: all "
+              "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
               "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "
@@ -42,7 +45,7 @@ _FILE = click.Path(dir_okay=False)
               "model, neck and shoulders with the head (docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, align_to_build, subject_calibration, head_on, quiet):
+              smoothing, preview, align_to_build, subject_calibration, subject_part, head_on, quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
 
@@ -70,7 +73,10 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         check_output_folder(Path(preview).parent)
     if subject_calibration and avatar is None:
         raise click.UsageError("--subject-calibration renders the avatar: it needs --avatar")
-    options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration)
+    if subject_part != "full" and not subject_calibration:
+        raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
+    options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration,
+                           subject_part=subject_part)
     with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,

@@ -98,3 +98,8 @@ def test_missing_video(tmp_path, capsys):
 def test_subject_calibration_needs_an_avatar(tmp_path, capsys, head_mp4):
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--subject-calibration")
     assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
+
+
+def test_subject_part_needs_the_subject_calibration(tmp_path, capsys, head_mp4):
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--subject-part", "rigid")
+    assert code == 2 and "--subject-calibration" in cap.err and not (tmp_path / "c.npz").exists()

@@ -30,9 +30,14 @@ def _bias(yaw, pitch, jaw):
     return np.array([0.004 * yaw, -0.01 * jaw + 0.002 * pitch, 0.001])[None]
 
 
-def _constructed(model, shape, emb, cam, grid):
-    """Calibration data whose face-mesh points are the true points moved by `_bias` at each
-    render's view, projected through `cam`."""
+def _constructed(model, shape, emb, cam, grid, bias=_bias):
+    """Calibration samples whose face-mesh points are the true points moved by `bias` (default
+    `_bias`) at each render's view, projected through `cam`."""
+    return samples_from_renders(_constructed_data(model, shape, emb, cam, grid, bias), emb)
+
+
+def _constructed_data(model, shape, emb, cam, grid, bias=_bias):
+    """`_constructed`'s data as `render_samples` returns it."""
     from avatarkit.face.view_correction import view_angles
 
     rot, jaw = grid.poses()
@@ -40,12 +45,12 @@ def _constructed(model, shape, emb, cam, grid):
     mesh = []
     for X, H, j in zip(data["truth_cam"], data["head_to_cam"], jaw):
         yaw, pitch = view_angles(H, X.mean(0))
-        Y = X + _bias(yaw, pitch, j) @ H.T                                   # moved in the rest frame
+        Y = X + bias(yaw, pitch, j) @ H.T                                    # moved in the rest frame
         mesh.append(np.concatenate([cam.fx * Y[:, :2] / Y[:, 2:] + [cam.cx, cam.cy], Y[:, 2:]], 1))
     full = np.zeros((len(rot), 468, 3))
     full[:, np.asarray(emb.mesh_index)] = np.asarray(mesh)
     data.update(mesh=full, found=np.ones(len(rot), bool))
-    return samples_from_renders(data, emb)
+    return data
 
 
 def test_fit_recovers_a_known_reading_bias(template):
@@ -69,6 +74,103 @@ def test_fit_recovers_a_known_reading_bias(template):
     assert np.median(bias) > 2.0                                          # pixels: a bias worth fitting
     assert np.median(left) < 0.05 * np.median(bias) and left.max() < 0.15 * bias.max(), \
         (np.median(bias), np.median(left), left.max())
+
+
+def test_rigid_basis_is_a_small_turn_and_shift():
+    """`rigid_basis` against scipy's rotation of the points about their mean: L_k [w; t] is the
+    motion of point k under a turn w (small: the difference is second order) and a shift t."""
+    from avatarkit.face.view_correction import rigid_basis
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(0, 0.05, (30, 3)) + [0.0, 0.05, 0.1]
+    q = pts - pts.mean(0)
+    for _ in range(3):
+        w, t = rng.normal(0, 1e-3, 3), rng.normal(0, 1e-3, 3)
+        exact = Rotation.from_rotvec(w).apply(q) - q + t
+        np.testing.assert_allclose(rigid_basis(pts) @ np.concatenate([w, t]), exact, atol=1e-6)   # motion ~1e-4
+
+
+def _rigid_and_not(L):
+    """(theta, rigid, both): a made-up rigid reading bias (a constant 2 degree nod, a pitch read
+    15 % short, a yaw gain with a sideways shift: theta(yaw, pitch) the turn and shift, rigid the
+    (K, 3) offsets) and it plus a per-landmark part with no rigid component in 3-D (each point
+    1 mm off its place, more so turned). L: `rigid_basis` (K, 3, 6)."""
+    flat = L.reshape(-1, 6)
+    wiggle = np.random.default_rng(3).normal(0, 0.001, (len(L), 3))       # metres
+    wiggle -= (flat @ np.linalg.lstsq(flat, wiggle.ravel(), rcond=None)[0]).reshape(len(L), 3)
+
+    def theta(yaw, pitch):
+        return np.array([math.radians(2.0) + 0.15 * pitch, 0.1 * yaw, 0.0, 0.003 * yaw, 0.0, 0.0])
+
+    def rigid(yaw, pitch, jaw):
+        return L @ theta(yaw, pitch)
+
+    def both(yaw, pitch, jaw):
+        return rigid(yaw, pitch, jaw) + wiggle * (1.0 + 2.0 * abs(yaw))
+
+    return theta, rigid, both
+
+
+def test_rigid_part_recovers_a_rigid_bias_and_leaves_the_rest_out(template):
+    """A reading bias made of a rigid part (a constant 2 degree nod, a pitch read 15 % short, a
+    yaw gain with a sideways shift: one turn and shift of the whole face per view) and, added
+    to it, a per-landmark part with no rigid component in 3-D (each point 1 mm off its place,
+    more so turned). On the rigid part alone the rigid fit returns its turn and shift per basis
+    term (read back from its coefficients, which are a rigid motion by construction); with the
+    per-landmark part added, the rigid fit's prediction of held-out views leaves that part in
+    the residual, where the full fit takes it."""
+    from avatarkit.face.view_correction import BASIS, features, fit_correction, predict, rigid_basis
+
+    model, shape, emb = template
+    pts = sc.rest_landmarks(model, shape, emb)
+    L = rigid_basis(pts)                                                  # (K, 3, 6)
+    flat = L.reshape(-1, 6)
+    theta, rigid, both = _rigid_and_not(L)
+    cam = sc.calibration_camera(portrait_focal(480, 480), 0.55)
+    got, _ = fit_correction(_constructed(model, shape, emb, cam, sc.CalibrationGrid(), rigid), emb.mesh_index,
+                            rigid=pts)
+    back = np.linalg.lstsq(flat, got.coef.transpose(0, 2, 1).reshape(-1, len(BASIS)), rcond=None)[0]   # (6, B)
+    assert np.abs(got.coef - np.einsum("kdj,jb->kbd", L, back)).max() < 1e-12
+    # the turn and shift it reads at views between the grid's: within 0.05 degree and 0.05 mm
+    for yaw, pitch in ((-0.4, 0.1), (0.05, -0.2), (0.3, 0.25)):
+        err = np.abs(back @ features(yaw, pitch, 0.0)[0] - theta(yaw, pitch))
+        assert err[:3].max() < math.radians(0.05) and err[3:].max() < 5e-5, (yaw, pitch, err)
+
+    data = _constructed(model, shape, emb, cam, sc.CalibrationGrid(), both)
+    got, _ = fit_correction(data, emb.mesh_index, rigid=pts)
+    full, _ = fit_correction(data, emb.mesh_index)
+    held = sc.CalibrationGrid((-22.0, 8.0, 27.0), (-9.0, 11.0), (0.0,))
+    held_rigid = _constructed(model, shape, emb, cam, held, rigid)
+    held_both = _constructed(model, shape, emb, cam, held, both)
+    part = np.linalg.norm(held_both.r - held_rigid.r, axis=-1)
+    rigid_left = np.linalg.norm(held_both.r - predict(held_both, got.coef), axis=-1)
+    full_left = np.linalg.norm(held_both.r - predict(held_both, full.coef), axis=-1)
+    assert np.median(np.linalg.norm(held_rigid.r, axis=-1)) > 2.0 and np.median(part) > 0.5
+    assert np.median(rigid_left) > 0.8 * np.median(part) and np.median(full_left) < 0.2 * np.median(part), \
+        (np.median(part), np.median(rigid_left), np.median(full_left))
+
+
+def test_parts_add_up_and_the_nonrigid_part_leaves_the_rigid_bias(template):
+    """`fit_subject`'s parts on one set of (constructed) renders: rigid + nonrigid = full
+    exactly; on a purely rigid bias the nonrigid part predicts a small share of it (it leaves
+    the pose alone), on a rigid + per-landmark bias it predicts the per-landmark share."""
+    from avatarkit.face.view_correction import predict, rigid_basis
+
+    model, shape, emb = template
+    _, rigid, both = _rigid_and_not(rigid_basis(sc.rest_landmarks(model, shape, emb)))
+    cam = sc.calibration_camera(portrait_focal(480, 480), 0.55)
+    held = sc.CalibrationGrid((-22.0, 8.0, 27.0), (-9.0, 11.0), (0.0,))
+    for bias, share in ((rigid, 0.0), (both, 1.0)):
+        data = _constructed_data(model, shape, emb, cam, sc.AVATAR_GRID, bias)
+        parts = {p: sc.fit_subject(data, model, shape, emb, p)[0] for p in sc.PARTS}
+        np.testing.assert_allclose(parts["rigid"].coef + parts["nonrigid"].coef, parts["full"].coef, atol=1e-15)
+        h_rigid = _constructed(model, shape, emb, cam, held, rigid)
+        h = _constructed(model, shape, emb, cam, held, bias)
+        part = np.median(np.linalg.norm(h.r - h_rigid.r, axis=-1)) if share else np.median(np.linalg.norm(h.r, axis=-1))
+        got = np.median(np.linalg.norm(predict(h, parts["nonrigid"].coef), axis=-1))
+        assert (got < 0.15 * part) if share == 0.0 else (0.8 * part < got < 1.2 * part), (share, got, part)
+    with pytest.raises(ValueError):
+        sc.fit_subject(data, model, shape, emb, "half")
 
 
 def test_grid_and_mirror():
@@ -152,3 +254,40 @@ def test_border_colour_is_the_background_around_the_head():
     img[8:, 10:70] = (200, 150, 120)                       # head
     img[60:, :] = (10, 10, 10)                             # torso across the bottom
     np.testing.assert_allclose(sc.border_colour(img), np.array([250, 240, 230]) / 255.0)
+
+
+@pytest.mark.slow
+def test_rigid_renderer_draws_what_the_bake_draws():
+    """The calibration's renderer without the bake (`rigid_avatar_renderer`: the avatar at rest
+    turned as a whole, the principal-axis hair by its smallest turn) against the bake's at
+    turned, nodded and shifted poses of the small sample avatar: the same Gaussians (centres,
+    orientations) and the same images to a level of rounding."""
+    from test_avatar import small_avatar
+
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.head.model import HeadParams
+    from avatarkit.rotations import quat_to_matrix
+    from avatarkit.sim.config import SimConfig
+
+    avatar = small_avatar()
+    assert avatar.has_hair and avatar.rig.deformer.method == "principal_axis"   # the twist is exercised
+    rot = Rotation.from_euler("YXZ", [[0.0, 0.0, 0.0], [30.0, -15.0, 0.0], [-20.0, 10.0, 5.0]],
+                              degrees=True).as_rotvec()
+    clip = sc.pose_clip(rot, np.zeros(3))
+    clip.translation[:, 2] = [0.0, 0.01, -0.02]
+    static, frames = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    params = HeadParams.from_clip(clip)
+    params.shape = np.asarray(avatar.shape, np.float32).reshape(-1)
+    root = avatar.head_model.forward(params)[1][:, 0].astype(np.float64)
+    rest = sc._rest_person(avatar)
+    for frame, a in zip(frames, root):
+        want, got = frame.person(static, True), sc._turned(*rest, a)
+        np.testing.assert_allclose(got.means, want.means, atol=1e-6)
+        np.testing.assert_allclose(quat_to_matrix(np.asarray(got.quats, np.float64)),
+                                   quat_to_matrix(np.asarray(want.quats, np.float64)), atol=2e-4)
+    cam = sc.calibration_camera(portrait_focal(160, 160), 0.55)
+    fast = list(sc.rigid_avatar_renderer(avatar, (0.2, 0.3, 0.4))(clip, cam))
+    slow = list(sc.avatar_renderer(avatar, (0.2, 0.3, 0.4))(clip, cam))
+    for a, b in zip(fast, slow):
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
+        assert (a != b[0, 0]).any(-1).mean() > 0.05                         # the avatar is in the picture

@@ -203,6 +203,14 @@ MUTATIONS = [
       "    c = np.asarray(data[\"principal\"], np.float64) if \"principal\" in data else np.array([size / 2, size / 2])",
       "    c = np.array([size / 2, size / 2])",
       ["tests/test_track_subject_calibration.py"], "the subject calibration's crops read as if centred on the head"),
+    M("track.rigid_turn_backwards", "avatarkit/face/view_correction.py",
+      "    L[:, 0, 1], L[:, 0, 2] = q[:, 2], -q[:, 1]",
+      "    L[:, 0, 1], L[:, 0, 2] = -q[:, 2], q[:, 1]",
+      ["tests/test_track_subject_calibration.py"], "the rigid part's turn about y and z read backwards in x"),
+    M("track.nonrigid_added", "avatarkit/track/subject_calibration.py",
+      "    return ViewCorrection(full.mesh_index, full.coef - rigid.coef, full.static - rigid.static), \\",
+      "    return ViewCorrection(full.mesh_index, full.coef + rigid.coef, full.static - rigid.static), \\",
+      ["tests/test_track_subject_calibration.py"], "the non-rigid part made by adding the rigid part instead of removing it"),
 ]
 
 

@@ -42,6 +42,11 @@ BASIS = ((0, 0, 0), (1, 0, 0), (0, 1, 0), (2, 0, 0), (1, 1, 0), (0, 2, 0),
          (3, 0, 0), (2, 1, 0), (1, 2, 0), (0, 3, 0),
          (0, 0, 1), (1, 0, 1), (0, 1, 1), (0, 0, 2))
 RIDGE = 3e-3
+#: `solve_rigid`'s ridge (relative to each parameter's own normal diagonal): 84 parameters
+#: shared by every landmark are well determined by a calibration grid, and a turn that moves the
+#: points mostly in depth (a nod, seen from the front) is exactly what the pose fit reads
+#: weakly, so only a trace of a ridge (at 3e-3 a made-up pitch gain of 0.15 came back 0.105)
+RIGID_RIDGE = 1e-6
 
 
 def features(yaw, pitch, jaw) -> np.ndarray:
@@ -268,18 +273,82 @@ def subset(s: Samples, rows: np.ndarray) -> Samples:
     return Samples(s.r[rows], s.A[rows], s.phi[rows], s.ok[rows])
 
 
-def fit_correction(s: Samples, mesh_index: np.ndarray, ridge: float = RIDGE) -> tuple[ViewCorrection, str]:
+def rigid_basis(points: np.ndarray) -> np.ndarray:
+    """(K, 3, 6) L_k: how a small turn w (3, radians about the points' mean)
+    and a shift t (3, metres) of the whole face move landmark k: L_k [w; t] = w x q_k + t, q_k
+    the point less the mean. points: (K, 3) rest-frame landmarks."""
+    q = np.asarray(points, np.float64) - np.asarray(points, np.float64).mean(0)
+    L = np.zeros((len(q), 3, 6))
+    # w x q = -[q]_x w
+    L[:, 0, 1], L[:, 0, 2] = q[:, 2], -q[:, 1]
+    L[:, 1, 0], L[:, 1, 2] = -q[:, 2], q[:, 0]
+    L[:, 2, 0], L[:, 2, 1] = q[:, 1], -q[:, 0]
+    L[:, :, 3:] = np.eye(3)
+    return L
+
+
+def _solve_rigid(s: Samples, phi: np.ndarray, r: np.ndarray, L: np.ndarray, weight: np.ndarray,
+                 ridge: float) -> np.ndarray:
+    """(B, 6) one turn and shift per basis term, shared by every landmark: least squares
+    sqrt(w_k) A_nk L_k (sum_b phi_nb theta_b) ~ sqrt(w_k) r_nk over every case and landmark, with
+    a ridge of `ridge` x each parameter's own normal diagonal."""
+    B = phi.shape[1]
+    n, k = np.nonzero(s.ok & (weight[None] > 0))
+    AL = np.einsum("mij,mjl->mil", s.A[n, k], L[k]) * np.sqrt(weight[k])[:, None, None]   # (M, 2, 6)
+    M = np.einsum("mil,mb->mibl", AL, phi[n]).reshape(-1, B * 6)                          # (2M, 6B)
+    H = M.T @ M
+    rhs = M.T @ (r[n, k] * np.sqrt(weight[k])[:, None]).reshape(-1)
+    # the ridge scaled per parameter (its own diagonal): a turn moves a point ~q (5 cm) per
+    # radian, a shift 1 m per metre, so one ridge for all (`_solve`'s) would hold the turns back;
+    # a term no case sees (the jaw's, on a jaw-closed grid) stays zero
+    d = np.diag(H)
+    seen = d > 1e-12 * d.max()
+    theta = np.zeros(B * 6)
+    theta[seen] = np.linalg.solve(H[np.ix_(seen, seen)] + ridge * np.diag(d[seen]), rhs[seen])
+    return theta.reshape(B, 6)
+
+
+def solve_rigid(s: Samples, points: np.ndarray, weight: np.ndarray | None = None,
+                ridge: float = RIGID_RIDGE) -> tuple[np.ndarray, np.ndarray]:
+    """`solve_coefficients` restricted to a rigid motion of the whole face: per basis term one
+    small turn and shift (`rigid_basis`) that every landmark follows, fitted to the samples'
+    residuals of all landmarks together (weight (K,): each landmark's, default 1), the constant
+    term first as `solve_coefficients` does. What the per-landmark fit would also model - one
+    landmark read off its neighbours, a mouth corner read wide - is left out: only the part of
+    the bias that moves the face as a whole, the part that moves the fitted pose (a constant
+    nod, a yaw read short). -> (coef (K, B, 3), static (K, 3)) in `solve_coefficients`' form."""
+    assert BASIS[0] == (0, 0, 0)
+    L = rigid_basis(points)
+    w = np.ones(len(L)) if weight is None else np.asarray(weight, np.float64)
+    first = _solve_rigid(s, s.phi[:, :1], s.r, L, w, ridge)[0]                           # (6,)
+    static = L @ first
+    left = s.r - np.einsum("nkij,kj->nki", s.A, static)
+    theta = _solve_rigid(s, s.phi, left, L, w, ridge)
+    theta[0] += first
+    return np.einsum("kdj,bj->kbd", L, theta), static
+
+
+def fit_correction(s: Samples, mesh_index: np.ndarray, ridge: float | None = None,
+                   rigid: np.ndarray | None = None, weight: np.ndarray | None = None) -> tuple[ViewCorrection, str]:
     """The correction from all samples, and a report: the residuals' median before and after
-    on a held-out half (fitted on the other half), full and dynamic."""
+    on a held-out half (fitted on the other half), full and dynamic. rigid: the rest-frame
+    landmarks (K, 3): fit only the rigid part (`solve_rigid`, landmark weights `weight`).
+    ridge: None, RIDGE (RIGID_RIDGE for the rigid part)."""
+    if ridge is None:
+        ridge = RIDGE if rigid is None else RIGID_RIDGE
+
+    def solve(part):
+        return solve_coefficients(part, ridge) if rigid is None else solve_rigid(part, rigid, weight, ridge)
+
     N = len(s.phi)
     half = np.arange(N) % 2 == 0
     lines = []
-    coef, static = solve_coefficients(subset(s, np.where(half)[0]), ridge)
+    coef, static = solve(subset(s, np.where(half)[0]))
     test = subset(s, np.where(~half)[0])
     base = np.linalg.norm(test.r, axis=-1)[test.ok]
     for dyn in (False, True):
         left = np.linalg.norm(test.r - predict(test, coef, static if dyn else None), axis=-1)[test.ok]
         lines.append(f"held-out half ({(~half).sum()} cases), {'static subtracted' if dyn else 'full'}: residual median "
                      f"{np.median(base):.2f} -> {np.median(left):.2f} px, mean {base.mean():.2f} -> {left.mean():.2f} px")
-    coef, static = solve_coefficients(s, ridge)
+    coef, static = solve(s)
     return ViewCorrection(np.asarray(mesh_index, np.int64), coef, static), "\n".join(lines)

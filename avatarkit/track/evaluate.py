@@ -68,7 +68,8 @@ class EvalOptions:
     images; alpha_threshold: render alpha above which a pixel is the person; simulate_hair: run
     the hair simulation in the bake (default: hair rides the head rigidly); side_by_side: write
     side_by_side.mp4; n_bald, n_hair: Gaussians of the build; subject_calibration: track with a
-    view correction calibrated on renders of the avatar (`track.subject_calibration`); head_on:
+    view correction calibrated on renders of the avatar (`track.subject_calibration`), of which
+    subject_part is used (`TrackOptions.subject_part`); head_on:
     where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
     build frame's pose, or "global")."""
 
@@ -83,6 +84,7 @@ class EvalOptions:
     compare_single: bool = False
     colour_share: float = 0.5
     subject_calibration: bool = False
+    subject_part: str = "full"
     head_on: str = DEFAULT_HEAD_ON
 
 
@@ -273,7 +275,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
         from avatarkit.track.tracker import TrackOptions
 
-        track_options = TrackOptions(subject_calibration=options.subject_calibration)
+        track_options = TrackOptions(subject_calibration=options.subject_calibration,
+                                     subject_part=options.subject_part)
         result = track_video(video, avatar=avatar_dir, progress=step, options=track_options,
                              meshes=tracking.meshes if tracking is not None else None)
         aligned = align_to_build(result, avatar_dir, build_frame)
@@ -309,6 +312,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "build": ("video (keyframes fused)" if keyframes else "single frame" if built else "given"),
             "exclude": options.exclude,
             "subject_calibration": (None if result.subject_calibration is None else
+                                    f"{options.subject_part}, "
                                     f"{result.subject_calibration.found}/{result.subject_calibration.renders} renders, "
                                     f"{sum(result.subject_calibration.seconds):.1f} s"),
             "mask": f"render alpha > {options.alpha_threshold} (same mask for both images)",

@@ -21,7 +21,15 @@ The camera (`calibration_camera`): the tracker's focal length for the video's si
 `distance` metres away, a square crop 2 CROP_HALF_WIDTH metres wide at the head (486 px for a
 480 x 480 video at 0.55 m: about the frame's size, so the crop bounds the cost rather than
 cutting it; a far-away head in a large frame gains more). Cost (session 11, 2 busy cores): 45
-renders + face mesh 11.5-16.9 s, the fit 0.1-0.4 s.
+renders + face mesh 11.5-16.9 s, the fit 0.1-0.4 s. An avatar at `AVATAR_GRID`'s poses is drawn
+by `rigid_avatar_renderer` (no bake: session 12, a fresh calibration on the real clips'
+avatars 11.2-28.5 -> 9.4-10.1 s at load 6.5-8; what is left is the 35 splat renders).
+
+What of the correction is used (`PARTS`, `fit_subject`): all of it; its rigid part, one turn and
+shift of the whole face per basis term (the reading bias of the pose); or the rest. Session 12
+(docs/tracking.md): the rigid part is what brings the synthetic avatar video to 2 degrees and
+what loses the real clips' PSNR; the rest gains PSNR on the real clips and does nothing for the
+synthetic pose.
 """
 from __future__ import annotations
 
@@ -124,6 +132,82 @@ def avatar_renderer(avatar, background=(1.0, 1.0, 1.0)) -> Renderer:
     return draw
 
 
+def rigid_avatar_renderer(avatar, background=(1.0, 1.0, 1.0)) -> Renderer:
+    """`avatar_renderer` without the bake, for the poses a calibration renders: when a clip
+    only turns and shifts the whole model (neck, jaw, eyes and expression zero: `pose_clip`
+    with the jaw closed, as `AVATAR_GRID`), every frame is the avatar at rest as a whole
+    turned and shifted by the frame's root transform; the avatar at rest is posed once (its
+    bald Gaussians on the rest head, its hair as it rests). Why: the bake computes the hair
+    cage's mean-value weights on its first frame and poses 80k Gaussians per frame (together
+    1-19 s of a fresh calibration on 2 busy cores, session 12); neither changes what a rigid turn shows (static
+    hair rides the head; no pose corrective moves without a neck, jaw or eye turn). Any other
+    clip is drawn by `avatar_renderer`; tests compare the two on a rigid clip."""
+    slow = avatar_renderer(avatar, background)
+    rest: list = []
+
+    def draw(clip, camera):
+        from avatarkit.export.images import to_uint8
+        from avatarkit.head.model import HeadParams
+        from avatarkit.render import render
+
+        moving = [np.asarray(getattr(clip, k)) for k in ("neck", "jaw", "eyes", "expr")]
+        if any(np.any(m != 0) for m in moving):
+            yield from slow(clip, camera)
+            return
+        if not rest:
+            rest.append(_rest_person(avatar))
+        params = HeadParams.from_clip(clip)
+        params.shape = np.asarray(avatar.shape, np.float32).reshape(-1)
+        root = avatar.head_model.forward(params)[1][:, 0].astype(np.float64)           # (T, 4, 4)
+        for a in root:
+            yield to_uint8(render(_turned(*rest[0], a), camera, background).rgb)
+    return draw
+
+
+def _turned(rest, axis, a: np.ndarray):
+    """`_rest_person`'s (rest, axis) turned and shifted as a whole by a (4, 4), as the bake
+    moves it: the hair's Gaussians, when its deformer carries principal axes, by the smallest
+    rotation taking each rest long axis to the turned one (`cage.deform`), not by the turn
+    itself (the two differ by a twist about the axis, which the renders show)."""
+    from avatarkit.rotations import matrix_to_quat, quat_multiply
+
+    means, quats = np.asarray(rest.means, np.float64), np.asarray(rest.quats, np.float64)
+    turn = np.repeat(matrix_to_quat(a[:3, :3])[None], len(means), 0)
+    if axis is not None:
+        turn[len(means) - len(axis):] = _smallest_turn(axis, axis @ a[:3, :3].T)
+    return rest.replace(means=(means @ a[:3, :3].T + a[:3, 3]).astype(np.float32),
+                        quats=quat_multiply(turn, quats).astype(np.float32))
+
+
+def _smallest_turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, 4) wxyz: the smallest rotation taking unit vectors a (N, 3) to unit vectors b."""
+    q = np.concatenate([1.0 + np.sum(a * b, axis=1, keepdims=True), np.cross(a, b)], axis=1)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _rest_person(avatar):
+    """(the avatar at rest as one GaussianSet, as the bake's `BakeFrame.person` at the rest
+    pose; the hair's rest long axes (H, 3) when its deformer carries principal axes, else None)."""
+    from avatarkit.cage.points import principal_axis_index
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+    from avatarkit.head.model import HeadParams
+    from avatarkit.rig.binding_kernel import binding_to_world
+    from avatarkit.rotations import quat_to_matrix
+
+    params = HeadParams.from_clip(pose_clip(np.zeros((1, 3)), np.zeros(1)))
+    params.shape = np.asarray(avatar.shape, np.float32).reshape(-1)
+    v = avatar.head_model.forward(params)[0][0]
+    means, quats, scales = binding_to_world(avatar.binding, np.ascontiguousarray(v, np.float32))
+    parts = [avatar.bald.replace(means=means, quats=quats, scales=scales, extras={})]
+    axis = None
+    if avatar.has_hair:
+        parts.append(avatar.hair.replace(extras={}))
+        if avatar.rig.deformer.method == "principal_axis":
+            k = principal_axis_index(avatar.hair.scales)
+            axis = quat_to_matrix(np.asarray(avatar.hair.quats, np.float64))[np.arange(len(k)), :, k]
+    return GaussianSet.concat(parts), axis
+
+
 def border_colour(rgb: np.ndarray, share: float = 0.05) -> tuple[float, float, float]:
     """The background a video shows around a head, as a render's background colour in [0, 1]:
     the per-channel median of the top rows and, down to half the height, the outer columns
@@ -185,24 +269,69 @@ def truth(model, shape: np.ndarray, embedding, camera: Camera, rotation: np.ndar
 class SubjectCalibration:
     """correction: the fitted `ViewCorrection` (None: too few renders had a face); renders,
     found: how many renders and how many had a face; seconds: rendering + face mesh, fit;
-    report: `fit_correction`'s held-out figures."""
+    report: `fit_correction`'s held-out figures; data: the renders' readings
+    (`render_samples`)."""
 
     correction: object
     renders: int
     found: int
     seconds: tuple
     report: str
+    data: dict | None = None    # `render_samples`' data, to fit another part without rendering again
+
+
+#: what of the fitted correction is kept (`calibrate_subject(part=)`): "full", every landmark's
+#: own offsets; "rigid", only a turn and shift of the whole face as a function of the view and
+#: jaw (`view_correction.solve_rigid`: the part that moves the fitted pose); "nonrigid", the full
+#: correction less that rigid part (the landmarks' places relative to each other, which leave
+#: the pose as it is read)
+PARTS = ("full", "rigid", "nonrigid")
+
+
+def rest_landmarks(model, shape: np.ndarray, embedding) -> np.ndarray:
+    """(K, 3) the embedding's points on the subject at rest (the frame the offsets live in)."""
+    from avatarkit.head.model import HeadParams
+
+    params = HeadParams.from_clip(pose_clip(np.zeros((1, 3)), np.zeros(1)))
+    params.shape = np.asarray(shape, np.float32).reshape(-1)
+    return embedding.points(model.forward(params)[0][0].astype(np.float64), model.faces)
+
+
+def fit_subject(data: dict, model, shape: np.ndarray, embedding, part: str = "full",
+                ridge: float | None = None, outline_weight: float = 0.3):
+    """(ViewCorrection, report) from `render_samples`' data (`PARTS`). The rigid part: the turn
+    and shift of the whole face, fitted to the residuals with the face outline's points
+    weighted as the tracker weights them (`TrackOptions.outline_weight`: the pose the tracker
+    reads leans on them that much), with `view_correction.RIGID_RIDGE`; `ridge` is the full
+    correction's."""
+    from avatarkit.face.correspondence import FACE_OVAL
+    from avatarkit.face.view_correction import ViewCorrection, fit_correction, samples_from_renders
+
+    if part not in PARTS:
+        raise ValueError(f"subject calibration part: {part!r} (one of {', '.join(PARTS)})")
+    samples = samples_from_renders(data, embedding)
+    if part == "full":
+        return fit_correction(samples, embedding.mesh_index, ridge)
+    weight = np.where(np.isin(embedding.mesh_index, FACE_OVAL), outline_weight, 1.0)
+    rigid, report = fit_correction(samples, embedding.mesh_index, rigid=rest_landmarks(model, shape, embedding),
+                                   weight=weight)
+    if part == "rigid":
+        return rigid, report
+    full, report = fit_correction(samples, embedding.mesh_index, ridge)
+    return ViewCorrection(full.mesh_index, full.coef - rigid.coef, full.static - rigid.static), \
+        f"the full correction less its rigid part; the full one's {report}"
 
 
 def calibrate_subject(render: Renderer, model, shape: np.ndarray, embedding, focal: float,
                       distance: float = 0.55, grid: CalibrationGrid | None = None,
-                      ridge: float | None = None) -> SubjectCalibration:
+                      ridge: float | None = None, part: str = "full") -> SubjectCalibration:
     """Fit a `ViewCorrection` for this subject from renders at `grid`'s poses (module
-    docstring). embedding: the tracker's landmark embedding WITHOUT its per-landmark
-    calibration offsets (the correction is relative to the embedding's points)."""
+    docstring); `part`: what of it is kept (`PARTS`). embedding: the tracker's landmark
+    embedding WITHOUT its per-landmark calibration offsets (the correction is relative to the
+    embedding's points)."""
     import time
 
-    from avatarkit.face.view_correction import BASIS, RIDGE, fit_correction, samples_from_renders
+    from avatarkit.face.view_correction import BASIS
 
     grid = grid or CalibrationGrid()
     rotation, jaw = grid.poses()
@@ -214,6 +343,5 @@ def calibrate_subject(render: Renderer, model, shape: np.ndarray, embedding, foc
     if found < 2 * len(BASIS):
         return SubjectCalibration(None, len(rotation), found, (t1 - t0, 0.0),
                                   f"{found} of {len(rotation)} renders had a face: too few to fit")
-    samples = samples_from_renders(data, embedding)
-    corr, report = fit_correction(samples, embedding.mesh_index, RIDGE if ridge is None else ridge)
-    return SubjectCalibration(corr, len(rotation), found, (t1 - t0, time.perf_counter() - t1), report)
+    corr, report = fit_subject(data, model, shape, embedding, part, ridge)
+    return SubjectCalibration(corr, len(rotation), found, (t1 - t0, time.perf_counter() - t1), report, data)

@@ -73,7 +73,8 @@ class TrackOptions:
     view_correction may also be a `ViewCorrection` (e.g. one fitted for this subject).
     subject_calibration: with an avatar (`track_video(avatar=)`), fit a view correction for it
     from renders of the avatar at known poses (`track.subject_calibration`) and track with it
-    (unless view_correction is set).
+    (unless view_correction is set); subject_part: what of that correction is used
+    (`subject_calibration.PARTS`: "full", "rigid", "nonrigid"; docs/tracking.md, session 12).
     mirror_landmarks: the face mesh averaged with its answer on the mirror image
     (`face.landmarks`, module docstring; what `avatarkit face` fits). Off (session 9,
     benchmarks/track.py, median over the video and its mirror): it hardly moves the shaded
@@ -108,6 +109,7 @@ class TrackOptions:
     view_correction: Any = False
     mirror_landmarks: bool = False
     subject_calibration: bool = False
+    subject_part: str = "full"
 
 
 @dataclass(eq=False)

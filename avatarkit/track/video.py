@@ -143,8 +143,8 @@ def calibrate_on_avatar(avatar, model, shape, embedding, size: tuple[int, int], 
 
     focal = float(options.focal) if options.focal else portrait_focal(*size)
     background = (1.0, 1.0, 1.0) if first_rgb is None else sc.border_colour(first_rgb)
-    return sc.calibrate_subject(sc.avatar_renderer(load_avatar(avatar), background), model, shape, embedding,
-                                focal, grid=sc.AVATAR_GRID)
+    return sc.calibrate_subject(sc.rigid_avatar_renderer(load_avatar(avatar), background), model, shape, embedding,
+                                focal, grid=sc.AVATAR_GRID, part=options.subject_part)
 
 
 class _Indexed:
