@@ -3,7 +3,9 @@ run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip] [--frames N] [--skip-real]
 [--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
-[--facing-refine]`
+[--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
+`recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
+two session-12 options, both off by default
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
