@@ -3,7 +3,9 @@ run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip] [--frames N] [--skip-real]
 [--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
-[--facing-refine]`
+[--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
+`recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
+two session-12 options, both off by default
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -70,6 +72,14 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     # the facing-weighted refine over the keyframes (`recon.facing_refine`, off by default)
     if os.environ.get("AVATARKIT_FACING_REFINE") in ("0", "1"):
         pipeline.FACING_REFINE = os.environ["AVATARKIT_FACING_REFINE"] == "1"
+    # the hull's growth over bare scalp (`recon.hair_hull.GROW_BARE`)
+    if os.environ.get("AVATARKIT_GROW_BARE") in ("0", "1"):
+        from avatarkit.recon import hair_hull
+
+        hair_hull.GROW_BARE = os.environ["AVATARKIT_GROW_BARE"] == "1"
+    # the lifter's hair end from the turned keyframes (`recon.hair_end`)
+    if os.environ.get("AVATARKIT_HAIR_END") in ("0", "1"):
+        pipeline.HAIR_END_FROM_VIEWS = os.environ["AVATARKIT_HAIR_END"] == "1"
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()
@@ -147,6 +157,10 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     if hull is not None:
         print(f"  hair shell grown from the keyframes: {hull['grown']} Gaussians; uncovered hair pixels per "
               f"keyframe {hull['missing_px_before']} -> {hull['missing_px_after']}")
+    if "hair_end_from_views" in b:
+        end = b["hair_end_from_views"]
+        print(f"  hair's end from the turned keyframes: {'none' if end is None else f'{end:.4f} m'}; the lifter's "
+              f"hidden strands end at {b.get('lift', {}).get('hair_end_y')} m")
     if dirs is not None:
         print(f"  strand directions from >= 2 keyframes: {dirs['from_views']} of {dirs['of']} hair Gaussians "
               f"(median turn {dirs.get('median_turn_deg', 0.0)} degrees)")

@@ -116,3 +116,91 @@ def test_missing_hair_leaves_a_margin_at_the_edges():
     ys, xs = np.nonzero(miss)
     # 2 px off the hair's edge and 2 px off the covered part
     assert xs.min() == 52 and xs.max() == 77 and ys.min() == 22 and ys.max() == 77
+
+
+# -- growth over bare scalp (`GROW_BARE`, off by default) --------------------------------------
+
+R_THIN = 0.083           # a cap 3 mm above the scalp: from the side, a band thinner than the margin
+
+
+@pytest.fixture(scope="module")
+def thin_scene():
+    """The head sphere with a thin true hair cap over the top and the back (R_THIN), the current
+    hair its front-top only; keyframes from the front (reference), 60 degrees either side and 100
+    degrees (behind the ear). The bald sphere covers nearly all of the cap's pixels: the side
+    views show the cap's hair over covered scalp, not beyond the outline."""
+    from avatarkit.head.sdf_grid import HeadSDF
+    from avatarkit.recon.label_lifting import render_label_images
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=R_HEAD)
+    sdf = HeadSDF.build(mesh.vertices, mesh.faces, spacing=0.004)
+    bald = _shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
+    truth = _shell(R_THIN, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2, True)
+    current = truth.subset((truth.means[:, 2] > -0.01) & (truth.means[:, 1] > 0.02))
+    union = GaussianSet.concat([bald, truth.replace(extras={})])
+    part = np.r_[np.full(len(bald), SKIN), np.full(len(truth), HAIR)].astype(np.int32)
+    views = []
+    for k, az in enumerate((0.0, 60.0, -60.0, 100.0)):
+        cam = Camera.orbit(np.zeros(3), az, 10.0, 0.5, 35.0, SIZE, SIZE)
+        image = (np.clip(render(union, cam, background=(1.0, 1.0, 1.0)).rgb, 0, 1) * 255).round().astype(np.uint8)
+        labels = render_label_images(union, part, [cam], n_labels=4)[0]
+        views.append(View(image, cam, labels, 1.0, k, k == 0))
+    return sdf, bald, truth, current, views
+
+
+def test_bare_scalp_grows_the_thin_cap_and_nothing_over_the_face(thin_scene, monkeypatch):
+    import avatarkit.recon.hair_hull as hh
+
+    sdf, bald, truth, current, views = thin_scene
+    # silhouettes alone: the cap's band beyond the bald outline is thinner than the margin
+    monkeypatch.setattr(hh, "GROW_BARE", False)
+    grown_off, _ = grow_hull(bald, current, views, sdf, budget=3000)
+    monkeypatch.setattr(hh, "GROW_BARE", True)
+    grown, info = grow_hull(bald, current, views, sdf, budget=3000)
+    # measured: none grows without it; with it 833 (within `BARE_BAND` of the outline; 3000, the
+    # budget, anywhere on the scalp)
+    assert len(grown_off) == 0 and len(grown) > 400
+    assert sum(info["missing_px_after"]) < 0.1 * sum(info["missing_px_before"])
+    # on the scalp, within BARE_SHELL of it (the splats' centres)
+    r = np.linalg.norm(grown.means, axis=1)
+    assert r.min() >= R_HEAD + hh.MIN_GAP - 0.002 and r.max() <= R_HEAD + hh.BARE_SHELL + 0.002
+    # where the truth has hair: the top or the back, never the face (every view sees skin there;
+    # measured: 3 of 3000 at 10.2 mm under the cap's edge at the side, none lower)
+    assert not ((grown.means[:, 1] < -0.012) & (grown.means[:, 2] > 0.03)).any()
+    # thick enough to show from the side: the normal scale is BARE_FILL of the height
+    assert np.median(grown.scales[:, 2]) > 0.3 * (np.median(r) - R_HEAD)
+
+
+def test_bare_scalp_grows_nothing_where_the_hair_shows(thin_scene, monkeypatch):
+    import avatarkit.recon.hair_hull as hh
+
+    sdf, bald, truth, current, views = thin_scene
+    monkeypatch.setattr(hh, "GROW_BARE", True)
+    grown, info = grow_hull(bald, truth, views, sdf)
+    assert len(grown) == 0 and sum(info["missing_px_before"]) == 0
+
+
+def test_bare_hair_is_labelled_hair_over_the_bald_render(monkeypatch):
+    import avatarkit.recon.hair_hull as hh
+    from avatarkit.recon.hair_hull import bare_hair
+
+    monkeypatch.setattr(hh, "BARE_BAND", None)
+    labels = np.zeros((100, 100), np.int32)
+    labels[20:80, 20:80] = HAIR
+    alpha = np.zeros((100, 100), np.float32)
+    alpha[10:90, 10:90] = 1.0                     # the avatar covers all of the hair
+    hair_alpha = np.zeros((100, 100), np.float32)
+    hair_alpha[20:80, 20:50] = 1.0                # its hair shows on the left half
+    bare = bare_hair(View(np.zeros((100, 100, 3), np.uint8), None, labels), alpha, hair_alpha, margin=0.02)
+    ys, xs = np.nonzero(bare)
+    # 2 px off the labels' edge and 2 px off the rendered hair
+    assert xs.min() == 52 and xs.max() == 77 and ys.min() == 22 and ys.max() == 77
+    # nothing where the avatar leaves the pixel uncovered (that is `missing_hair`'s)
+    alpha[:, 60:] = 0.0
+    bare = bare_hair(View(np.zeros((100, 100, 3), np.uint8), None, labels), alpha, hair_alpha, margin=0.02)
+    assert not bare[:, 60:].any() and bare[:, 52:60].any()
+    # with the band: only within 5 px of the outline (x = 60)
+    monkeypatch.setattr(hh, "BARE_BAND", 0.05)
+    ys, xs = np.nonzero(bare_hair(View(np.zeros((100, 100, 3), np.uint8), None, labels), alpha, hair_alpha, margin=0.02))
+    assert xs.min() == 55 and xs.max() == 59

@@ -27,6 +27,15 @@ silhouette around the head; the keyframes then only remove hair outside their si
    hair's direction in the head's tangent plane, coloured from that keyframe's pixel (the
    colour blend then mixes in every keyframe that sees it, `multiview.VideoViews.colour`).
 
+With `GROW_BARE` (off) step 1 also takes bare scalp (`bare_hair`): pixels a keyframe labels hair
+where the avatar is covered but shows its bald head, within `BARE_BAND` of its outline. Such a
+ray needs no hair within `REACH` (the scalp anchors it, at most `BARE_SHELL` below), and its
+splat is `BARE_FILL` of its height thick, so that it widens the outline seen from the side. It
+was tried for the hair at the back of a head whose photo shows hair only on top (the lifter's
+hidden strands stop at the height of the photo's hair beside the face): on the synthetic turns
+it gained 0.3 dB at the sample avatar's profile and lost 1-3 dB at its front and +-45
+(docs/video-build.md, "The hair at the back of the head").
+
 The grown Gaussians carry `strand` -1 and `seen` 0 (the reference camera does not see them:
 assemble keeps them free of the photo's landmarks), like the lifter's gap fill.
 """
@@ -57,6 +66,23 @@ GROW_SHARE = 0.15
 ROUNDS = 3
 #: rendering for the missing pixels at most this large (pixels)
 RENDER_SIDE = 256
+#: also grow over bare scalp: keyframe pixels labelled hair where the avatar shows its bald head
+#: (`bare_hair`). Off: on the synthetic turns it grew hair over the back of the head but not at
+#: the nape's outline that limits the profile, and added outline the truth lacks (the held-out
+#: bob's front 2.5x); docs/video-build.md, session 12
+GROW_BARE = False
+#: bare scalp's hair lies at most this far above it (metres)
+BARE_SHELL = 0.02
+#: a bare-scalp splat's thickness (its normal scale) is this share of its height above the scalp
+BARE_FILL = 0.5
+#: bare pixels are eroded off the hair labels' edge by this share of the image (thinner than
+#: `multiview.EDGE_MARGIN`: a profile frame shows the hair over the nape as a strip a few pixels
+#: wide, and the visual hull keeps a misregistered frame's hair off what other views see as skin)
+BARE_MARGIN = 0.005
+#: bare pixels only this share of the image inside the avatar's outline (None: anywhere)
+BARE_BAND = 0.03
+#: a covered pixel shows bare scalp when the hair's share of its rendered colour is below this
+BARE_SHARE = 0.2
 
 
 def _shrunk(camera, side: int = RENDER_SIDE):
@@ -87,6 +113,32 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> 
     hair = cv2.erode(hair, _disc(e))
     covered = cv2.dilate(covered, _disc(e))
     return (hair > 0) & (covered == 0)
+
+
+def bare_hair(view: View, alpha: np.ndarray, hair_alpha: np.ndarray, margin: float = EDGE_MARGIN) -> np.ndarray:
+    """(H, W) bool: the view's hair pixels (labels at alpha's size, eroded by margin) where the
+    avatar shows its bald head: covered (alpha > `ALPHA_MIN`) with the hair's share of what is
+    rendered (hair_alpha: (H, W) the avatar rendered with hair white, bald black) below
+    `BARE_SHARE`, at least margin from any pixel the hair shows on. The hair there lies on the
+    scalp beneath the view's outline: the back of a head whose reference photo shows no hair
+    there, seen in a profile frame."""
+    import cv2
+
+    from avatarkit.recon.segment import HAIR
+
+    h, w = alpha.shape
+    labels = np.asarray(view.labels)
+    if labels.shape != (h, w):
+        labels = cv2.resize(labels.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+    e = max(1, int(round(margin * max(h, w))))
+    hair = cv2.erode((labels == HAIR).astype(np.uint8), _disc(e))
+    shown = cv2.dilate((hair_alpha >= BARE_SHARE).astype(np.uint8), _disc(e))
+    bare = (hair > 0) & (alpha > ALPHA_MIN) & (shown == 0)
+    if BARE_BAND is not None:
+        # only the band inside the avatar's outline: what sets the outline from the side
+        b = max(1, int(round(BARE_BAND * max(h, w))))
+        bare &= cv2.dilate((alpha <= ALPHA_MIN).astype(np.uint8), _disc(b)) > 0
+    return bare
 
 
 def _contradicted(points: np.ndarray, labels: list[np.ndarray], depths: list[np.ndarray],
@@ -149,10 +201,15 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     if not others or len(hair) == 0:
         return empty, info["missing_px"]
     union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-    cams, depths, labels, alphas = [], [], [], []
+    # hair white, bald black: the rendered colour is the hair's share of each pixel
+    shares = GaussianSet.concat([bald.replace(extras={}).with_colors(np.zeros((len(bald), 3), np.float32)),
+                                 hair.replace(extras={}).with_colors(np.ones((len(hair), 3), np.float32))])
+    cams, depths, labels, alphas, hair_alphas = [], [], [], [], []
     for v in labelled:
         cam = _shrunk(v.camera)
         r = render(union, cam, background=(0.0, 0.0, 0.0))
+        hair_alphas.append(render(shares, cam, background=(0.0, 0.0, 0.0)).rgb[..., 0] if GROW_BARE and not v.reference
+                           else None)
         lab = np.asarray(v.labels)
         if lab.shape != (cam.height, cam.width):
             lab = cv2.resize(lab.astype(np.uint8), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
@@ -165,25 +222,28 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
         if v.reference:
             continue
         miss = missing_hair(v, alphas[i])
-        ys, xs = np.nonzero(miss)
+        bare = np.zeros_like(miss) if hair_alphas[i] is None else bare_hair(v, alphas[i], hair_alphas[i], BARE_MARGIN) & ~miss
+        ys, xs = np.nonzero(miss | bare)
         info["missing_px"].append(int(len(ys)))
         if len(ys):
-            rays.append((i, np.stack([xs + 0.5, ys + 0.5], axis=1)))
-    total = sum(len(p) for _, p in rays)
+            rays.append((i, np.stack([xs + 0.5, ys + 0.5], axis=1), bare[ys, xs]))
+    total = sum(len(p) for _, p, _ in rays)
     if total == 0 or budget <= 0:
         return empty, info["missing_px"]
     stride = max(1.0, total / budget)
     tree = cKDTree(np.asarray(hair.means, np.float64))
     hair_sd = sdf.query(np.asarray(hair.means, np.float64))[0]
+    shell_height = float(np.median(hair_sd))
     hair_axes = quat_to_matrix(hair.quats.astype(np.float64))[:, :, 0]
     centre = np.asarray(bald.means, np.float64).mean(axis=0)
     extent = float(np.linalg.norm(np.ptp(np.asarray(bald.means, np.float64), axis=0))) / 2 + MAX_SHELL
-    out_means, out_px_size, out_dirs, out_rgb = [], [], [], []
+    out_means, out_px_size, out_dirs, out_rgb, out_bare = [], [], [], [], []
     rng = np.random.default_rng(0)
-    for i, px in rays:
+    for i, px, on_scalp in rays:
         v, cam = labelled[i], cams[i]
         if stride > 1:
-            px = px[np.sort(rng.choice(len(px), max(1, int(round(len(px) / stride))), replace=False))]
+            pick = np.sort(rng.choice(len(px), max(1, int(round(len(px) / stride))), replace=False))
+            px, on_scalp = px[pick], on_scalp[pick]
         c = np.asarray(cam.camera_center, np.float64)
         r = cam.rotation
         d = unit_vectors(((px[:, :1] - cam.cx) / cam.fx) * r[0] + ((px[:, 1:] - cam.cy) / cam.fy) * r[1] + r[2])
@@ -193,14 +253,23 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
         flat = pts.reshape(-1, 3)
         sd, _ = sdf.query(flat)
         ok = (sd >= MIN_GAP) & (sd <= MAX_SHELL)
+        # bare scalp is its own anchor: hair there needs no hair nearby (the back of a head whose
+        # photo shows hair only on top), only the scalp within BARE_SHELL beneath it
+        scalp_ray = np.repeat(on_scalp, pts.shape[1])
+        ok &= ~scalp_ray | (sd <= BARE_SHELL)
         idx = np.flatnonzero(ok)
         ok[idx[_contradicted(flat[idx], labels, depths, alphas, cams)]] = False
         idx = np.flatnonzero(ok)
         near, nb = tree.query(flat[idx], k=NEIGHBOURS, distance_upper_bound=REACH)
         found = np.isfinite(near)
-        idx, found, nb = idx[found[:, 0]], found[found[:, 0]], nb[found[:, 0]]
-        # the shell's layer here: the neighbours' height above the scalp
-        layer = np.nanmedian(np.where(found, hair_sd[np.minimum(nb, len(hair) - 1)], np.nan), axis=1)
+        anchored = found[:, 0] | scalp_ray[idx]
+        idx, found, nb = idx[anchored], found[anchored], nb[anchored]
+        # the shell's layer here: the neighbours' height above the scalp (none near: the
+        # shell's median height)
+        heights = np.where(found, hair_sd[np.minimum(nb, len(hair) - 1)], np.nan)
+        layer = np.full(len(idx), shell_height)
+        some = found.any(axis=1)
+        layer[some] = np.nanmedian(heights[some], axis=1)
         miss_by = np.full(len(flat), np.inf)
         miss_by[idx] = np.abs(sd[idx] - layer)
         miss_by = miss_by.reshape(pts.shape[:2])
@@ -213,6 +282,7 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
             continue
         p = pts[np.flatnonzero(hit), best[hit]]
         out_means.append(p)
+        out_bare.append(on_scalp[hit])
         out_px_size.append(stride ** 0.5 * ts[best[hit]] / cam.fx)
         _, j = tree.query(p)
         out_dirs.append(hair_axes[j])
@@ -224,12 +294,16 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     size = np.concatenate(out_px_size)[:budget]
     axis = np.concatenate(out_dirs)[:budget]
     rgb = np.concatenate(out_rgb)[:budget]
-    _, normal = sdf.query(means)
+    on_scalp = np.concatenate(out_bare)[:budget]
+    height, normal = sdf.query(means)
     t = unit_vectors(axis - np.einsum("ij,ij->i", axis, normal)[:, None] * normal)
     nrm = unit_vectors(normal - np.einsum("ij,ij->i", normal, t)[:, None] * t)
     rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
     m = len(means)
-    scales = np.stack([1.6 * size, 0.8 * size, np.full(m, HAIR_THICKNESS)], axis=1)
+    # over bare scalp the splat fills the hair's volume down to the scalp: a sheet as thin as
+    # a strand lies edge-on at the outline of a view from the side and would not widen it
+    thick = np.where(on_scalp, np.maximum(HAIR_THICKNESS, BARE_FILL * height), HAIR_THICKNESS)
+    scales = np.stack([1.6 * size, 0.8 * size, thick], axis=1)
     extras = {}
     for k, a in hair.extras.items():
         fill = -1 if k == "strand" else 0
@@ -239,4 +313,4 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     return grown, info["missing_px"]
 
 
-__all__ = ["GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "grow_hull", "missing_hair"]
+__all__ = ["BARE_BAND", "BARE_FILL", "BARE_MARGIN", "BARE_SHARE", "BARE_SHELL", "GROW_BARE", "GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "bare_hair", "grow_hull", "missing_hair"]

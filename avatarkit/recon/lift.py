@@ -14,6 +14,8 @@ The lifting interface is `recon.lifter` (`LiftResult`, `Lifter`); the other lift
 """
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import dataclass
 
@@ -34,10 +36,12 @@ from avatarkit.rotations import matrix_to_quat
 
 
 def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
-              rng: np.random.Generator, sdf=None, bald_set: GaussianSet | None = None
-              ) -> tuple[GaussianSet, dict]:
+              rng: np.random.Generator, sdf=None, bald_set: GaussianSet | None = None,
+              hair_end: float | None = None) -> tuple[GaussianSet, dict]:
     """The built-in hair lifting (module docstring) -> (GaussianSet with `strand` and `seen`
-    extras, info). An empty set when the portrait has no hair."""
+    extras, info). An empty set when the portrait has no hair. hair_end: the rest-frame height
+    other views show the hair reaching down to (`recon.hair_end`); it lowers the photo's own
+    end of the hidden strands, never raises it."""
     from avatarkit.head.sdf_grid import HeadSDF
 
     model = fit.model
@@ -49,6 +53,8 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
     if sdf is None:
         sdf = HeadSDF.build(v, model.faces)
     shell = hair_shell(fit, hair_mask, analysis)
+    if hair_end is not None and hair_end < shell.y_end:
+        shell = dataclasses.replace(shell, y_end=float(hair_end))
     if not shell.hair.any():
         return empty, {"hair": 0, "strands": 0}
     flow, coherence = hair_flow(image, shell.hair, analysis.eye_distance)
@@ -147,6 +153,8 @@ class BuiltinLifter:
         # the rest head's HeadSDF (or a `recon.background.Background` computing it), set by the
         # pipeline to share it
         self.sdf = None
+        # how low other views show the hair (`recon.hair_end`), set by the pipeline for a video
+        self.hair_end = None
 
     def lift(self, image, analysis, segmentation, bald, fit: HeadFit) -> LiftResult:
         rng = np.random.default_rng([self.seed, 11])
@@ -156,7 +164,7 @@ class BuiltinLifter:
 
         sdf = self.sdf.result() if isinstance(self.sdf, Background) else self.sdf
         hair, hinfo = lift_hair(image, analysis, segmentation, fit, self.n_hair, rng, sdf=sdf,
-                                bald_set=bald_set)
+                                bald_set=bald_set, hair_end=self.hair_end)
         return LiftResult(bald_set, hair, {**info, **hinfo, "lifter": self.name})
 
 

@@ -69,6 +69,11 @@ MULTIVIEW_HAIR_DIRECTIONS = True
 #: reference photo's colour matching (`multiview.VideoViews.keep_view_colours`)
 KEEP_VIEW_COLOURS = True
 GROW_HAIR_HULL = True
+#: the lifter's hidden strands reach down as low as the turned keyframes show hair
+#: (`recon.hair_end`). Off: profile +1.10 dB on the sample avatar, +0.85 on the mesh subject
+#: (fronts +0.42 / -0.03), but the held-out bob loses 0.60 at -45 and 0.20 at the profile
+#: (docs/video-build.md, "The hair at the back of the head", session 12)
+HAIR_END_FROM_VIEWS = False
 #: a video build (several keyframes) then matches its colours to every keyframe at once, each
 #: Gaussian's update led by the keyframes that face it best (`recon.facing_refine`). Off:
 #: measured on the synthetic turning videos (eased clip, gain front / +-45 / +-90 degrees) the
@@ -362,6 +367,12 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     with stage("lift"):
         if isinstance(lifter, BuiltinLifter):
             lifter.sdf = pending_sdf
+            lifter.hair_end = None
+            if keyviews and HAIR_END_FROM_VIEWS:
+                from avatarkit.recon.hair_end import hair_end_from_views
+
+                lifter.hair_end = hair_end_from_views(fit.rest_vertices, head_model.faces, keyviews)
+                report.info["hair_end_from_views"] = lifter.hair_end
         lifted = lifter.lift(image, analysis, segmentation, bald_image, fit)
         sdf = pending_sdf.result()
         report.info["lift"] = dict(lifted.info)
