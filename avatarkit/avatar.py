@@ -598,6 +598,8 @@ def inspect_avatar(path: Path):
     head = m["head_model"]
     label = "built-in template" if head["kind"] == "template" else f"FLAME {head['path']}"
     s.add("head model", f"{label} ({head['vertices']:,} vertices, {head['faces']:,} faces)")
+    if "jaw_corrective" in head:
+        s.add("jaw corrective", f"learned from a video ({head['jaw_corrective']['vertices']:,} vertices)")
     shape = m["identity"]["shape"]
     nonzero = sum(1 for x in shape if x != 0)
     s.add("identity shape", f"{len(shape)} coefficients, {nonzero} non-zero")

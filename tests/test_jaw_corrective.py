@@ -174,7 +174,8 @@ def test_npz_round_trip_and_broken_file(tmp_path):
 
 
 def test_avatar_keeps_its_corrective(tmp_path):
-    from avatarkit.avatar import JAW_CORRECTIVE_FILE, MANIFEST, Avatar, load_avatar, load_avatar_head
+    from avatarkit.avatar import (JAW_CORRECTIVE_FILE, MANIFEST, Avatar, inspect_avatar, load_avatar,
+                                  load_avatar_head)
     from tests.test_avatar import hairless_avatar
 
     shared = hairless_avatar()                          # cached: not to be changed
@@ -186,6 +187,7 @@ def test_avatar_keeps_its_corrective(tmp_path):
     assert manifest["head_model"]["jaw_corrective"]["file"] == JAW_CORRECTIVE_FILE
     loaded = load_avatar(out)
     np.testing.assert_array_equal(loaded.head_model.posedirs, bare.head_model.posedirs)
+    assert "jaw corrective" in dict(inspect_avatar(out).rows)
     head, _, _, _ = load_avatar_head(out)
     np.testing.assert_array_equal(head.jaw_corrective.dirs, corr.dirs)
     jaw = np.array([[0.2, 0.0, 0.0]])

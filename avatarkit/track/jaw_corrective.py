@@ -62,6 +62,8 @@ LIPS_FIT_WEIGHT = 0.0
 #: fit, spread and refit this many times (each round takes up part of what the last left: the
 #: chin below the lip, kept in the frames' fits, gives back part of the drop as jaw opening)
 ROUNDS = 3
+#: fit each landmark's residual with terms linear in the head's turn too (`landmark_slopes`)
+POSE_TERMS = True
 #: fewer frames with a face than this: no corrective
 MIN_FRAMES = 20
 
@@ -118,23 +120,31 @@ def view_residuals(problem, fit, targets, focal: float) -> tuple[np.ndarray, np.
 
 
 def landmark_slopes(residuals: np.ndarray, planes: np.ndarray, opening: np.ndarray, jaw: np.ndarray,
-                    jaw_weight: np.ndarray, ridge: float = SLOPE_RIDGE) -> np.ndarray:
+                    jaw_weight: np.ndarray, ridge: float = SLOPE_RIDGE, pose: np.ndarray | None = None
+                    ) -> np.ndarray:
     """(K, 3) each landmark's motion per unit of opening beyond the model (module docstring,
     step 2). residuals (T, K, 3) head frame; planes (T, 3, 3) the frames' view projectors;
-    opening (T,); jaw (T, 3) axis-angle; jaw_weight (K,)."""
+    opening (T,); jaw (T, 3) axis-angle; jaw_weight (K,); pose (T, 3) the frames' head
+    rotations (axis-angle) or None: with them, each landmark's residual may also move linearly
+    with the head's turn away from its median (three more 3-vectors, as ridge-held as the
+    slope), so the face mesh's view-dependent reading (docs/face.md) does not pass for a jaw
+    corrective where the fitted opening moves with the turn."""
     from avatarkit.track.solve import _rodrigues
 
     T, K, _ = residuals.shape
     Rj = _rodrigues(np.asarray(jaw, np.float64)) - np.eye(3)                 # (T, 3, 3)
+    q = np.zeros((T, 0)) if pose is None else np.asarray(pose, np.float64) - np.median(pose, axis=0)
+    Q = q.shape[1]
     out = np.zeros((K, 3))
-    lam = np.diag([1e-6] * 3 + [ridge ** 2 * T] * 3)
+    lam = np.diag([1e-6] * 3 + [ridge ** 2 * T] * (3 + 3 * Q))
     for k in range(K):
         M = np.eye(3) + jaw_weight[k] * Rj                                     # rest -> posed
         G = planes @ M                                                         # (T, 3, 3)
-        A = np.concatenate([G, opening[:, None, None] * G], axis=2)            # (T, 3, 6)
+        parts = [G, opening[:, None, None] * G] + [q[:, j, None, None] * planes for j in range(Q)]
+        A = np.concatenate(parts, axis=2)                                      # (T, 3, 6 + 3Q)
         N = np.einsum("tia,tib->ab", A, A) + lam
         b = np.einsum("tia,ti->a", A, np.einsum("tij,tj->ti", planes, residuals[:, k]))
-        out[k] = np.linalg.solve(N, b)[3:]
+        out[k] = np.linalg.solve(N, b)[3:6]
     return out
 
 
@@ -230,7 +240,7 @@ def fit_corrective(model, shape: np.ndarray, embedding, targets: list, focal: fl
     for _ in range(rounds + 1):
         current = apply_jaw_corrective(model, corrective) if corrective is not None else model
         ft = FrameTracker(current, shape, present[0].size, options, embedding)
-        res, planes, jaws, err = [], [], [], []
+        res, planes, jaws, err, turns = [], [], [], [], []
         for tg in targets:
             if tg is None:
                 ft.reset()
@@ -243,6 +253,7 @@ def fit_corrective(model, shape: np.ndarray, embedding, targets: list, focal: fl
             err.append(e[rows])
             planes.append(p)
             jaws.append(fit.jaw)
+            turns.append(fit.rotation)
         res, planes, jaws = np.stack(res), np.stack(planes), np.stack(jaws)
         s = opening_feature(jaws)
         err = np.stack(err)
@@ -252,7 +263,7 @@ def fit_corrective(model, shape: np.ndarray, embedding, targets: list, focal: fl
                                   "opening_p5_p95": [round(float(v), 4) for v in np.percentile(s, [5, 95])]})
         if len(figures["rounds"]) > rounds:
             break
-        slopes = landmark_slopes(res, planes, s, jaws, jw_rows)
+        slopes = landmark_slopes(res, planes, s, jaws, jw_rows, pose=np.stack(turns) if POSE_TERMS else None)
         near, add = spread(rest, model.faces, jw_vertex, B, slopes)
         field[near] += add
         moved = np.flatnonzero(np.abs(field).sum(1) > 0)
@@ -313,6 +324,6 @@ def fit_avatar_corrective(avatar, video, tracking, rounds: int = ROUNDS,
     return fit_jaw_corrective(result, rounds, span)
 
 
-__all__ = ["CorrectiveFit", "MIN_FRAMES", "LIPS_FIT_WEIGHT", "MOUTH_RADIUS", "ROUNDS", "SLOPE_RIDGE", "SPREAD_JAW", "SPREAD_REACH", "SPREAD_SMOOTH",
+__all__ = ["CorrectiveFit", "MIN_FRAMES", "LIPS_FIT_WEIGHT", "MOUTH_RADIUS", "POSE_TERMS", "ROUNDS", "SLOPE_RIDGE", "SPREAD_JAW", "SPREAD_REACH", "SPREAD_SMOOTH",
            "fit_corrective", "fit_jaw_corrective", "landmark_jaw_weights", "landmark_slopes",
            "mouth_rows", "spread", "view_residuals"]
