@@ -6,7 +6,9 @@ outer lower lip 13-15 px below the fitted one while the chin is matched to 2 px)
 shows a half-open mouth. One photo cannot know how a person's mouth opens; a talking video
 shows it (docs/video-build.md, "The mouth's corrective").
 
-What (`fit_jaw_corrective`):
+What (`fit_jaw_corrective` over a `TrackResult`; the video build's `fit_avatar_corrective`
+tracks the video with the built avatar first, so the corrective is learned on the head and
+identity it will be driven with):
 
 1. Residuals. Every frame with a face is fitted by the tracker's objective (`solve.fit_frame`,
    warm-started frame to frame as `track.tracker` does) with the head model carrying the
@@ -16,16 +18,18 @@ What (`fit_jaw_corrective`):
    opened the jaw further to chase the lip (a known drop: the opening read 1.28x, and only
    ~40 % of the drop was left in the residuals per round). Without every landmark within
    `MOUTH_RADIUS` (the chin's front too) the grey clip's jaw read less than half open (95th
-   percentile 0.074 against 0.17 rad) and the lower lip's slope came out 3x. Each mouth landmark's pixel residual
-   is carried into the head's frame at its depth (as `solve.landmark_offsets` does for its
-   static offsets), the part of it the frame sees: the two directions across the frame's view.
-2. Slopes. Per mouth landmark, the residual is fitted as a + s D over the frames: a a static
-   offset (what the tracker's per-landmark calibration holds), s = `head.jaw_corrective.
-   opening_feature` of the frame's fitted jaw (sin of the opening), D (3,) the landmark's
-   motion per unit of opening that the model lacks; each frame constrains only what it sees
-   (least squares over the frames' view planes), a ridge `SLOPE_RIDGE` holds D at zero where
-   the jaw hardly moves. The landmark's jaw weight is undone (the corrective moves the vertex
-   before the jaw turns it).
+   percentile 0.074 against 0.17 rad) and the lower lip's slope came out 3x. Each mouth
+   landmark's pixel residual is carried into the head's frame at its depth (as
+   `solve.landmark_offsets` does for its static offsets), the part of it the frame sees: the
+   two directions across the frame's view.
+2. Slopes. Per mouth landmark, the residual is fitted as a + s D (+ q Y, `POSE_TERMS`) over
+   the frames: a a static offset (what the tracker's per-landmark calibration holds), s =
+   `head.jaw_corrective.opening_feature` of the frame's fitted jaw (sin of the opening), D (3,)
+   the landmark's motion per unit of opening that the model lacks, q the head's turn from its
+   median (axis-angle) and Y (3, 3) the face mesh's view-dependent reading; each frame
+   constrains only what it sees (least squares over the frames' view planes), a ridge
+   `SLOPE_RIDGE` holds D and Y at zero where the jaw or the head hardly moves. The landmark's
+   jaw weight is undone (the corrective moves the vertex before the jaw turns it).
 3. Spread. The landmarks' D become a vertex field (`spread`): a membrane over the vertices
    within `SPREAD_REACH` of a fitted landmark that meets the landmarks' D (least squares) and
    is pinned to zero at the region's edge; its edges between vertices apart in jaw weight are
