@@ -1,6 +1,7 @@
 """The subject's jaw corrective: the head model carrying it (zero at rest, still far from the mouth,
 a FLAME model's own posedirs kept), the tracker's landmark models seeing it, the avatar folder
-keeping it, and the video build's fit recovering a known one from projected landmarks."""
+keeping it, the video build's fit recovering a known one from projected landmarks, and the fit's
+guard keeping only the slopes the frames support."""
 from __future__ import annotations
 
 import functools
@@ -14,7 +15,7 @@ from avatarkit.face.fit import LandmarkModel, LandmarkTargets
 from avatarkit.head.jaw_corrective import (JawCorrective, apply_jaw_corrective, jaw_features, load_npz,
                                            opening_feature, save_npz)
 from avatarkit.head.model import HeadParams, load_template
-from avatarkit.track.jaw_corrective import fit_corrective
+from avatarkit.track.jaw_corrective import fit_corrective, landmark_slopes, slope_threshold, supported_slopes
 from avatarkit.track.solve import FrameProblem, _rodrigues
 from avatarkit.track.tracker import model_embedding
 
@@ -161,6 +162,81 @@ def test_fit_learns_nothing_from_a_mouth_the_model_has():
     assert few.corrective is None and "fewer" in few.figures["skipped"]
 
 
+def _ar1(rng, shape, rho: float, std: float) -> np.ndarray:
+    """(T, ...) a stationary AR(1) series along the first axis: errors correlated in time, as
+    the face mesh's readings of neighbouring frames are."""
+    e = rng.normal(0.0, std * np.sqrt(1 - rho ** 2), shape)
+    e[0] = rng.normal(0.0, std, shape[1:])
+    for t in range(1, shape[0]):
+        e[t] += rho * e[t - 1]
+    return e
+
+
+def _slope_data(slope_m: float, seed: int, T: int = 128, K: int = 120):
+    """K landmarks' residuals (T, K, 3) = slope_m x the opening along -y + errors correlated in
+    time (1 mm, AR(1) 0.9: the shared clips' residuals stay correlated over ~12 frames), seen
+    from the front; the opening a smooth series (AR(1) 0.95, 0.03 rms) like a talking jaw's."""
+    rng = np.random.default_rng(seed)
+    s = 0.04 + _ar1(rng, (T,), 0.95, 0.03)
+    res = _ar1(rng, (T, K, 3), 0.9, 1e-3)
+    res[:, :, 1] -= slope_m * s[:, None]
+    res[:, :, 2] = 0.0
+    planes = np.broadcast_to(np.diag([1.0, 1.0, 0.0]), (T, 3, 3)).copy()
+    jaw = np.stack([np.arcsin(s), np.zeros(T), np.zeros(T)], 1)
+    return res, planes, s, jaw, np.zeros(K)
+
+
+def test_slope_guard_drops_slopes_fitted_to_correlated_errors():
+    res, planes, s, jaw, jw = _slope_data(0.0, seed=3)
+    blocks = np.arange(len(s)) // 16
+    plain, _, _ = supported_slopes(res, planes, s, jaw, jw)
+    tested, stat, threshold = supported_slopes(res, planes, s, jaw, jw, blocks=blocks)
+    # untested, errors that drift with the opening read as slopes of several mm at 0.3 rad ...
+    assert np.percentile(np.linalg.norm(plain, axis=1), 90) * 0.3 > 1e-3
+    # ... the test keeps about its level's share of them (0.99: ~1 %; a few % allowed)
+    assert np.isfinite(threshold) and (stat > threshold).mean() <= 0.05
+    assert np.abs(tested[stat <= threshold]).max() == 0.0
+
+
+def test_slope_guard_keeps_a_slope_the_frames_show():
+    # 9 mm at the opening's rms, 27 mm at 0.3 rad (the grey clip's: ~25 mm), over errors of 1 mm
+    # correlated over ~10 frames (8 blocks of 16 frames: the test has little power; at a third of
+    # this slope it keeps about half the landmarks)
+    res, planes, s, jaw, jw = _slope_data(0.3, seed=5)
+    plain, _, _ = supported_slopes(res, planes, s, jaw, jw)
+    tested, stat, threshold = supported_slopes(res, planes, s, jaw, jw, blocks=np.arange(len(s)) // 16)
+    kept = stat > threshold
+    assert kept.mean() >= 0.9
+    # a kept slope is the plain fit's (the ridge's shrinkage included), downward
+    np.testing.assert_array_equal(tested[kept], plain[kept])
+    assert (tested[kept, 1] < -0.1).all()
+    assert np.abs(tested[~kept]).max(initial=0.0) == 0.0
+
+
+def test_slope_statistic_matches_refitting_without_each_block():
+    """The fast path (each block's sums taken off the whole's normal equations) against the slow
+    obvious one: the slopes refitted on the frames outside each block."""
+    from avatarkit.track.jaw_corrective import slope_statistic
+
+    res, planes, s, jaw, jw = _slope_data(0.1, seed=6, T=70, K=4)
+    blocks = np.arange(len(s)) // 16                                       # 5 blocks, the last short
+    slopes, stat, threshold = supported_slopes(res, planes, s, jaw, jw, blocks=blocks, level=0.0)
+    plain = landmark_slopes(res, planes, s, jaw, jw)
+    held = np.stack([landmark_slopes(res[blocks != b], planes[blocks != b], s[blocks != b], jaw[blocks != b], jw)
+                     for b in range(5)])                                 # (B, K, 3)
+    np.testing.assert_allclose(slopes, plain, rtol=1e-9, atol=1e-12)     # level 0: all kept
+    want = [slope_statistic(plain[k], held[:, k]) for k in range(4)]
+    np.testing.assert_allclose(stat, want, rtol=1e-6)
+
+
+def test_slope_threshold_is_the_f_test():
+    from scipy.stats import f
+
+    assert slope_threshold(4) == np.inf
+    assert slope_threshold(8, 0.99) == pytest.approx(3 * 7 / 5 * f.ppf(0.99, 3, 5))
+    assert slope_threshold(8) > slope_threshold(16) > 3 * f.ppf(0.99, 3, 10 ** 6) * 0.99
+
+
 def test_npz_round_trip_and_broken_file(tmp_path):
     corr = _mouth_field(_template())
     save_npz(corr, tmp_path / "c.npz")
@@ -202,3 +278,34 @@ def test_avatar_keeps_its_corrective(tmp_path):
     plain = hairless_avatar().save(tmp_path / "c", preview=False)
     assert "jaw_corrective" not in json.loads((plain / MANIFEST).read_text())["head_model"]
     assert load_avatar(plain).head_model.jaw_corrective is None
+
+
+@pytest.mark.slow
+def test_a_talking_template_learns_no_corrective(tmp_path, monkeypatch):
+    """Known answer: the template rendered talking (the jaw 0..0.25 rad at ~1.3 Hz, a gentle turn)
+    opens its mouth as the model does, so what the face mesh's reading teaches is zero. Without
+    the guard the fit learned 21 mm at 0.3 rad from it; with it 4.3 mm (session 12)."""
+    import avatarkit.track.jaw_corrective as jc
+    from avatarkit.export.video import write_video
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.recon.pipeline import BuildOptions
+    from avatarkit.synthetic.head_video import HeadVideo, head_video_camera
+    from avatarkit.synthetic.shading import LIGHT
+    from avatarkit.track.video_build import build_tracking
+
+    T = 96
+    t = np.arange(T) / 24.0
+    jaw = np.zeros((T, 3))
+    jaw[:, 0] = 0.125 * (1 - np.cos(2 * np.pi * 1.3 * t)) * (0.6 + 0.4 * np.sin(2 * np.pi * 0.31 * t))
+    rot = np.stack([0.06 * np.sin(2 * np.pi * 0.23 * t), 0.25 * np.sin(2 * np.pi * 0.17 * t), np.zeros(T)], 1)
+    clip = MotionClip(fps=24, rotation=rot, translation=np.zeros((T, 3)), neck=np.zeros((T, 3)),
+                      jaw=jaw, eyes=np.zeros((T, 6)), expr=np.zeros((T, 9)))
+    hv = HeadVideo(clip, head_video_camera(256, distance=0.45), n_gaussians=20000, light=LIGHT, mouth=True)
+    path = tmp_path / "talking.mp4"
+    write_video(path, [f.rgb for f in hv.frames()], fps=24)
+    result = build_tracking(path, BuildOptions())
+    guarded = jc.fit_jaw_corrective(result)
+    monkeypatch.setattr(jc, "SLOPE_BLOCK", None)
+    plain = jc.fit_jaw_corrective(result)
+    assert plain.corrective.max_displacement(0.3) > 0.01                # what the guard is for
+    assert guarded.corrective is None or guarded.corrective.max_displacement(0.3) < 0.005
