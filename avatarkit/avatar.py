@@ -12,6 +12,10 @@ An avatar folder holds:
     rig.npz       what the hair driver needs that is slow to compute: the simulation model (roots
                   and their attachment to the head, proxy weights, tethers, head SDF) and the
                   cage deformer's settings, plus a SHA-256 of its inputs (~2 MB)
+    jaw_corrective.npz  (optional) the subject's jaw corrective the video build learned
+                  (`head.jaw_corrective`): added to the head model's posedirs on load, so
+                  every pose of this avatar's head (bake, track --avatar, evaluate) opens the
+                  mouth as the person's did; named by avatar.json's head_model.jaw_corrective
     preview.png   a front view (optional)
 
 A hairless avatar (a bald person: its hair part has 0 Gaussians) has no cage and no rig
@@ -62,6 +66,7 @@ BALD_FILE = "bald.ply"
 HAIR_FILE = "hair.ply"
 CAGE_FILE = "cage.ply"
 RIG_FILE = "rig.npz"
+JAW_CORRECTIVE_FILE = "jaw_corrective.npz"
 PREVIEW_FILE = "preview.png"
 #: optional extra views beside preview.png; the manifest schema has no place for them (its
 #: parts allow no extra fields), so they travel as plain files found by name
@@ -264,9 +269,11 @@ class Avatar:
                 f"hair={len(self.hair)}, {cage})")
 
     # --- files ----------------------------------------------------------------------------------
-    def manifest(self, rig_sha256: str | None, preview_size: tuple[int, int] | None) -> dict:
+    def manifest(self, rig_sha256: str | None, preview_size: tuple[int, int] | None,
+                 jaw_sha256: str | None = None) -> dict:
         """The avatar.json content for this avatar (rig_sha256: hash of the rig's inputs; None
-        for a hairless avatar, whose parts are the bald head (and preview) only)."""
+        for a hairless avatar, whose parts are the bald head (and preview) only; jaw_sha256:
+        the SHA-256 of the saved jaw corrective file, None when the head carries none)."""
         parts: dict[str, Any] = {
             "bald": {"file": BALD_FILE, "count": len(self.bald), "sh_degree": self.bald.sh_degree,
                      "sh_frame": self.sh_frame}}
@@ -281,8 +288,12 @@ class Avatar:
         # `created` is when the avatar was made (kept across re-saves); `version` what wrote it
         prov = {**self.provenance, "tool": "avatarkit", "version": _tool_version(),
                 "created": str(self.provenance.get("created") or _now())}
+        head = self.head_ref.to_json(self.head_model)
+        if jaw_sha256 is not None:
+            head["jaw_corrective"] = {"file": JAW_CORRECTIVE_FILE, "sha256": jaw_sha256,
+                                      "vertices": int(len(self.head_model.jaw_corrective.vertex_index))}
         return {"format": AVATAR_FORMAT, "version": AVATAR_VERSION, "name": self.name,
-                "head_model": self.head_ref.to_json(self.head_model),
+                "head_model": head,
                 "identity": {"shape": [float(x) for x in self.shape]},
                 "parts": parts, "provenance": prov}
 
@@ -316,7 +327,14 @@ class Avatar:
                 write_png(tmp / PREVIEW_FILE, image)
             for key, extra in self.extra_previews.items():
                 write_png(tmp / key, np.asarray(extra))
-            manifest = self.manifest(sha, None if image is None else image.shape[:2])
+            jaw_sha = None
+            if getattr(self.head_model, "jaw_corrective", None) is not None:
+                from avatarkit.fileio import file_sha256
+                from avatarkit.head.jaw_corrective import save_npz
+
+                save_npz(self.head_model.jaw_corrective, tmp / JAW_CORRECTIVE_FILE)
+                jaw_sha = file_sha256(tmp / JAW_CORRECTIVE_FILE)
+            manifest = self.manifest(sha, None if image is None else image.shape[:2], jaw_sha)
             validate(manifest, "avatar", tmp / MANIFEST)
             (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
         return target
@@ -477,6 +495,8 @@ def load_avatar_head(folder: str | os.PathLike) -> tuple[Any, np.ndarray, HeadRe
         raise FormatError(f"the avatar was made for a head model with {ref_json['vertices']} vertices "
                           f"and {ref_json['faces']} faces; this {ref.kind} head has {head.num_vertices} "
                           f"and {head.num_faces}", mpath)
+    if "jaw_corrective" in ref_json:
+        head = _with_jaw_corrective(folder, ref_json["jaw_corrective"], head)
     if ref.kind == "template" and "sha256" in ref_json and ref_json["sha256"] != head_geometry_sha256(head):
         warnings.warn(f"{mpath}: the built-in template head has changed since this avatar was made "
                       f"({ref_json.get('source', 'unknown version')}); its bald Gaussians may not lie on "
@@ -486,6 +506,23 @@ def load_avatar_head(folder: str | os.PathLike) -> tuple[Any, np.ndarray, HeadRe
         raise FormatError(f"identity shape has {len(shape)} coefficients, the head model "
                           f"{head.num_shape}", mpath)
     return head, shape, ref, manifest
+
+
+def _with_jaw_corrective(folder: Path, entry: dict, head):
+    """`head` with the avatar's jaw corrective (manifest entry `entry`) added to its posedirs."""
+    from avatarkit.fileio import file_sha256
+    from avatarkit.head.jaw_corrective import apply_jaw_corrective, load_npz
+
+    path = _part_file(folder, entry)
+    if file_sha256(path) != entry["sha256"]:
+        raise FormatError("belongs to another avatar (its SHA-256 differs from avatar.json's)", path)
+    corrective = load_npz(path)
+    if len(corrective.vertex_index) != entry["vertices"]:
+        raise FormatError(f"moves {len(corrective.vertex_index)} vertices, avatar.json says {entry['vertices']}", path)
+    try:
+        return apply_jaw_corrective(head, corrective)
+    except InputError as e:
+        raise FormatError(e.message, path) from None
 
 
 def load_avatar(folder: str | os.PathLike) -> Avatar:
@@ -561,6 +598,8 @@ def inspect_avatar(path: Path):
     head = m["head_model"]
     label = "built-in template" if head["kind"] == "template" else f"FLAME {head['path']}"
     s.add("head model", f"{label} ({head['vertices']:,} vertices, {head['faces']:,} faces)")
+    if "jaw_corrective" in head:
+        s.add("jaw corrective", f"learned from a video ({head['jaw_corrective']['vertices']:,} vertices)")
     shape = m["identity"]["shape"]
     nonzero = sum(1 for x in shape if x != 0)
     s.add("identity shape", f"{len(shape)} coefficients, {nonzero} non-zero")
@@ -589,6 +628,6 @@ def inspect_avatar(path: Path):
     return s
 
 
-__all__ = ["AVATAR_FORMAT", "AVATAR_VERSION", "Avatar", "HeadModelChangedWarning", "PART_BALD", "PART_HAIR",
+__all__ = ["AVATAR_FORMAT", "AVATAR_VERSION", "Avatar", "JAW_CORRECTIVE_FILE", "HeadModelChangedWarning", "PART_BALD", "PART_HAIR",
            "RigRebuiltWarning", "check_avatar_target", "inspect_avatar", "is_avatar_folder", "load_avatar",
            "load_avatar_head", "load_rest_splats", "read_manifest"]

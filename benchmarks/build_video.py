@@ -164,6 +164,12 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     if dirs is not None:
         print(f"  strand directions from >= 2 keyframes: {dirs['from_views']} of {dirs['of']} hair Gaussians "
               f"(median turn {dirs.get('median_turn_deg', 0.0)} degrees)")
+    jaw = prov["source_video"].get("jaw_corrective")
+    if jaw is not None:
+        # the turning clips do not move the mouth: the corrective should come out ~0
+        last = jaw["rounds"][-1] if jaw.get("rounds") else {}
+        print(f"  jaw corrective: {jaw.get('vertices', 0)} vertices, at most {jaw.get('max_mm_at_0.3_rad', 0.0)} mm "
+              f"at 0.3 rad; the fitted opening's 5-95th percentiles {last.get('opening_p5_p95')}")
     print(f"  {'azimuth':>8s} {'single dB':>10s} {'video dB':>10s} {'gain':>7s}")
     for az in pv:
         print(f"  {az:8.0f} {ps[az]:10.2f} {pv[az]:10.2f} {pv[az] - ps[az]:+7.2f}")

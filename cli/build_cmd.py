@@ -46,12 +46,15 @@ _FILE = click.Path(dir_okay=False)
               help="PORTRAIT is a video that turns past what the face tracker follows (~55-60 degrees): "
               "register those frames against a first build and fuse them as keyframes too (about doubles "
               "the build of such a video).")
+@click.option("--jaw-corrective/--no-jaw-corrective", default=True, show_default=True,
+              help="PORTRAIT is a video: learn from the tracked frames how the person's mouth opens "
+              "beyond the head model's (a per-subject jaw corrective, saved with the avatar).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
               face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
-              keyframes, register, preview, quiet):
+              keyframes, register, jaw_corrective, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
     a PORTRAIT video (MP4, MOV, MKV, AVI, WebM): by default from the whole video (tracked;
     keyframes covering the head's turns give the identity shape, colours and hair bounds;
@@ -99,7 +102,7 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
             click.echo("tracking the video ...", err=True)
         try:
             avatar = build_video_avatar(portrait, options, keyframes=keyframes, progress=progress,
-                                        register=register)
+                                        register=register, jaw_corrective=jaw_corrective)
         except BaseException:
             if not quiet:
                 click.echo(" failed", err=True)

@@ -134,6 +134,23 @@ def test_build_passes_the_register_switch_to_the_video_build(tmp_path, monkeypat
     assert seen["register"] is expected and not (tmp_path / "a").exists()
 
 
+@pytest.mark.parametrize("flag, expected", [([], True), (["--no-jaw-corrective"], False)])
+def test_build_passes_the_jaw_corrective_switch_to_the_video_build(tmp_path, monkeypatch, flag, expected):
+    import avatarkit.track.video_build as video_build
+    from avatarkit.export.video import write_video
+
+    seen = {}
+
+    def fake(video, options, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt   # stop before anything is written
+
+    monkeypatch.setattr(video_build, "build_video_avatar", fake)
+    write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
+    main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
+    assert seen["jaw_corrective"] is expected and not (tmp_path / "a").exists()
+
+
 def test_keyframes_must_be_positive(tmp_path, capsys):
     code = main(["build", str(tmp_path / "x.mp4"), "-o", str(tmp_path / "a"), "--keyframes", "0"])
     assert code == 2 and not (tmp_path / "a").exists()

@@ -155,6 +155,14 @@ class LandmarkModel:
             if model.num_shape else np.zeros((3, 0))
         self.jaw_joint_expr = np.einsum("v,vdk->dk", row, model.exprdirs.astype(np.float64)) \
             if model.num_expr else np.zeros((3, 0))
+        # the jaw's pose correctives (posedirs rows 9..17: FLAME's own, and a subject's learned
+        # `head.jaw_corrective`): (U, 3, 9) per unit of vec(R_jaw - I), None when all zero
+        self.jaw_pose = None
+        pd = getattr(model, "posedirs", None)
+        if pd is not None and model.num_joints == 5:
+            jp = np.asarray(pd[9:18], np.float64).reshape(9, V, 3)[:, u].transpose(1, 2, 0)
+            if np.any(jp):
+                self.jaw_pose = np.ascontiguousarray(jp)
         del V
 
     def points(self, shape=None, expr=None, jaw=None):
@@ -176,6 +184,8 @@ class LandmarkModel:
             v = v + t(self.exprdirs[:, :, :e]) @ expr
             joint = joint + t(self.jaw_joint_expr[:, :e]) @ expr
         r = axis_angle_to_matrix_torch(jaw) if jaw is not None else None
+        if r is not None and self.jaw_pose is not None:
+            v = v + t(self.jaw_pose) @ (r - torch.eye(3, dtype=r.dtype)).reshape(9)
         if r is not None:
             turned = (v - joint) @ r.T + joint
             w = t(self.jaw_weight)[:, None]

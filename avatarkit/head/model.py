@@ -172,6 +172,8 @@ class HeadModel:
     weights: (V, J) float32, rows sum to 1; regions: name -> vertex indices (int64);
     expression_names: (E,) names of the expression components; shape_names: (S,).
     `name` says what it is ("template", "flame"); `source` where it came from (file + sha256).
+    `jaw_corrective` (not a constructor argument): the per-subject `head.jaw_corrective.
+    JawCorrective` already added to posedirs' jaw rows (`apply_jaw_corrective`), or None.
     """
 
     faces: np.ndarray
@@ -232,6 +234,7 @@ class HeadModel:
         if len(self.expression_names) != self.num_expr or len(self.shape_names) != self.num_shape:
             raise InputError("expression_names / shape_names must have one name per component")
         self._torch_cache: dict = {}
+        self.jaw_corrective = None
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -390,6 +393,7 @@ class HeadModel:
         return {"name": self.name, "source": self.source, "vertices": self.num_vertices,
                 "faces": self.num_faces, "shape_components": self.num_shape,
                 "expression_components": self.num_expr, "pose_correctives": self.posedirs is not None,
+                "jaw_corrective": None if self.jaw_corrective is None else self.jaw_corrective.summary(),
                 "joints": list(self.joint_names), "bbox_min": lo.round(4).tolist(),
                 "bbox_max": hi.round(4).tolist(),
                 "regions": {k: int(len(v)) for k, v in sorted(self.regions.items())}}

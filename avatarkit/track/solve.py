@@ -58,6 +58,8 @@ class FrameProblem:
     num_expr: int = 0         # the first num_expr coefficients are expressions, the rest shape
     view: object = None       # a `face.view_correction.ViewCorrection` (None: off)
     centre: np.ndarray | None = None   # (3,) the rest landmarks' mean, where the view is seen from
+    lm_pose: np.ndarray | None = None  # (K, 3, 9) B jaw posedirs (None: the model has none)
+    jw_pose: np.ndarray | None = None  # (K, 3, 9) B diag(w) jaw posedirs
 
     @classmethod
     def from_landmark_model(cls, lm, shape: np.ndarray, expr_components: int,
@@ -84,8 +86,14 @@ class FrameProblem:
             # landmark's jaw weight (as `face.fit.LandmarkModel` does)
             lm0 = lm0 + lm.offset
             jw0 = jw0 + jw_sum[:, None] * lm.offset
+        lm_pose = jw_pose = None
+        if getattr(lm, "jaw_pose", None) is not None:
+            # the jaw's pose correctives move the vertices before the jaw turns them, as the
+            # expression blendshapes do: linear in vec(R_jaw - I)
+            jp = lm.jaw_pose.reshape(U, 27)
+            lm_pose, jw_pose = (B @ jp).reshape(K, 3, 9), (Bw @ jp).reshape(K, 3, 9)
         return cls(lm0, (B @ dirs).reshape(K, 3, C), jw0, (Bw @ dirs).reshape(K, 3, C),
-                   jw_sum, joint, joint_dirs, E)
+                   jw_sum, joint, joint_dirs, E, lm_pose=lm_pose, jw_pose=jw_pose)
 
     def with_view(self, correction) -> "FrameProblem":
         """The same problem with a view correction (None: without): every landmark moves by
@@ -113,8 +121,12 @@ class FrameProblem:
         lm = self.lm0[None] + (expr @ self.lm_expr.reshape(K * 3, C).T).reshape(B, K, 3)
         jw = self.jw0[None] + (expr @ self.jw_expr.reshape(K * 3, C).T).reshape(B, K, 3)
         joint = self.jaw_joint[None] + expr @ self.jaw_joint_expr.T                   # (B, 3)
-        arm = jw - self.jw_sum[None, :, None] * joint[:, None]                        # (B, K, 3)
         R = _rodrigues(jaw) - np.eye(3)
+        if self.lm_pose is not None:
+            feat = R.reshape(B, 9)
+            lm = lm + (feat @ self.lm_pose.reshape(K * 3, 9).T).reshape(B, K, 3)
+            jw = jw + (feat @ self.jw_pose.reshape(K * 3, 9).T).reshape(B, K, 3)
+        arm = jw - self.jw_sum[None, :, None] * joint[:, None]                        # (B, K, 3)
         return lm + np.matmul(arm, R.transpose(0, 2, 1))
 
     def points_reference(self, lm_model, expr: np.ndarray, jaw: np.ndarray, shape: np.ndarray) -> np.ndarray:

@@ -279,6 +279,11 @@ class FrameTracker:
                                                             ).with_view(self.correction)
         self.prev_fit = None
 
+    def fit_targets(self, targets):
+        """The fit of one frame's `LandmarkTargets`, warm-started from the previous frame's
+        (`reset` forgets it)."""
+        return self._fit_targets(targets)
+
     def _fit_targets(self, targets):
         from avatarkit.face.fit import initial_pose, with_outline_weight
         from avatarkit.track.solve import fit_frame, rest_points

@@ -9,6 +9,9 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
     (build)    the portrait build of the reference keyframe (its own    recon.pipeline
                shape fit, as a single-frame build) with the keyframes   recon.multiview
                as extra views, registered by the joint fit's poses
+    jaw_corrective  how this person's mouth opens beyond the head         track.jaw_corrective
+               model's, learned from every tracked frame, added to the
+               avatar's head model (its posedirs' jaw rows)
     frame_colours  (one keyframe only: a head that does not turn) the    track.frame_colours
                neck, lips, mouth interior and outline coloured from up
                to 24 tracked frames of the video
@@ -41,6 +44,9 @@ from avatarkit.track.neck import clip_head_rotation
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
+#: learn the subject's jaw corrective from the tracked frames (`track.jaw_corrective`; the
+#: build option `jaw_corrective=False` / `avatarkit build VIDEO --no-jaw-corrective` turns it off)
+JAW_CORRECTIVE = True
 
 #: expression coefficients fitted per keyframe in the joint identity fit (the keyframes are
 #: chosen neutral; a few absorb what is left of a smile)
@@ -133,7 +139,7 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
                        tracking=None, colour_span: tuple[int, int] | None = None,
-                       register: bool | None = None):
+                       register: bool | None = None, jaw_corrective: bool | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
@@ -143,7 +149,10 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     [start, end) video frames the frame_colours stage may use (None: the whole video;
     `avatarkit evaluate` keeps the second half of the clip out of the build). register: register
     the frames the tracker lost at a turn's ends and fuse them as keyframes (`register_turned`;
-    None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False)."""
+    None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False). jaw_corrective:
+    learn the subject's jaw corrective (`track.jaw_corrective`; None: `JAW_CORRECTIVE`;
+    `--no-jaw-corrective` passes False), from the frames in colour_span too; the provenance's
+    `source_video.jaw_corrective` says what it learned."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
@@ -213,6 +222,17 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             if progress is not None:
                 progress("register", 0, len(STAGES), timings["register"])
         avatar = build_avatar(png, options, progress, views=views)
+    if JAW_CORRECTIVE if jaw_corrective is None else jaw_corrective:
+        from avatarkit.head.jaw_corrective import apply_jaw_corrective
+        from avatarkit.track.jaw_corrective import fit_avatar_corrective
+
+        t0 = time.perf_counter()
+        # the frames the colours may come from: `evaluate` holds the clip's second half out
+        learned = fit_avatar_corrective(avatar, video, result, span=colour_span)
+        if learned.corrective is not None:
+            avatar.head_model = apply_jaw_corrective(avatar.head_model, learned.corrective)
+        timings["jaw_corrective"] = time.perf_counter() - t0
+        source["jaw_corrective"] = learned.figures
     if FRAME_COLOURS and len(kf) == 1:
         # only when the head does not turn: with turned keyframes the views colour the sides, and
         # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
@@ -293,7 +313,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
+__all__ = ["FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "REGISTER_TURNED", "SEARCH_BEFORE", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "register_turned", "turned_frames",
            "turned_guess"]
