@@ -211,6 +211,21 @@ MUTATIONS = [
       "    return ViewCorrection(full.mesh_index, full.coef - rigid.coef, full.static - rigid.static), \\",
       "    return ViewCorrection(full.mesh_index, full.coef + rigid.coef, full.static - rigid.static), \\",
       ["tests/test_track_subject_calibration.py"], "the non-rigid part made by adding the rigid part instead of removing it"),
+    M("track.jaw_guard_inverted", "avatarkit/track/jaw_corrective.py",
+      "            if stat[k] <= threshold:", "            if stat[k] > threshold:",
+      ["tests/test_jaw_corrective.py"], "the jaw corrective's guard zeroes the slopes the frames support and keeps the others"),
+    M("track.jaw_pose_ignored_by_fit", "avatarkit/face/fit.py",
+      "        if r is not None and self.jaw_pose is not None:", "        if False:",
+      ["tests/test_jaw_corrective.py"], "the landmark fit does not pose a model's jaw correctives"),
+    M("track.jaw_corrective_not_loaded", "avatarkit/avatar.py",
+      '    if "jaw_corrective" in ref_json:', '    if False:',
+      ["tests/test_jaw_corrective.py"], "an avatar folder's jaw corrective is not added to its head on load"),
+    M("recon.hair_end_top_percentile", "avatarkit/recon/hair_end.py",
+      "    return float(np.percentile(heights, PERCENTILE))", "    return float(np.percentile(heights, 100 - PERCENTILE))",
+      ["tests/test_hair_end.py"], "the hair's end read from the top of the hair the turned views show"),
+    M("recon.facing_weight_unpowered", "avatarkit/recon/facing_refine.py",
+      "    facing = np.clip(cos, 0.0, 1.0) ** power", "    facing = np.clip(cos, 0.0, 1.0)",
+      ["tests/test_facing_refine.py"], "the facing refine's weights not sharpened by the power of the cosine"),
 ]
 
 
