@@ -45,6 +45,22 @@ def random_gaussians(n: int = 100, sh_degree: int = 0, seed: int = 0, extras=())
     )
 
 
+def splat_plane(z: float, x_range, colour, step: float = 0.01) -> GaussianSet:
+    """Flat, nearly opaque discs (8 mm wide, 1 mm thick) tiling the plane at depth z over
+    x in x_range, y in [-0.1, 0.1], all of one colour (RGB in [0, 1])."""
+    from avatarkit.gaussians.gaussian_set import rgb_to_dc
+
+    xs = np.arange(x_range[0], x_range[1] + 1e-9, step)
+    ys = np.arange(-0.1, 0.1 + 1e-9, step)
+    X, Y = np.meshgrid(xs, ys)
+    n = X.size
+    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
+    quats = np.tile([1.0, 0, 0, 0], (n, 1))
+    scales = np.tile([0.008, 0.008, 0.001], (n, 1))
+    sh = np.tile(rgb_to_dc(np.asarray(colour, np.float32)), (n, 1))
+    return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
+
+
 def one_error_line(cap) -> str:
     """The CLI's stderr (a pytest capture) is exactly one `error: ...` line and no traceback:
     returns that line."""

@@ -5,27 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
+from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.facing_refine import (POWER, facing_weights, facing_weights_reference, refine_facing,
                                            refine_weighted)
 from avatarkit.recon.multiview import REFERENCE_WEIGHT, View
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
 
+from helpers import splat_plane
+
 SIZE = 64
 GREY = (0.5, 0.5, 0.5)
-
-
-def _plane(z: float, x_range, colour, step=0.01):
-    xs = np.arange(x_range[0], x_range[1] + 1e-9, step)
-    ys = np.arange(-0.1, 0.1 + 1e-9, step)
-    X, Y = np.meshgrid(xs, ys)
-    n = X.size
-    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
-    quats = np.tile([1.0, 0, 0, 0], (n, 1))
-    scales = np.tile([0.008, 0.008, 0.001], (n, 1))
-    sh = np.tile(rgb_to_dc(np.asarray(colour, np.float32)), (n, 1))
-    return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
 
 
 def _camera(angle_deg: float, distance: float = 0.8) -> Camera:
@@ -48,8 +38,8 @@ def _view(gs, cam, colour, sharpness=1.0, reference=False) -> View:
 @pytest.fixture(scope="module")
 def planes():
     """A back plane (z = 0) and a front plane (z = 0.05) covering its left half; normals +Z."""
-    back = _plane(0.0, (-0.1, 0.1), GREY)
-    front = _plane(0.05, (-0.1, 0.0), GREY)
+    back = splat_plane(0.0, (-0.1, 0.1), GREY)
+    front = splat_plane(0.05, (-0.1, 0.0), GREY)
     both = GaussianSet.concat([back, front])
     return both, np.tile([0.0, 0.0, 1.0], (len(both), 1))
 
@@ -94,7 +84,7 @@ def test_weights_follow_the_facing_angle_and_the_reference_factor(planes):
 def test_a_gaussian_seen_squarely_takes_that_views_colour_over_a_grazing_ones():
     """One plane, grey; the head-on view shows it red, one 65 degrees off the normal (cos 0.42,
     above the facing cut) shows it blue: the plane comes out red, not the views' mean."""
-    gs = _plane(0.0, (-0.1, 0.1), GREY)
+    gs = splat_plane(0.0, (-0.1, 0.1), GREY)
     normals = np.tile([0.0, 0.0, 1.0], (len(gs), 1))
     red, blue = (0.9, 0.1, 0.1), (0.1, 0.1, 0.9)
     views = [_view(gs, _camera(0.0), red), _view(gs, _camera(65.0), blue)]
@@ -110,7 +100,7 @@ def test_a_uniform_subject_seen_in_several_views_keeps_its_colour_and_the_kept_r
     """The views are renders of the subject itself: nothing to correct. Rows marked keep (the
     neck) are never changed, even where every view shows them a different colour."""
     colour = (0.3, 0.6, 0.2)
-    gs = _plane(0.0, (-0.1, 0.1), colour)
+    gs = splat_plane(0.0, (-0.1, 0.1), colour)
     normals = np.tile([0.0, 0.0, 1.0], (len(gs), 1))
     views = []
     for angle in (0.0, 30.0, -40.0):
@@ -133,7 +123,7 @@ def test_the_weighted_refine_with_one_view_and_every_gaussian_is_refine_colours(
     from avatarkit.recon.label_lifting import accumulate_weights
 
     rng = np.random.default_rng(3)
-    gs = _plane(0.0, (-0.1, 0.1), GREY)
+    gs = splat_plane(0.0, (-0.1, 0.1), GREY)
     gs = gs.with_colors(rng.random((len(gs), 3)).astype(np.float32))
     cam = _camera(0.0)
     photo = (rng.random((SIZE, SIZE, 3)) * 255).astype(np.uint8)
@@ -154,8 +144,8 @@ def test_what_the_reference_view_sees_keeps_the_photos_colours():
     every Gaussian the reference sees keeps its colour (matched to the photo just before);
     the turned view recolours only what the reference does not see (here the back plane's
     part hidden behind the front plane, which the turned view sees past its edge)."""
-    back = _plane(0.0, (-0.1, 0.1), GREY)
-    front = _plane(0.05, (-0.1, 0.0), GREY)
+    back = splat_plane(0.0, (-0.1, 0.1), GREY)
+    front = splat_plane(0.05, (-0.1, 0.0), GREY)
     both = GaussianSet.concat([back, front])
     normals = np.tile([0.0, 0.0, 1.0], (len(both), 1))
     ref = _view(both, _camera(0.0), (0.9, 0.1, 0.1), reference=True)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from avatarkit.recon.hair_end import hair_end_from_views, vertex_normals
+from avatarkit.head.regions import vertex_normals
+from avatarkit.recon.hair_end import hair_end_from_views
 from avatarkit.recon.multiview import View
 from avatarkit.recon.segment import HAIR, SKIN
 from avatarkit.render.camera import Camera

@@ -4,32 +4,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
+from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.multiview import (REFERENCE_WEIGHT, View, blend_colours, camera_centre, keyframe_cameras,
                                        pose_matrix, silhouette_outside, view_samples)
 from avatarkit.render.camera import Camera
 
+from helpers import splat_plane
+
 SIZE = 64
-
-
-def _plane(z: float, x_range, colour, step=0.01):
-    xs = np.arange(x_range[0], x_range[1] + 1e-9, step)
-    ys = np.arange(-0.1, 0.1 + 1e-9, step)
-    X, Y = np.meshgrid(xs, ys)
-    n = X.size
-    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
-    quats = np.tile([1.0, 0, 0, 0], (n, 1))
-    scales = np.tile([0.008, 0.008, 0.001], (n, 1))
-    sh = np.tile(rgb_to_dc(np.asarray(colour, np.float32)), (n, 1))
-    return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
 
 
 @pytest.fixture(scope="module")
 def planes():
     """A back plane (z = 0, x in [-0.1, 0.1]) and a front plane (z = 0.05) covering its left
     half; normals +Z; cameras on +Z."""
-    back = _plane(0.0, (-0.1, 0.1), (0.2, 0.4, 0.9))
-    front = _plane(0.05, (-0.1, 0.0), (0.9, 0.3, 0.1))
+    back = splat_plane(0.0, (-0.1, 0.1), (0.2, 0.4, 0.9))
+    front = splat_plane(0.05, (-0.1, 0.0), (0.9, 0.3, 0.1))
     both = GaussianSet.concat([back, front])
     normals = np.tile([0.0, 0.0, 1.0], (len(both), 1))
     return back, front, both, normals
@@ -136,7 +126,7 @@ def test_refine_over_the_reference_view_alone_is_refine_colours():
     from avatarkit.recon.segment import BACKGROUND, SKIN
 
     rng = np.random.default_rng(1)
-    gs = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    gs = splat_plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
     gs = gs.with_colors(rng.random((len(gs), 3)).astype(np.float32))
     cam = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
     photo = (rng.random((SIZE, SIZE, 3)) * 255).astype(np.uint8)
@@ -203,8 +193,8 @@ def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refin
     from avatarkit.recon.multiview import VideoViews
 
     rng = np.random.default_rng(1)
-    bald = _plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
-    hair = _plane(0.05, (-0.1, 0.0), (0.2, 0.2, 0.2))
+    bald = splat_plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    hair = splat_plane(0.05, (-0.1, 0.0), (0.2, 0.2, 0.2))
     vv = VideoViews(np.zeros(3), [])
     both = GaussianSet.concat([bald, hair])
     pick = rng.random(len(both)) < 0.3
@@ -215,7 +205,7 @@ def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refin
     # in between: the refine changed every colour, the cover dropped the first bald row and
     # appended a new one
     refined_bald = bald.with_colors(np.full((len(bald), 3), 0.9, np.float32)).subset(np.arange(1, len(bald)))
-    refined_bald = GaussianSet.concat([refined_bald, _plane(0.2, (0.0, 0.0), (0.9, 0.9, 0.9))])
+    refined_bald = GaussianSet.concat([refined_bald, splat_plane(0.2, (0.0, 0.0), (0.9, 0.9, 0.9))])
     refined_hair = hair.with_colors(np.full((len(hair), 3), 0.9, np.float32))
     out_bald, out_hair, n = vv.keep_view_colours(refined_bald, refined_hair)
     expect = np.full((len(both), 3), 0.9, np.float32)

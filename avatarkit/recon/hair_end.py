@@ -13,23 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from avatarkit.head.regions import vertex_normals
+
 #: the hair's end: this percentile of the heights of the vertices seen under hair
 PERCENTILE = 2.0
 #: at least this many vertices seen under hair (else no estimate)
 MIN_VERTICES = 20
 #: a vertex faces the camera when cos(normal, towards the camera) is above this
 MIN_COS = 0.2
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals of a triangle mesh (vertices (V, 3), faces (F, 3))."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
 def hair_end_from_views(vertices: np.ndarray, faces: np.ndarray, views) -> float | None:
@@ -65,4 +56,4 @@ def hair_end_from_views(vertices: np.ndarray, faces: np.ndarray, views) -> float
     return float(np.percentile(heights, PERCENTILE))
 
 
-__all__ = ["MIN_COS", "MIN_VERTICES", "PERCENTILE", "hair_end_from_views", "vertex_normals"]
+__all__ = ["MIN_COS", "MIN_VERTICES", "PERCENTILE", "hair_end_from_views"]

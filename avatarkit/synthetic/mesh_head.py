@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avatarkit.head.regions import vertex_normals
 from avatarkit.render.camera import Camera
 
 SKIN = (0.86, 0.66, 0.54)
@@ -46,16 +47,6 @@ LIGHT = (0.35, 0.55, 0.75)
 AMBIENT = 0.45
 #: supersampling per axis (box-filtered)
 SUPERSAMPLE = 2
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals."""
-    v = np.asarray(vertices, np.float64)
-    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, faces[:, k], n)
-    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
 
 
 def _noise(points: np.ndarray, seed: int, wavelength: float, waves: int = 6) -> np.ndarray:
@@ -228,4 +219,4 @@ def view_psnr(built, subject: MeshHead, size: int = 192, azimuths=None,
     return out
 
 
-__all__ = ["MeshHead", "turning_video", "vertex_normals", "view_psnr"]
+__all__ = ["MeshHead", "turning_video", "view_psnr"]

@@ -33,9 +33,7 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -271,18 +269,10 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
     one keyframe (`track.video_build`)."""
     from avatarkit.avatar import load_avatar
-    from avatarkit.recon.pipeline import save_avatar
     from avatarkit.track.build_pose import align_to_build
-    from avatarkit.track.video import track_video
+    from avatarkit.track.video import tracked_with_built_avatar
 
-    with tempfile.TemporaryDirectory(prefix="avatarkit-fuse-") as tmp:
-        folder = Path(tmp) / "avatar"
-        preview, avatar.preview = avatar.preview, None
-        try:
-            save_avatar(avatar, folder)
-        finally:
-            avatar.preview = preview
-        result = track_video(video, avatar=folder, meshes=tracking.meshes)
+    with tracked_with_built_avatar(avatar, video, tracking.meshes) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
         # are fitted where the neck will be

@@ -391,21 +391,10 @@ def fit_avatar_corrective(avatar, video, tracking, rounds: int = ROUNDS,
     on the build's own tracking (the template with the tracking's identity) instead, the
     avatar's tracking read the grey clip's jaw 0.21 rad open at the widest frames where that
     one read 0.17, and took back part of the drop (docs/video-build.md)."""
-    import tempfile
-    from pathlib import Path
+    from avatarkit.track.video import tracked_with_built_avatar
 
-    from avatarkit.recon.pipeline import save_avatar
-    from avatarkit.track.video import track_video
-
-    with tempfile.TemporaryDirectory(prefix="avatarkit-jaw-") as tmp:
-        folder = Path(tmp) / "avatar"
-        preview, avatar.preview = avatar.preview, None
-        try:
-            save_avatar(avatar, folder)
-        finally:
-            avatar.preview = preview
-        result = track_video(video, avatar=folder, meshes=tracking.meshes)
-    return fit_jaw_corrective(result, rounds, span)
+    with tracked_with_built_avatar(avatar, video, tracking.meshes) as (_, result):
+        return fit_jaw_corrective(result, rounds, span)
 
 
 __all__ = ["CorrectiveFit", "MIN_FRAMES", "SLOPE_BLOCK", "SLOPE_LEVEL", "LIPS_FIT_WEIGHT", "MOUTH_RADIUS", "POSE_TERMS", "ROUNDS", "SLOPE_RIDGE", "SPREAD_JAW", "SPREAD_REACH", "SPREAD_SMOOTH",

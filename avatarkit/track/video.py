@@ -19,6 +19,7 @@ each clip frame); a constant-rate one keeps its frames and rate.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
@@ -87,6 +88,28 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
         return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress, meshes)
     except InputError as e:
         raise e.with_path(p) from None   # messages without a file name get the video's
+
+
+@contextmanager
+def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None):
+    """Track `video` with an `Avatar` that exists only in memory (a video build's later stages):
+    it is saved without its preview to a temporary folder, which `track_video(avatar=)` reads
+    as a user's avatar would be read. Yields (folder, TrackResult); the folder is removed on
+    exit. meshes: the face meshes of an earlier tracking of the same video, reused."""
+    import tempfile
+    from pathlib import Path
+
+    from avatarkit.recon.pipeline import save_avatar
+
+    with tempfile.TemporaryDirectory(prefix="avatarkit-tracked-") as tmp:
+        folder = Path(tmp) / "avatar"
+        preview, avatar.preview = avatar.preview, None
+        try:
+            save_avatar(avatar, folder)
+        finally:
+            avatar.preview = preview
+        yield folder, track_video(video, avatar=folder, meshes=meshes)
+
 
 
 def _track(p, avatar, head_model, landmark_embedding, start, end, options, progress,
