@@ -116,26 +116,10 @@ def test_a_video_without_a_face_is_bad_input(tmp_path, capsys):
     assert code == 2 and "empty.mp4" in line and "no face" in line and not (tmp_path / "a").exists()
 
 
-@pytest.mark.parametrize("flag, expected", [([], True), (["--no-register"], False)])
-def test_build_passes_the_register_switch_to_the_video_build(tmp_path, monkeypatch, flag, expected):
-    import avatarkit.track.video_build as video_build
-    from avatarkit.export.video import write_video
-
-    seen = {}
-
-    def fake(video, options, **kwargs):
-        seen.update(kwargs)
-        raise KeyboardInterrupt   # stop before anything is written
-
-    monkeypatch.setattr(video_build, "build_video_avatar", fake)
-    frames = [np.full((32, 32, 3), 128, np.uint8)] * 2
-    write_video(tmp_path / "v.mp4", frames, fps=10)
-    main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
-    assert seen["register"] is expected and not (tmp_path / "a").exists()
-
-
-@pytest.mark.parametrize("flag, expected", [([], True), (["--no-jaw-corrective"], False)])
-def test_build_passes_the_jaw_corrective_switch_to_the_video_build(tmp_path, monkeypatch, flag, expected):
+@pytest.mark.parametrize("flag, key, expected", [([], "register", True), (["--no-register"], "register", False),
+                                                  ([], "jaw_corrective", True),
+                                                  (["--no-jaw-corrective"], "jaw_corrective", False)])
+def test_build_passes_its_switches_to_the_video_build(tmp_path, monkeypatch, flag, key, expected):
     import avatarkit.track.video_build as video_build
     from avatarkit.export.video import write_video
 
@@ -148,7 +132,7 @@ def test_build_passes_the_jaw_corrective_switch_to_the_video_build(tmp_path, mon
     monkeypatch.setattr(video_build, "build_video_avatar", fake)
     write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
     main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
-    assert seen["jaw_corrective"] is expected and not (tmp_path / "a").exists()
+    assert seen[key] is expected and not (tmp_path / "a").exists()
 
 
 def test_keyframes_must_be_positive(tmp_path, capsys):
