@@ -46,9 +46,10 @@ _FILE = click.Path(dir_okay=False)
               help="PORTRAIT is a video that turns past what the face tracker follows (~55-60 degrees): "
               "register those frames against a first build and fuse them as keyframes too (about doubles "
               "the build of such a video).")
-@click.option("--jaw-corrective/--no-jaw-corrective", default=True, show_default=True,
+@click.option("--jaw-corrective/--no-jaw-corrective", default=False, show_default=True,
               help="PORTRAIT is a video: learn from the tracked frames how the person's mouth opens "
-              "beyond the head model's (a per-subject jaw corrective, saved with the avatar).")
+              "beyond the head model's (a per-subject jaw corrective, saved with the avatar; off by "
+              "default: on the shared clips' held-out frames it has not paid yet, docs/video-build.md).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option

@@ -117,8 +117,8 @@ def test_a_video_without_a_face_is_bad_input(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("flag, key, expected", [([], "register", True), (["--no-register"], "register", False),
-                                                  ([], "jaw_corrective", True),
-                                                  (["--no-jaw-corrective"], "jaw_corrective", False)])
+                                                  ([], "jaw_corrective", False),
+                                                  (["--jaw-corrective"], "jaw_corrective", True)])
 def test_build_passes_its_switches_to_the_video_build(tmp_path, monkeypatch, flag, key, expected):
     import avatarkit.track.video_build as video_build
     from avatarkit.export.video import write_video

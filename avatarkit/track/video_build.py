@@ -44,9 +44,12 @@ from avatarkit.track.neck import clip_head_rotation
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
-#: learn the subject's jaw corrective from the tracked frames (`track.jaw_corrective`; the
-#: build option `jaw_corrective=False` / `avatarkit build VIDEO --no-jaw-corrective` turns it off)
-JAW_CORRECTIVE = True
+#: learn the subject's jaw corrective from the tracked frames (`track.jaw_corrective`;
+#: `jaw_corrective=True` / `avatarkit build VIDEO --jaw-corrective` turns it on). Off: held out
+#: on the shared clips (`evaluate --compare-single`, session 12) the guarded corrective gains
+#: nothing on glasses (24.75 dB either way) and costs grey 0.02 dB and 0.49 px of the render's
+#: landmark error (24.81 -> 24.79 dB, 2.49 -> 2.98 px), for ~9 s of build (docs/video-build.md)
+JAW_CORRECTIVE = False
 
 #: expression coefficients fitted per keyframe in the joint identity fit (the keyframes are
 #: chosen neutral; a few absorb what is left of a smile)
