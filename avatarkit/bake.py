@@ -353,12 +353,17 @@ def run_bake(avatar, clip, config: BakeConfig | None, writers: Sequence[Any],
             results.append(w.close())
             write_time[j] += time.perf_counter() - c
     except BaseException:
-        frames.close()
+        # the writers first: nothing may stay half-written, even if closing the frames' generator
+        # or a second signal (a batch worker's SIGTERM when its driver goes) raises meanwhile
         for w in started:
             try:
                 w.abort()
-            except Exception:  # noqa: BLE001 -- keep aborting the others; the first error wins
+            except BaseException:  # noqa: BLE001 -- keep aborting the others; the first error wins
                 pass
+        try:
+            frames.close()
+        except BaseException:  # noqa: BLE001 -- the error that stopped the bake is the one raised
+            pass
         raise
     timings = dict(frames.timings)
     for w, s in zip(writers, write_time):

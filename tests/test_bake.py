@@ -305,6 +305,21 @@ def test_run_bake_aborts_every_writer_on_failure(avatar, shake, exc):
     assert a.calls[-1] == "abort" and b.calls[-1] == "abort" and "close" not in a.calls
 
 
+def test_a_signal_during_one_writers_abort_still_aborts_the_others(avatar, shake):
+    """A batch worker may get a second signal (its driver's SIGTERM) while the first one's
+    cleanup runs: every other writer is still aborted, and the error that stopped the bake is
+    the one raised."""
+    class _InterruptedAbort(_Recorder):
+        def abort(self):
+            self.calls.append("abort")
+            raise KeyboardInterrupt
+
+    a, b, c = _InterruptedAbort(), _Recorder(), _Recorder(fail_at=2, exc=RuntimeError)
+    with pytest.raises(RuntimeError):
+        run_bake(avatar, shake, BakeConfig(sim=FAST, preroll=0), [a, b, c])
+    assert a.calls[-1] == b.calls[-1] == c.calls[-1] == "abort"
+
+
 def test_preview_writer(avatar, shake, tmp_path):
     from avatarkit.export.video import read_video_frames
 

@@ -473,8 +473,10 @@ def test_ctrl_c_in_a_terminal(inputs, tmp_path):
 
     clips = tmp_path / "clips"
     clips.mkdir()
-    for i in range(6):
-        save_clip(clips / f"c{i}.npz", make_clip("shake", frames=60, fps=25, amplitude=10 + i))
+    # enough work that the batch is still running when the first job's file appears, also on a
+    # fast host (six 60-frame clips finished before the signal there)
+    for i in range(12):
+        save_clip(clips / f"c{i}.npz", make_clip("shake", frames=150, fps=25, amplitude=10 + i))
     doc = {"defaults": USD_ONLY, "jobs": [{"avatar": str(inputs / "avatars" / "a"), "clips": str(clips)}]}
     (tmp_path / "b.json").write_text(json.dumps(doc))
     out = tmp_path / "out"
