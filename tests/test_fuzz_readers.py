@@ -298,3 +298,20 @@ def test_tampered_avatar_folders_load_or_fail_in_one_line(avatar_folder, tmp_pat
             (folder / f).write_bytes(bytes(data))
             # a whole avatar is larger than one small file: bounded by what a clean load takes
             check(load_avatar, folder, bound=2 * clean_peak + ALLOC_BOUND)
+
+
+def test_a_crate_whose_values_lie_outside_the_file_is_a_format_error(seeds, tmp_path, capsys):
+    """The long run's find (session 12): one byte of the seed's crate changed (offset 737,
+    0 -> 1) opens as a stage and fails only when the splats' values are read; that failure is
+    USD's Tf.ErrorException, which must come out as a FormatError naming the file."""
+    from avatarkit.errors import FormatError
+    from avatarkit.gaussians.usd_read import load_usd
+
+    data = bytearray((seeds / "s.usdc").read_bytes())
+    assert data[737] == 0, "the seed's crate changed: find a new damaged byte with the long run"
+    data[737] = 1
+    path = tmp_path / "damaged.usdc"
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="damaged.usdc.*not a readable USD file"):
+        load_usd(path)
+    check_cli(["render", path, "-o", tmp_path / "r.png"], capsys)

@@ -609,3 +609,14 @@ def test_results_never_view_the_file(tmp_path):
         (tmp_path / "moved.ply").write_bytes(b"")  # truncating the file must not affect the set
         back.means[0] += 1
         np.testing.assert_array_equal(back.means, gs.means + 1)
+
+
+@NUMPY_ONLY
+def test_a_huge_f_rest_index_is_a_format_error(decoder, tmp_path):
+    """A damaged header naming f_rest_99999999999 (the fuzz tests' find) is refused with the
+    indices named, not a MemoryError while describing them."""
+    names = inria_names(0) + ["f_rest_0", "f_rest_99999999999"]
+    rec = np.zeros(3, [(name, "f4") for name in names])
+    path = write_with_plyfile(tmp_path / "huge.ply", rec)
+    with pytest.raises(FormatError, match=r"2 f_rest_\* properties \(indices 0,99999999999\)"):
+        read_ply(path, decoder=decoder)

@@ -352,7 +352,10 @@ def _read_extras(table: VertexTable, extra_groups: list[tuple[str, list[str]]], 
 def _ranges(idx: list[int]) -> str:
     if not idx:
         return "none"
-    return f"{idx[0]}..{idx[-1]}" if idx == list(range(idx[0], idx[-1] + 1)) else \
+    # idx is sorted: a run of consecutive indices spans exactly len(idx) values (never built as a
+    # list: a damaged header may name f_rest_99999999999)
+    contiguous = idx[-1] - idx[0] + 1 == len(idx) and len(set(idx)) == len(idx)
+    return f"{idx[0]}..{idx[-1]}" if contiguous else \
         ",".join(map(str, idx[:12])) + ("..." if len(idx) > 12 else "")
 
 

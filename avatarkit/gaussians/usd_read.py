@@ -144,6 +144,9 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
         return gs
     except AvatarKitError as e:
         raise e.with_path(path) from None
+    except Tf.ErrorException as e:
+        # a damaged crate file opens, and fails only when a value is read (found by the fuzz tests)
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
 
 
 def open_usd_stage(path: str | os.PathLike) -> Usd.Stage:
