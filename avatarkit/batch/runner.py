@@ -34,7 +34,7 @@ from avatarkit.batch.job import JOB_STATUSES, JobInputs, JobResult, OutputResult
 from avatarkit.batch.spec import Batch, BakeJob
 from avatarkit.batch.worker import Task
 from avatarkit.errors import AvatarKitError, InputError, OutputError
-from avatarkit.fileio import atomic_path
+from avatarkit.fileio import atomic_path, sweep_stale
 
 REPORT_NAME = "batch_report.json"
 REPORT_FORMAT = "avatarkit.batch-report"
@@ -286,6 +286,13 @@ def run_batch(batch: Batch, outdir: str | os.PathLike, *, engine: str = "local",
             except KeyboardInterrupt:
                 interrupted = True
                 eng.kill()
+    if interrupted:
+        # a worker that ended while its job was starting leaves that job's writers' temporaries
+        # behind (seen about once in four Ctrl-Cs); the workers are gone now, so what they left
+        # is stale and goes (`fileio.sweep_stale` takes only this host's entries of dead pids)
+        for job in batch.jobs:
+            for o in job.outputs:
+                sweep_stale(o.target(outdir).parent)
 
     jobs = []
     for i, job in enumerate(batch.jobs):
