@@ -80,6 +80,18 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return quat_normalize(q).reshape(shape + (4,))
 
 
+def shortest_arc(a: np.ndarray, b: np.ndarray, perp: np.ndarray | None = None) -> np.ndarray:
+    """(N, 4) unit wxyz quaternions: the smallest rotation taking unit vectors a (N, 3) onto unit
+    vectors b (N, 3). For b opposite a (w below 1e-6) the half turn about `perp` (N, 3), a unit
+    vector normal to a, when given."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    q = np.concatenate([(1.0 + np.einsum("ij,ij->i", a, b))[:, None], np.cross(a, b)], axis=1)
+    if perp is not None:
+        flip = q[:, 0] < 1e-6
+        q[flip] = np.concatenate([np.zeros((flip.sum(), 1)), np.asarray(perp, np.float64)[flip]], axis=1)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """(..., 3) -> cross-product matrices (..., 3, 3): _skew(a) @ b == cross(a, b)."""
     x, y, z = np.moveaxis(v, -1, 0)

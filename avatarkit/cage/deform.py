@@ -40,7 +40,7 @@ from avatarkit.cage.points import AXIS_SIGMA, METHODS, axis_vectors, deformation
 from avatarkit.errors import FormatError, InputError
 from avatarkit.fileio import atomic_path, read_npz
 from avatarkit.gaussians.gaussian_set import GaussianSet
-from avatarkit.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
+from avatarkit.rotations import matrix_to_quat, quat_multiply, quat_to_matrix, shortest_arc
 
 WEIGHTS_FORMAT = "avatarkit.cage_weights/1"
 
@@ -236,11 +236,7 @@ def principal_rebuild_reference(xt: np.ndarray, rest: GaussianSet, pre: dict):
     length = np.linalg.norm(v, axis=1)
     a = pre["axis"].astype(np.float64)
     b = np.where(length[:, None] > 1e-30, v / np.where(length > 1e-30, length, 1)[:, None], a)
-    dot = np.einsum("ij,ij->i", a, b)
-    q = np.concatenate([(1 + dot)[:, None], np.cross(a, b)], axis=1)
-    flip = q[:, 0] < 1e-6
-    q[flip] = np.concatenate([np.zeros((flip.sum(), 1)), pre["perp"][flip]], axis=1)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q = shortest_arc(a, b, pre["perp"])
     quats = quat_multiply(q, rest.quats.astype(np.float64))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     scales = rest.scales.astype(np.float64).copy()

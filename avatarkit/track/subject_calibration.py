@@ -169,20 +169,14 @@ def _turned(rest, axis, a: np.ndarray):
     moves it: the hair's Gaussians, when its deformer carries principal axes, by the smallest
     rotation taking each rest long axis to the turned one (`cage.deform`), not by the turn
     itself (the two differ by a twist about the axis, which the renders show)."""
-    from avatarkit.rotations import matrix_to_quat, quat_multiply
+    from avatarkit.rotations import matrix_to_quat, quat_multiply, shortest_arc
 
     means, quats = np.asarray(rest.means, np.float64), np.asarray(rest.quats, np.float64)
     turn = np.repeat(matrix_to_quat(a[:3, :3])[None], len(means), 0)
     if axis is not None:
-        turn[len(means) - len(axis):] = _smallest_turn(axis, axis @ a[:3, :3].T)
+        turn[len(means) - len(axis):] = shortest_arc(axis, axis @ a[:3, :3].T)
     return rest.replace(means=(means @ a[:3, :3].T + a[:3, 3]).astype(np.float32),
                         quats=quat_multiply(turn, quats).astype(np.float32))
-
-
-def _smallest_turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N, 4) wxyz: the smallest rotation taking unit vectors a (N, 3) to unit vectors b."""
-    q = np.concatenate([1.0 + np.sum(a * b, axis=1, keepdims=True), np.cross(a, b)], axis=1)
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def _rest_person(avatar):
