@@ -64,6 +64,7 @@ from avatarkit.gaussians.usd import USD_EXTENSIONS, validate_stage
 from avatarkit.gaussians.usd_prims import (PointsPrimWriter, SplatPrimWriter, bounding_box, check_frame_arrays,
                                            declare_attributes)
 from avatarkit.gaussians.usd_read import find_splat_prims, open_usd_stage
+from avatarkit.head.regions import vertex_normals
 
 ROOT_PATH = "/Avatar"
 HEAD_PATH, FACE_PATH, HAIR_PATH, CAGE_PATH = (f"{ROOT_PATH}/{n}" for n in ("Head", "Face", "Hair", "Cage"))
@@ -150,20 +151,6 @@ class UsdStageResult:
     first_frame: int
     last_frame: int
     bytes: int                 # on disk, clip layers included
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3) float32 of a triangle mesh; (0, 0, 0) where undefined.
-
-    vertices: (V, 3); faces: (F, 3) int, counter-clockwise seen from outside.
-    """
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # (F, 3), |fn| = 2 * area
-    idx = f.reshape(-1)
-    n = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -267,7 +254,7 @@ class _Prims:
                 mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(p), t)
                 mesh.GetExtentAttr().Set(_box(p), t)
             if self.normals is not None:
-                self.normals.Set(Vt.Vec3fArray.FromNumpy(vertex_normals(frame.head_vertices, static.head_faces)), t)
+                self.normals.Set(Vt.Vec3fArray.FromNumpy(vertex_normals(frame.head_vertices, static.head_faces).astype(np.float32)), t)
             if self.cage_normals is not None:
                 self.cage_normals.Set(Vt.Vec3fArray.FromNumpy(face_normals(frame.cage_vertices, static.cage_faces)), t)
             for writer, part in ((self.face, frame.face), (self.hair, frame.hair)):

@@ -23,14 +23,19 @@ import numpy as np
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3)."""
+    """Area-weighted unit vertex normals (V, 3) float64 of a triangle mesh; (0, 0, 0) where undefined
+    (a vertex in no face, or whose faces' normals cancel).
+
+    vertices: (V, 3); faces: (F, 3) int, counter-clockwise seen from outside.
+    """
     v = np.asarray(vertices, dtype=np.float64)
-    tri = v[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # (F, 3), |fn| = 2 * area
+    idx = f.reshape(-1)
+    # bincount rather than np.add.at: the same sums, several times faster on a head mesh
+    n = np.stack([np.bincount(idx, np.repeat(fn[:, c], 3), minlength=len(v)) for c in range(3)], axis=1)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def derive_regions(model, vertices: np.ndarray | None = None) -> dict[str, np.ndarray]:
