@@ -315,3 +315,22 @@ def test_a_crate_whose_values_lie_outside_the_file_is_a_format_error(seeds, tmp_
     with pytest.raises(FormatError, match="damaged.usdc.*not a readable USD file"):
         load_usd(path)
     check_cli(["render", path, "-o", tmp_path / "r.png"], capsys)
+
+
+@pytest.mark.parametrize("attribute", ["opacities", "scales", "positions", "extent"])
+def test_a_damaged_type_name_in_a_usda_is_a_format_error(seeds, tmp_path, capsys, attribute):
+    """The long run's find (session 13): a damaged type name in a .usda (`float[]` -> `fl0at[]`)
+    makes USD hand back an `Sdf.UnregisteredValue` instead of numbers, which numpy refused with a
+    TypeError; it must be a FormatError naming the file and the attribute."""
+    from avatarkit.errors import FormatError
+    from avatarkit.gaussians.usd_read import load_usd
+
+    text = (seeds / "s.usda").read_text()
+    damaged, count = re.subn(r"\b\w+(\[\] " + attribute + r" =)", r"fl0at\1", text)
+    assert count == 1, f"the seed's .usda has no {attribute} array: find a new case with the long run"
+    path = tmp_path / "damaged.usda"
+    path.write_text(damaged)
+    if attribute != "extent":  # the reader computes its own bounds
+        with pytest.raises(FormatError, match=f"damaged.usda.*{attribute} does not hold .* values"):
+            load_usd(path)
+    check_cli(["inspect", path], capsys)

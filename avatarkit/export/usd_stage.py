@@ -63,7 +63,7 @@ from avatarkit.fileio import make_temp_folder, write_failed
 from avatarkit.gaussians.usd import USD_EXTENSIONS, validate_stage
 from avatarkit.gaussians.usd_prims import (PointsPrimWriter, SplatPrimWriter, bounding_box, check_frame_arrays,
                                            declare_attributes)
-from avatarkit.gaussians.usd_read import find_splat_prims, open_usd_stage
+from avatarkit.gaussians.usd_read import attribute_value, find_splat_prims, open_usd_stage
 from avatarkit.head.regions import vertex_normals
 
 ROOT_PATH = "/Avatar"
@@ -560,7 +560,7 @@ def _count(prim: Usd.Prim, names: tuple[str, ...], tc: Usd.TimeCode) -> int | No
     for name in names:
         attr = prim.GetAttribute(name)
         if attr and attr.HasValue():
-            value = attr.Get(tc)
+            value = attribute_value(attr, tc)
             if value is not None:
                 return len(value)
     return None
@@ -608,7 +608,8 @@ def inspect_usd(path: Path):
             n = _count(prim, ("positions", "positionsh"), tc) or 0
             splats += n
             deg = prim.GetAttribute("radiance:sphericalHarmonicsDegree")
-            row.update(splats=n, sh_degree=int(deg.Get()) if deg and deg.HasValue() else 3,
+            degree = attribute_value(deg, tc) if deg and deg.HasValue() else None
+            row.update(splats=n, sh_degree=3 if degree is None else int(degree),
                        precision="half" if prim.GetAttribute("positionsh").HasValue() else "float")
         elif prim.IsA(UsdGeom.PointBased):
             row["points"] = _count(prim, ("points",), tc) or 0
@@ -623,7 +624,7 @@ def inspect_usd(path: Path):
         frames = max(frames, samples)
         row["time_samples"] = samples
         extent = prim.GetAttribute("extent")
-        row["extent"] = _fmt_box(extent.Get(tc) if extent else None)
+        row["extent"] = _fmt_box(attribute_value(extent, tc) if extent else None)
         geometry.append(row)
     if stage.HasAuthoredTimeCodeRange() or frames:
         s.add("fps", stage.GetTimeCodesPerSecond())

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from pxr import Tf, Usd, UsdGeom, UsdVol
+from pxr import Sdf, Tf, Usd, UsdGeom, UsdVol
 
 from avatarkit.errors import AvatarKitError, FormatError, InputError, last_line
 from avatarkit.gaussians.gaussian_set import GaussianSet
@@ -25,15 +25,41 @@ def find_splat_prims(stage: Usd.Stage) -> list[Usd.Prim]:
     return [p for p in stage.Traverse() if p.IsA(UsdVol.ParticleField3DGaussianSplat)]
 
 
+def attribute_value(attr: Usd.Attribute, time: Usd.TimeCode):
+    """`attr`'s value at `time` (None if it has none); FormatError naming the attribute when the
+    file holds something USD could not parse as the attribute's type (a damaged .usda makes USD
+    hand back an `Sdf.UnregisteredValue`, found by the fuzz tests)."""
+    value = attr.Get(time)
+    if isinstance(value, Sdf.UnregisteredValue):
+        raise FormatError(f"attribute {attr.GetPath()} does not hold {attr.GetTypeName()} values")
+    return value
+
+
 def _get(prim: Usd.Prim, names: tuple[str, str], time: Usd.TimeCode):
     """The float attribute's value if it has one (the schema says prefer it), else the half one."""
     for name in names:
         attr = prim.GetAttribute(name)
         if attr and attr.HasValue():
-            value = attr.Get(time)
+            value = attribute_value(attr, time)
             if value is not None:
-                return np.asarray(value)
+                return _numbers(value, attr)
     return None
+
+
+def _numbers(value, attr: Usd.Attribute) -> np.ndarray:
+    """`value` as a float array; FormatError naming the attribute when it holds no numbers."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FormatError(f"attribute {attr.GetPath()} does not hold {attr.GetTypeName()} values") from None
+
+
+def _integer(value, attr: Usd.Attribute) -> int:
+    """`value` as one integer; FormatError naming the attribute otherwise."""
+    a = _numbers(value, attr)
+    if a.size != 1 or not np.isfinite(a).all() or a.reshape(()) != np.round(a.reshape(())):
+        raise FormatError(f"attribute {attr.GetPath()} is not one integer")
+    return int(a.reshape(()))
 
 
 def _per_particle(values, n: int, width: int | None):
@@ -79,8 +105,8 @@ def read_splat_prim(prim: Usd.Prim, time: float | None = None) -> GaussianSet:
     if opacities is None:
         opacities = np.ones(n, np.float32)
     degree_attr = prim.GetAttribute(SH_DEGREE_ATTR)
-    degree = degree_attr.Get(tc) if degree_attr else None
-    degree = 3 if degree is None else int(degree)  # the schema's fallback
+    degree = attribute_value(degree_attr, tc) if degree_attr else None
+    degree = 3 if degree is None else _integer(degree, degree_attr)  # 3: the schema's fallback
     sh = None
     if degree >= 0:
         k = (degree + 1) ** 2
