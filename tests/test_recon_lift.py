@@ -194,10 +194,15 @@ def test_hair_grows_into_the_mask_and_outside_the_head(view):
     xi, yi = np.clip(px.astype(int), 0, 255).T
     assert np.mean(cap[yi, xi]) > 0.95                  # seen hair lies on the hair mask
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-    alpha = render(both, view.truth.camera).alpha
+    with_hair = render(both, view.truth.camera)
+    alpha = with_hair.alpha
     hair_alpha = render(hair.replace(extras={}), view.truth.camera).alpha
     assert np.mean(hair_alpha[cap] > 0.5) > 0.9          # the hair covers its mask
-    assert np.mean(hair_alpha[~cap & (alpha > 0.5)] > 0.5) < 0.05   # and not the face
+    # and not the face: beside the mask the head in front of the hidden hair (the back of the
+    # head, the nape) looks as it does without hair
+    without = render(bald.replace(extras={}), view.truth.camera)
+    changed = np.abs(with_hair.rgb - without.rgb).max(axis=-1) > 0.1
+    assert np.mean(changed[~cap & (alpha > 0.5)]) < 0.05
     # the hidden back of the head has hair too (the silhouette extrapolated)
     centre_z = view.truth.rest_vertices[:, 2].mean()
     assert np.sum(hair.means[:, 2] < centre_z - 0.05) > 0.1 * len(hair)
@@ -313,3 +318,57 @@ def test_align_similarity_recovers_a_flipped_frame(view):
     back = s * moved @ rr.T + t
     assert np.median(np.linalg.norm(back - pts, axis=1)) < 0.003
     assert rms < 0.0005
+
+
+def test_hairline_is_the_scalps_lower_edge_by_azimuth():
+    """A known lower edge y = 0.05 + 0.04 cos(azimuth) (high at the face, low at the back),
+    sampled by points above it: the hairline reproduces it between bins, across +-pi too, and
+    fills azimuths with no scalp from their neighbours."""
+    from avatarkit.recon.hair_strands import Hairline
+
+    rng = np.random.default_rng(3)
+    centre = np.array([0.0, 0.05, 0.01])
+    a = rng.uniform(-np.pi, np.pi, 40000)
+    edge = 0.05 + 0.04 * np.cos(a)
+    y = edge + rng.uniform(0.0, 0.1, len(a)) ** 2        # many points near the edge, none below it
+    keep = ~((a > 0.5) & (a < 0.8))                      # one empty azimuth band
+    p = np.stack([centre[0] + 0.09 * np.sin(a), y, centre[2] + 0.09 * np.cos(a)], axis=1)[keep]
+    line = Hairline.from_scalp(p, centre, bins=36)
+    q_a = np.linspace(-np.pi, np.pi, 721)
+    q = np.stack([0.05 * np.sin(q_a), np.zeros_like(q_a), centre[2] + 0.05 * np.cos(q_a)], axis=1)
+    got = line.at(q)
+    np.testing.assert_allclose(got, 0.05 + 0.04 * np.cos(q_a), atol=0.004)
+    assert abs(got[0] - got[-1]) < 1e-9                  # one value at -pi and +pi
+    assert np.max(np.abs(np.diff(got))) < 0.002           # no stair at the bins' edges
+    with pytest.raises(InputError, match="scalp"):
+        Hairline.from_scalp(np.zeros((0, 3)), centre)
+
+
+@pytest.mark.parametrize("to_hairline", [False, True])
+def test_hidden_hair_goes_on_down_to_the_scalps_lower_edge(view, monkeypatch, to_hairline):
+    """Hair the photo shows ending at the temples (a cap above the brows): behind the head the
+    hidden strands stop at that height, unless `NAPE_HAIR`: then the scalp below it grows hair
+    too, down the back of the head toward the scalp region's lower edge there (the nape), never
+    far below it."""
+    from avatarkit.recon import hair_strands
+    from avatarkit.recon.hair_strands import Hairline
+
+    monkeypatch.setattr(hair_strands, "NAPE_HAIR", to_hairline)
+    image, seg, cap = _hair_view(view)
+    rng = np.random.default_rng(1)
+    bald, _ = lift_bald(image, view.analysis, seg, _plain(view, seg.labels), view.truth, 15000, rng)
+    hair, info = lift_hair(image, view.analysis, seg, view.truth, 12000, rng, bald_set=bald)
+    model, v = view.truth.model, view.truth.rest_vertices
+    shell = hair_shell(view.truth, seg.hair, view.analysis)
+    line = Hairline.from_scalp(v[model.regions["scalp"]], shell.center3d)
+    back = hair.means[:, 2] < shell.center3d[2] - 0.04                  # behind the ears
+    assert back.sum() > 100
+    lowest = np.percentile(hair.means[back, 1], 1)
+    assert info["hair_end_y"] == pytest.approx(shell.y_end, abs=1e-4)
+    nape = float(line.at(hair.means[back]).min())
+    assert nape < shell.y_end - 0.03                      # the case has a nape to reach
+    if to_hairline:
+        assert lowest < shell.y_end - 0.03
+        assert np.all(hair.means[back, 1] > line.at(hair.means[back]) - 0.01)
+    else:
+        assert lowest > shell.y_end - 0.01

@@ -226,6 +226,12 @@ MUTATIONS = [
     M("recon.facing_weight_unpowered", "avatarkit/recon/facing_refine.py",
       "    facing = np.clip(cos, 0.0, 1.0) ** power", "    facing = np.clip(cos, 0.0, 1.0)",
       ["tests/test_facing_refine.py"], "the facing refine's weights not sharpened by the power of the cosine"),
+    M("recon.nape_stops_at_photo_end", "avatarkit/recon/hair_strands.py",
+      "            end[nape] = self.hairline.at(p[nape])", "            pass",
+      ["tests/test_recon_lift.py"], "a nape strand stopping at the photo's lowest hair instead of the hairline"),
+    M("recon.hairline_highest_edge", "avatarkit/recon/hair_strands.py",
+      "        np.minimum.at(low, b, v[:, 1])", "        np.maximum.at(low, b, v[:, 1])",
+      ["tests/test_recon_lift.py"], "the hairline read from the scalp's top instead of its lower edge"),
 ]
 
 

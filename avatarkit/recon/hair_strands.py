@@ -14,7 +14,11 @@ oriented along the strand (scale index 0 along it, 1 across, 2 along the surface
   lifted to the head's tangent plane, and it stops when it leaves the hair mask. Where it is
   hidden (behind the head, or behind the neck and body), it is combed away from the crown
   and down, and stops at the hair's lowest extent in the photo (back-projected at the head's
-  depth): hair that reaches below the chin in the photo falls down the back to that length;
+  depth): hair that reaches below the chin in the photo falls down the back to that length.
+  Short hair, whose lowest extent beside the face is the temples, still covers the scalp
+  behind the ears down to the nape: hidden roots below that extent grow strands along the
+  scalp down to the scalp region's lower edge at their azimuth (`Hairline`, the head model's
+  anatomical hairline);
 * colour: seen hair takes the photo's colour at its projection; hidden hair a random hair
   pixel from the same image rows (a height band); inner layers are slightly darker.
 Extras: `strand` (int32 strand id) and `seen` (uint8: 1 where the camera saw the segment).
@@ -34,6 +38,12 @@ from avatarkit.recon.visibility import DEPTH_TOL
 MARGIN = 0.002
 #: strand segment length (metres)
 SEGMENT = 0.004
+#: `Hairline`'s azimuth bins, and the bins either side its lower edge is smoothed over
+HAIRLINE_BINS = 36
+HAIRLINE_SMOOTH = 1
+#: hidden roots below the photo's lowest hair grow strands down to the scalp's lower edge (`Hairline`)
+#: (read when the lifter runs, so a caller may switch it)
+NAPE_HAIR = True
 #: hair strand half-width and half-thickness (metres, 1 sigma)
 HAIR_WIDTH = 0.0012
 HAIR_THICKNESS = 0.0003
@@ -207,6 +217,51 @@ def unit_vectors(a: np.ndarray) -> np.ndarray:
 
 
 @dataclass(eq=False)
+class Hairline:
+    """The lower edge of the rest head's scalp region, by azimuth about the vertical axis
+    through `centre` (3,): heights (B,) metres, the lowest scalp vertex of each of B equal
+    azimuth bins (azimuth 0 faces +Z, the face), smoothed over `HAIRLINE_SMOOTH` bins either
+    side; a bin with no scalp vertex takes its neighbours' by circular interpolation."""
+
+    centre: np.ndarray
+    heights: np.ndarray
+
+    @classmethod
+    def from_scalp(cls, vertices: np.ndarray, centre: np.ndarray, bins: int = HAIRLINE_BINS) -> "Hairline":
+        """vertices (S, 3): the scalp region's rest vertices."""
+        v = np.asarray(vertices, np.float64)
+        centre = np.asarray(centre, np.float64)
+        b = _azimuth_bin(v, centre, bins)
+        low = np.full(bins, np.inf)
+        np.minimum.at(low, b, v[:, 1])
+        have = np.isfinite(low)
+        if not have.any():
+            raise InputError("the head model's scalp region is empty")
+        k = np.arange(bins)
+        low = np.interp(k, k[have], low[have], period=bins)
+        r = HAIRLINE_SMOOTH
+        low = np.mean([np.roll(low, j) for j in range(-r, r + 1)], axis=0)
+        return cls(centre, low)
+
+    def at(self, p: np.ndarray) -> np.ndarray:
+        """The hairline's height (N,) at the azimuth of each point (N, 3), linear between the
+        bins' centres (a step at each bin's edge would show as a stair in the hair's end)."""
+        bins = len(self.heights)
+        x = _azimuth_bin_coordinate(np.asarray(p, np.float64), self.centre, bins) - 0.5
+        return np.interp(x, np.arange(bins), self.heights, period=bins)
+
+
+def _azimuth_bin_coordinate(p: np.ndarray, centre: np.ndarray, bins: int) -> np.ndarray:
+    """(N,) azimuth about the vertical axis through centre, in bins from -pi: [0, bins)."""
+    a = np.arctan2(p[:, 0] - centre[0], p[:, 2] - centre[2])           # (N,) in [-pi, pi]
+    return (a + np.pi) / (2 * np.pi) * bins
+
+
+def _azimuth_bin(p: np.ndarray, centre: np.ndarray, bins: int) -> np.ndarray:
+    return np.floor(_azimuth_bin_coordinate(p, centre, bins)).astype(np.int64) % bins
+
+
+@dataclass(eq=False)
 class GrowthContext:
     """Everything a strand step needs."""
 
@@ -220,6 +275,23 @@ class GrowthContext:
     labels: np.ndarray
     crown: np.ndarray
     neck_z: float
+    hairline: Hairline | None = None
+
+    def nape_roots(self, roots: np.ndarray) -> np.ndarray:
+        """(S,) bool: roots (S, 3) below the photo's lowest hair, which only the `hairline`
+        lets grow (behind the ears, the nape); none without one."""
+        if self.hairline is None:
+            return np.zeros(len(roots), bool)
+        return np.asarray(roots, np.float64)[:, 1] < self.shell.y_end
+
+    def hidden_end(self, p: np.ndarray, nape: np.ndarray) -> np.ndarray:
+        """Height (N,) below which a hidden strand at p (N, 3) stops: the photo's lowest hair
+        (`HairShell.y_end`), or for a strand from a nape root (`nape` (N,) bool) the scalp's
+        lower edge at p's azimuth."""
+        end = np.full(len(p), self.shell.y_end)
+        if nape.any():
+            end[nape] = self.hairline.at(p[nape])
+        return end
 
 
 def hidden_from_camera(g: GrowthContext, p: np.ndarray, px: np.ndarray) -> np.ndarray:
@@ -277,6 +349,7 @@ def grow_strands(g: GrowthContext, roots: np.ndarray, layer: np.ndarray, max_ste
     start = MARGIN + layer * np.maximum(shell_thickness(g, roots, px, grad) - MARGIN, 0.0)
     p = roots + grad * (start - dist)[:, None]
     d = comb_direction(g, p, grad)
+    nape = g.nape_roots(roots)
     pts = np.empty((s_count, max_steps + 1, 3))
     pts[:, 0] = p
     alive = np.zeros((s_count, max_steps), bool)
@@ -308,8 +381,10 @@ def grow_strands(g: GrowthContext, roots: np.ndarray, layer: np.ndarray, max_ste
         npx, _ = cam.project(nxt)
         target = MARGIN + layer[idx] * np.maximum(shell_thickness(g, nxt, npx, nn) - MARGIN, 0.0)
         hug = (nxt[:, 1] > g.shell.y_jaw) & (nsd < target + 0.02)
-        # rise to (or sink toward) the layer gradually: a jump would make one long spike
-        lift = np.clip(target - nsd, -0.5 * segment, 0.5 * segment)
+        # rise to (or sink toward) the layer gradually: a jump would make one long spike. A nape
+        # strand sinks as fast as a step: under the back of the skull the scalp turns inward
+        # more steeply than half a step per step
+        lift = np.clip(target - nsd, np.where(nape[idx], -1.0, -0.5) * segment, 0.5 * segment)
         nxt[hug] += nn[hug] * lift[hug, None]
         low = nsd < MARGIN
         nxt[low & ~hug] += nn[low & ~hug] * (MARGIN - nsd[low & ~hug])[:, None]
@@ -317,7 +392,10 @@ def grow_strands(g: GrowthContext, roots: np.ndarray, layer: np.ndarray, max_ste
         npx, _ = cam.project(nxt)
         nhidden = hidden_from_camera(g, nxt, npx)
         in_hair = lookup(g.shell.hair, npx)
-        stop = (~nhidden & ~in_hair) | (nhidden & (nxt[:, 1] < g.shell.y_end))
+        stop = (~nhidden & ~in_hair) | (nhidden & (nxt[:, 1] < g.hidden_end(nxt, nape[idx])))
+        # a nape strand only goes on along the scalp: one that leaves it (over an ear, off the
+        # back of the skull) would hang in the air as a wisp
+        stop |= nhidden & nape[idx] & ~hug
         ok = ~stop
         d[idx] = unit_vectors(nxt - q)
         pts[idx, k + 1] = nxt
@@ -344,13 +422,27 @@ def scalp_roots(fit: HeadFit, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def hair_colours(image: np.ndarray, hair: np.ndarray, px: np.ndarray, seen: np.ndarray,
-                  rng: np.random.Generator) -> np.ndarray:
+                  rng: np.random.Generator, below_end: np.ndarray | None = None) -> np.ndarray:
     """Seen segments: the photo at their projection; hidden ones: a random hair pixel from the
-    same band of image rows (whole image's hair when the band has none)."""
+    same band of image rows (whole image's hair when the band has none). Hidden segments
+    `below_end` (N,) bool (hair the photo does not reach down to: the nape behind short hair)
+    take a random pixel of the hair's interior instead: the rows they project to show face,
+    and the lowest hair rows are the hair's edge, half skin or wall."""
+    import cv2
+
     h, w = hair.shape
     rgb = sample_image(image, px) / 255.0
+    hidden_mask = ~np.asarray(seen, bool)
+    if below_end is not None:
+        nape = np.flatnonzero(hidden_mask & below_end)
+        hidden_mask &= ~below_end
+        inner = cv2.erode(hair.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        iy, ix = np.nonzero(inner if inner.any() else hair)
+        if len(nape) and len(iy):
+            pick = rng.integers(0, len(iy), len(nape))
+            rgb[nape] = image[iy[pick], ix[pick]].astype(np.float32) / 255.0
     ys, xs = np.nonzero(hair)
-    hidden = np.flatnonzero(~seen)
+    hidden = np.flatnonzero(hidden_mask)
     if len(hidden) and len(ys):
         order = np.argsort(ys, kind="stable")
         ys, xs = ys[order], xs[order]

@@ -26,8 +26,9 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.bald_discs import lift_bald
 from avatarkit.recon.fit import HeadFit
 from avatarkit.recon.hair_fill import FILL_SHARE, fill_coverage
+from avatarkit.recon import hair_strands
 from avatarkit.recon.hair_strands import (HAIR_REFERENCE_COUNT, HAIR_THICKNESS, HAIR_WIDTH, MARGIN, SEGMENT,
-                                          GrowthContext, grow_strands, hair_colours, hair_flow, hair_shell,
+                                          GrowthContext, Hairline, grow_strands, hair_colours, hair_flow, hair_shell,
                                           hidden_from_camera, scalp_roots, unit_vectors)
 from avatarkit.recon.image_sampling import lookup
 from avatarkit.recon.lifter import LiftResult
@@ -66,7 +67,9 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
     crown = v[scalp][np.argmax(v[scalp, 1])].copy()
     crown[2] -= 0.25 * (crown[2] - v[scalp, 2].min())     # the whorl sits toward the back
     neck_z = float(np.median(v[model.regions["neck"], 2])) if "neck" in model.regions else float(shell.center3d[2])
-    g = GrowthContext(fit, sdf, shell, flow, coherence, head_depth, dcam, segmentation.labels, crown, neck_z)
+    hairline = Hairline.from_scalp(v[scalp], shell.center3d) if hair_strands.NAPE_HAIR else None
+    g = GrowthContext(fit, sdf, shell, flow, coherence, head_depth, dcam, segmentation.labels, crown, neck_z,
+                      hairline)
 
     span = max(float(crown[1] - min(shell.y_end, shell.y_jaw)), 0.05)
     max_steps = int(min(160, math.ceil(1.6 * span / SEGMENT) + 10))
@@ -77,8 +80,9 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
         px, _ = fit.camera.project(roots)
         hidden = hidden_from_camera(g, roots + normal * MARGIN, px)
         visible_ok = lookup(shell.hair, px)
-        # hidden roots grow where the silhouette shows hair at their polar angle
-        hidden_ok = shell.thickness_at(px) > 0.003
+        # hidden roots grow where the silhouette shows hair at their polar angle, and below the
+        # photo's lowest hair (the nape) when the hairline lets them
+        hidden_ok = (shell.thickness_at(px) > 0.003) | g.nape_roots(roots)
         return roots[np.where(hidden, hidden_ok, visible_ok)]
 
     pilot = candidate_roots(600)
@@ -114,7 +118,8 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
                        np.full(m, HAIR_THICKNESS)], axis=1)
     px, _ = fit.camera.project(means)
     seen_m = seen[strand, sel_k]
-    rgb = hair_colours(image, shell.hair, px, seen_m, rng)
+    rgb = hair_colours(image, shell.hair, px, seen_m, rng,
+                       below_end=means[:, 1] < shell.y_end if hairline is not None else None)
     rgb *= (0.8 + 0.2 * layer[strand])[:, None]    # inner layers a little darker
     opacity = rng.uniform(0.75, 1.0, m)
     hair = GaussianSet.from_colors(means, matrix_to_quat(rot), scales, opacity, np.clip(rgb, 0, 1),
