@@ -372,3 +372,32 @@ def test_hidden_hair_goes_on_down_to_the_scalps_lower_edge(view, monkeypatch, to
         assert np.all(hair.means[back, 1] > line.at(hair.means[back]) - 0.01)
     else:
         assert lowest > shell.y_end - 0.01
+
+
+def test_unseen_sclera_takes_the_photos_sclera():
+    """The eyeballs' sclera the photo does not see takes the brighter half of the sclera it sees
+    (lids and lashes are the darker half), never brighter than SCLERA_RGB, and SCLERA_RGB when
+    the photo shows too little of it."""
+    from avatarkit.recon.bald_discs import SCLERA_RGB, SCLERA_SAMPLES, sclera_colour
+
+    rng = np.random.default_rng(5)
+    shadowed = np.array([0.62, 0.58, 0.55])
+    sclera = shadowed + rng.normal(0, 0.01, (40, 3))
+    lashes = np.array([0.15, 0.1, 0.08]) + rng.normal(0, 0.01, (38, 3))
+    np.testing.assert_allclose(sclera_colour(np.concatenate([sclera, lashes])), shadowed, atol=0.01)
+    np.testing.assert_allclose(sclera_colour(np.ones((50, 3))), SCLERA_RGB)        # glare: capped
+    np.testing.assert_allclose(sclera_colour(sclera[: SCLERA_SAMPLES - 1]), SCLERA_RGB)
+
+
+def test_a_dim_photos_eyes_are_not_painted_bright_white(view):
+    """The template view darkened: the eyeball discs the photo does not see take the darkened
+    photo's sclera, not the fixed bright white (a glaring crescent where a lid rises)."""
+    from avatarkit.recon.bald_discs import PART_EYE, SCLERA_RGB
+
+    dim = (view.image.astype(np.float64) * 0.55).astype(np.uint8)
+    bald, _ = lift_bald(dim, view.analysis, view.segmentation, _plain(view), view.truth, 15000,
+                        np.random.default_rng(0))
+    eye = bald.extras["part"] == PART_EYE
+    assert eye.sum() > 100
+    brightest = bald.colors[eye].mean(axis=1).max()
+    assert brightest < 0.9 * np.mean(SCLERA_RGB)

@@ -12,7 +12,7 @@ surface and fades to the skin model's mean colour a few centimetres away (the ba
 head). Skin discs seen at a grazing angle (facing the camera less than `GRAZING`) take the
 photo only in part, blended toward that fill made from the discs seen head-on (`photo_weight`):
 their pixels are mostly the silhouette's edge. Eyeballs: seen through the lids, the photo; elsewhere iris (the photo's colour at the
-eye landmarks) or sclera. Mouth interior, and the unseen discs on the lips' faces that the jaw
+eye landmarks) or sclera (the colour of the sclera the photo shows, `sclera_colour`). Mouth interior, and the unseen discs on the lips' faces that the jaw
 stretches open (`_opening_faces`): a dark red. Extras: `binding` (the sampled triangle,
 int32) and `part` (uint8: 0 skin, 1 eye, 2 mouth interior).
 """
@@ -37,6 +37,8 @@ FLATNESS = 0.15
 #: silhouette's edge: the ear's rim, the wall behind, the collar (the pale patch below the ear)
 GRAZING = 0.5
 SCLERA_RGB = (0.86, 0.83, 0.8)
+#: seen sclera discs needed before their colour replaces SCLERA_RGB (`sclera_colour`)
+SCLERA_SAMPLES = 12
 MOUTH_RGB = (0.32, 0.12, 0.12)
 PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
 #: a lips face whose vertices' jaw weights differ by this much opens with the jaw (`_opening_faces`)
@@ -173,6 +175,22 @@ def _eye_colours(image: np.ndarray, analysis) -> np.ndarray:
     return np.array(out)
 
 
+def sclera_colour(seen: np.ndarray, least: int = SCLERA_SAMPLES) -> np.ndarray:
+    """(3,) the colour the eyeballs' unseen sclera takes: the median of the brighter half of
+    `seen` (K, 3), the photo's colours of the eyeball discs it sees outside the irises (the
+    sclera between the lids, with the lids' edges and lashes in the darker half), never
+    brighter than `SCLERA_RGB`; `SCLERA_RGB` itself when fewer than `least` are seen.
+
+    A fixed bright white showed as a glaring crescent where a raised lid or a turned eye
+    uncovered sclera the photo did not see: the photo's sclera is in the face's light."""
+    seen = np.asarray(seen, np.float64).reshape(-1, 3)
+    if len(seen) < least:
+        return np.asarray(SCLERA_RGB, np.float64)
+    lum = seen.mean(axis=1)
+    colour = np.median(seen[lum >= np.median(lum)], axis=0)
+    return np.minimum(colour, np.asarray(SCLERA_RGB, np.float64))
+
+
 def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: int,
               rng: np.random.Generator, face_density: float = 3.0) -> tuple[GaussianSet, dict]:
     """The built-in bald lifting (module docstring) -> (GaussianSet with `binding` and `part`
@@ -208,13 +226,12 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     rgb[skin] = w * rgb[skin] + (1.0 - w) * filled
     if eye.any():
         iris_rgb = _eye_colours(image, analysis)
-        fill = np.tile(np.asarray(SCLERA_RGB, np.float64), (int(eye.sum()), 1))
-        joints = model.rest_joints(fit.params)[0].astype(np.float64)
-        for k, (centre, region) in enumerate(((joints[4], "right_iris"), (joints[3], "left_iris"))):
-            if region in model.regions:
-                iris_face = model.region_mask(region)[model.faces].sum(axis=1) >= 2
-                fill[iris_face[ids[eye]]] = iris_rgb[k]
-        rgb[eye] = np.where(known[eye][:, None], rgb[eye], fill)
+        iris = [eye & (model.region_mask(r)[model.faces].sum(axis=1) >= 2)[ids] if r in model.regions
+                else np.zeros(n, bool) for r in ("right_iris", "left_iris")]
+        fill = np.tile(sclera_colour(rgb[known & eye & ~iris[0] & ~iris[1]]), (n, 1))
+        for k in range(2):
+            fill[iris[k]] = iris_rgb[k]
+        rgb[eye] = np.where(known[eye][:, None], rgb[eye], fill[eye])
     rgb[part == PART_MOUTH] = MOUTH_RGB
     # the lips' faces that the jaw stretches across the parted lips: unseen in the photo (a
     # closed mouth hides them), they are the mouth's inside when they show, not the lips'
@@ -229,5 +246,5 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     return out, info
 
 
-__all__ = ["COVERAGE", "FLATNESS", "GRAZING", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald",
+__all__ = ["COVERAGE", "FLATNESS", "GRAZING", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald", "sclera_colour",
            "photo_weight", "propagate_colors", "sample_bald"]
