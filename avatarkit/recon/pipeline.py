@@ -369,9 +369,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             lifter.sdf = pending_sdf
             lifter.hair_end = None
             if keyviews and HAIR_END_FROM_VIEWS:
-                from avatarkit.recon.hair_end import hair_end_from_views
+                from avatarkit.recon.hair_end import back_of_head, hair_end_from_views
 
-                lifter.hair_end = hair_end_from_views(fit.rest_vertices, head_model.faces, keyviews)
+                lifter.hair_end = hair_end_from_views(fit.rest_vertices, head_model.faces, keyviews,
+                                                      back_of_head(fit.rest_vertices, head_model.regions))
                 report.info["hair_end_from_views"] = lifter.hair_end
         lifted = lifter.lift(image, analysis, segmentation, bald_image, fit)
         sdf = pending_sdf.result()
