@@ -16,8 +16,8 @@ Which vertices and which hair count (session 13: the mesh subject's end read at 
   which says how low the hair at the back reaches; the neck's are hair hanging over it or the
   segmentation's spill onto its shaded edge;
 - only the hair connected to the body of the hair (`connected_hair`): the keyframes'
-  segmentation labels specks on the neck's shaded edge and the ear's shadow hair, islands a few
-  pixels wide apart from the hair above them.
+  segmentation labels hair on specks along the neck's shaded edge and on the ear's shadow,
+  islands a few pixels wide apart from the hair above them.
 """
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def back_of_head(vertices: np.ndarray, regions: dict) -> np.ndarray:
 
 def connected_hair(hair: np.ndarray) -> np.ndarray:
     """(H, W) bool: the hair pixels of `hair` (H, W) bool that belong to its largest body, gaps
-    up to `CONNECT` of the image's larger side bridged (labels of pixels, not of the bridge)."""
+    up to `CONNECT` of the image's larger side bridged (the bridge itself is not returned)."""
     from scipy import ndimage
 
     hair = np.asarray(hair, bool)
