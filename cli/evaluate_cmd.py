@@ -30,12 +30,15 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
+@click.option("--refine", type=click.Choice(["photometric"]), default=None,
+              help="Track with each frame's head pose refined against the frame by rendering the "
+              "evaluated avatar (docs/tracking.md).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
               "body held at the build frame's pose; 'global' turns the whole model with the head.")
 @quiet_option
 def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, simulate_hair, side_by_side,
-                 subject_calibration, subject_part, head_on, quiet):
+                 subject_calibration, subject_part, refine, head_on, quiet):
     """Self-reenactment: build an avatar from VIDEO (or one frame of it), drive it with the motion
     tracked from the whole video, render every frame from the tracked camera and compare with the video
     (PSNR and SSIM on the person region, face-mesh landmark error). See docs/evaluation.md.
@@ -57,7 +60,8 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,
-                          subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on)
+                          subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on,
+                          refine=refine)
     current: dict = {}           # the stage whose bar is shown (one bar per stage, in turn)
 
     def progress(stage, done, total):
