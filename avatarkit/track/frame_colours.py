@@ -43,6 +43,10 @@ from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
 REGIONS = ("neck", "lips", "mouth_interior")
 OUTLINE = True
+#: the tracking that poses the fused frames refines each frame's head pose against it by
+#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Off:
+#: docs/video-build.md, session 13
+REFINE: str | None = None
 #: at most this many frames are fused
 FRAMES = 24
 #: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
@@ -272,7 +276,9 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     from avatarkit.track.build_pose import align_to_build
     from avatarkit.track.video import tracked_with_built_avatar
 
-    with tracked_with_built_avatar(avatar, video, tracking.meshes) as (folder, result):
+    from avatarkit.track.tracker import TrackOptions
+
+    with tracked_with_built_avatar(avatar, video, tracking.meshes, TrackOptions(refine=REFINE)) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
         # are fitted where the neck will be
@@ -301,5 +307,5 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
+           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]

@@ -99,11 +99,12 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
 
 
 @contextmanager
-def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None):
+def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None, options: TrackOptions | None = None):
     """Track `video` with an `Avatar` that exists only in memory (a video build's later stages):
     it is saved without its preview to a temporary folder, which `track_video(avatar=)` reads
     as a user's avatar would be read. Yields (folder, TrackResult); the folder is removed on
-    exit. meshes: the face meshes of an earlier tracking of the same video, reused."""
+    exit. meshes: the face meshes of an earlier tracking of the same video, reused; options:
+    the tracker's (default `TrackOptions()`)."""
     import tempfile
     from pathlib import Path
 
@@ -116,7 +117,7 @@ def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None):
             save_avatar(avatar, folder)
         finally:
             avatar.preview = preview
-        yield folder, track_video(video, avatar=folder, meshes=meshes)
+        yield folder, track_video(video, avatar=folder, meshes=meshes, options=options)
 
 
 
