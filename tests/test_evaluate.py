@@ -479,6 +479,6 @@ def test_refined_tracking_redraws_the_synthetic_video_closer(synthetic, tmp_path
         assert code == 0, capsys.readouterr().err
         doc = json.loads((out / "metrics.json").read_text())
         scores[label] = doc["summary"]
-    assert doc["settings"]["refine"] == "photometric" and doc["settings"]["refinement"]["frames"] == 12
+    assert doc["settings"]["refine"] == "photometric, every 1 frame(s)" and doc["settings"]["refinement"]["frames"] == 12
     assert scores["refined"]["psnr"] > scores["landmarks"]["psnr"] + 1.0, scores
     assert scores["refined"]["ssim"] > scores["landmarks"]["ssim"], scores
