@@ -166,6 +166,61 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
               f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
 
 
+def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> None:
+    """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
+    "photometric")`, `track.photometric`; refining every k-th frame for k in `every`), in this
+    process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored video is
+    refined against the avatar as it is (not mirrored): a face that is not quite the avatar's,
+    as on a real clip. The template-head videos have no avatar to render: not refined."""
+    from avatarkit.avatar import load_avatar
+    from avatarkit.synthetic.head_video import SyntheticFrame, avatar_video, head_video_camera
+    from avatarkit.track import TrackOptions, track_frames
+    from avatarkit.track.neck import head_rotation
+    from avatarkit.track.photometric import PoseRefiner
+
+    clip = mixed_clip(frames, 30.0)
+    camera = head_video_camera(size, distance=0.55)
+    avatar = load_avatar(avatar_dir)
+    model, shape = avatar.head_model, avatar.shape
+    video = list(avatar_video(avatar, clip, camera))
+    mirrored = [SyntheticFrame(f.index, f.time, np.ascontiguousarray(f.rgb[:, ::-1])) for f in video]
+    true_head = head_rotation(clip.rotation, clip.neck)
+    print(f"refinement (avatar {avatar_dir}, mixed clip, {frames} frames at {size}x{size}; load "
+          f"{os.getloadavg()[0]:.1f}):")
+    rows = {}
+    for view, frames_in, truth in (("as rendered", video, true_head),
+                                   ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
+        meshes = None
+        for label, k in [("tracker", 0)] + [(f"refined every {k}", k) for k in every]:
+            options = TrackOptions(refine="photometric" if k else None, refine_every=max(k, 1))
+            refiner = PoseRefiner(avatar, camera.fx, (size, size)) if k else None
+            t0 = time.perf_counter()
+            r = track_frames(frames_in, model, shape, (size, size), 30.0, options, meshes=meshes, refiner=refiner)
+            t_track = time.perf_counter() - t0
+            meshes = r.meshes
+            rot = [angle_deg(a, b) for a, b in zip(head_rotation(r.clip.rotation, r.clip.neck), truth)]
+            jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
+            raw = [angle_deg(a, b) for a, b in zip(r.raw["rotation"], truth)]    # before the smoother
+            # translation: the clip's world is the view frame less the median head position, so
+            # compare the frame-to-frame motion of the head's root (truth: still)
+            tr = r.clip.translation - np.median(r.clip.translation, axis=0)
+            trn = np.linalg.norm(tr, axis=1) * 1000.0
+            rows.setdefault(label, []).append((np.median(rot), np.median(jaw), np.median(trn), t_track))
+            extra = "" if r.refinement is None else (f"; refined {r.refinement['frames']} frames, "
+                                                     f"{r.refinement['seconds']:.1f} s, residual "
+                                                     f"{r.refinement['residual_before_px']:.2f} -> "
+                                                     f"{r.refinement['residual_after_px']:.2f} px")
+            print(f"  {view:11s} {label}: rotation error median {np.median(rot):.2f} deg (p90 "
+                  f"{np.percentile(rot, 90):.2f}; before the smoother {np.median(raw):.2f}), jaw {np.median(jaw):.3f} rad, root wander median "
+                  f"{np.median(trn):.1f} mm, landmark error {np.nanmedian(r.landmark_error):.2f} px; track "
+                  f"{t_track:.1f} s ({frames / t_track:.2f} frames/s{', face mesh included' if k == 0 else ''}){extra}",
+                  flush=True)
+    for label, v in rows.items():
+        v = np.array(v)
+        print(f"  median over both: {label}: rotation {np.median(v[:, 0]):.2f} deg, jaw {np.median(v[:, 1]):.3f} rad, "
+              f"root wander {np.median(v[:, 2]):.1f} mm")
+
+
 def subject_renderer(subject: str, avatar=None):
     """What rendered the video of `subject`, as a `subject_calibration` renderer: the same head
     renderer with the same skin sample (seed 0) and light, or the avatar's splat renderer."""
@@ -245,12 +300,19 @@ def main() -> None:
     ap.add_argument("--videos", default=VIDEOS, help="folder of the real clips (default ../shared/data/videos "
                     "beside the checkout)")
     ap.add_argument("--real-only", action="store_true", help="only the real clips")
+    ap.add_argument("--refine", action="store_true", help="with --avatar: only the tracker with and without "
+                    "the photometric pose refinement (`refine_columns`)")
     ap.add_argument("--quick", action="store_true",
                     help="12 synthetic frames at 256 (the shaded video only), 30 real frames")
     args = ap.parse_args()
     if args.quick:
         args.frames, args.size = 12, 256
     print(f"CPU: {cpu_model()}, {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f}")
+    if args.refine:
+        if not args.avatar:
+            ap.error("--refine needs --avatar")
+        refine_columns(args.frames, args.size, args.avatar)
+        return
     if not args.real_only:
         synthetic(args.frames, args.size, args.avatar, flat=not args.quick)
     real(30 if args.quick else None, args.videos)

@@ -30,12 +30,17 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
+@click.option("--refine", type=click.Choice(["photometric"]), default=None,
+              help="Track with each frame's head pose refined against the frame by rendering the "
+              "evaluated avatar (docs/tracking.md).")
+@click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --refine: refine every k-th frame, interpolate the change between.")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
               "body held at the build frame's pose; 'global' turns the whole model with the head.")
 @quiet_option
 def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, simulate_hair, side_by_side,
-                 subject_calibration, subject_part, head_on, quiet):
+                 subject_calibration, subject_part, refine, refine_every, head_on, quiet):
     """Self-reenactment: build an avatar from VIDEO (or one frame of it), drive it with the motion
     tracked from the whole video, render every frame from the tracked camera and compare with the video
     (PSNR and SSIM on the person region, face-mesh landmark error). See docs/evaluation.md.
@@ -55,9 +60,12 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
                                "it does not go with --avatar or --build-frame")
     if subject_part != "full" and not subject_calibration:
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
+    if refine_every != 1 and refine is None:
+        raise click.UsageError("--refine-every goes with --refine")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,
-                          subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on)
+                          subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on,
+                          refine=refine, refine_every=refine_every)
     current: dict = {}           # the stage whose bar is shown (one bar per stage, in turn)
 
     def progress(stage, done, total):

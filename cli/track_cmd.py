@@ -38,6 +38,11 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
+@click.option("--refine", type=click.Choice(["photometric"]), default=None,
+              help="With --avatar: refine each frame's head pose against the frame by rendering the "
+              "avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md).")
+@click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --refine: refine every k-th frame, interpolate the change between.")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
               "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "
@@ -45,7 +50,8 @@ _FILE = click.Path(dir_okay=False)
               "model, neck and shoulders with the head (docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, align_to_build, subject_calibration, subject_part, head_on, quiet):
+              smoothing, preview, align_to_build, subject_calibration, subject_part, refine, refine_every, head_on,
+              quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
 
@@ -75,8 +81,12 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         raise click.UsageError("--subject-calibration renders the avatar: it needs --avatar")
     if subject_part != "full" and not subject_calibration:
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
+    if refine is not None and avatar is None:
+        raise click.UsageError("--refine photometric renders the avatar: it needs --avatar")
+    if refine_every != 1 and refine is None:
+        raise click.UsageError("--refine-every goes with --refine")
     options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration,
-                           subject_part=subject_part)
+                           subject_part=subject_part, refine=refine, refine_every=refine_every)
     with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,

@@ -103,3 +103,10 @@ def test_subject_calibration_needs_an_avatar(tmp_path, capsys, head_mp4):
 def test_subject_part_needs_the_subject_calibration(tmp_path, capsys, head_mp4):
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--subject-part", "rigid")
     assert code == 2 and "--subject-calibration" in cap.err and not (tmp_path / "c.npz").exists()
+
+
+def test_photometric_refinement_needs_an_avatar(tmp_path, capsys, head_mp4):
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine", "photometric")
+    assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine-every", "3")
+    assert code == 2 and "--refine" in cap.err and not (tmp_path / "c.npz").exists()

@@ -148,6 +148,9 @@ def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
     np.testing.assert_array_equal(sel, [True, True, True, True, False, False])
     sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), ("neck",))
     np.testing.assert_array_equal(sel, [True, False, False, True, False, False])
+    # regions None (`FUSE_ALL`): every bald Gaussian, still no hair
+    sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), None)
+    np.testing.assert_array_equal(sel, [True, True, True, True, False, False])
 
 
 def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():

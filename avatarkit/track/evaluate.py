@@ -71,7 +71,8 @@ class EvalOptions:
     view correction calibrated on renders of the avatar (`track.subject_calibration`), of which
     subject_part is used (`TrackOptions.subject_part`); head_on:
     where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
-    build frame's pose, or "global")."""
+    build frame's pose, or "global"); refine: track with the pose refined against each frame by
+    rendering the avatar evaluated (`TrackOptions.refine`), every `refine_every`-th frame."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -86,6 +87,8 @@ class EvalOptions:
     subject_calibration: bool = False
     subject_part: str = "full"
     head_on: str = DEFAULT_HEAD_ON
+    refine: str | None = None
+    refine_every: int = 1
 
 
 @dataclass
@@ -276,7 +279,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         from avatarkit.track.tracker import TrackOptions
 
         track_options = TrackOptions(subject_calibration=options.subject_calibration,
-                                     subject_part=options.subject_part)
+                                     subject_part=options.subject_part, refine=options.refine,
+                                     refine_every=options.refine_every)
         result = track_video(video, avatar=avatar_dir, progress=step, options=track_options,
                              meshes=tracking.meshes if tracking is not None else None)
         aligned = align_to_build(result, avatar_dir, build_frame)
@@ -323,6 +327,8 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "head_pose": ("tracked motion, the build frame posed as the build's fit" if posed
                           else "tracked pose as it is"),
             "head_on": describe(carried),
+            "refine": options.refine and f"{options.refine}, every {options.refine_every} frame(s)",
+            "refinement": result.refinement,
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),
         }

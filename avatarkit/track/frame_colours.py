@@ -43,6 +43,14 @@ from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
 REGIONS = ("neck", "lips", "mouth_interior")
 OUTLINE = True
+#: the tracking that poses the fused frames refines each frame's head pose against it by
+#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Off:
+#: docs/video-build.md, session 13
+REFINE: str | None = None
+#: every bald Gaussian's colour is fused (`fusion_selection(regions=None)`), not only REGIONS'
+#: and the outline's. Off: with the stage posed by the refined tracking (REFINE) it gains on both
+#: shared clips when they are evaluated with the refinement (docs/video-build.md, session 13)
+FUSE_ALL = False
 #: at most this many frames are fused
 FRAMES = 24
 #: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
@@ -186,7 +194,12 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
 
 def fusion_selection(avatar, regions=REGIONS) -> np.ndarray:
     """(N_bald + N_hair,) bool: the bald Gaussians whose host triangle has at least two vertices
-    in one of the head model's `regions` (the hair is never selected)."""
+    in one of the head model's `regions` (None: every bald Gaussian; the hair is never
+    selected)."""
+    if regions is None:
+        sel = np.zeros(len(avatar.bald) + len(avatar.hair), bool)
+        sel[:len(avatar.bald)] = True
+        return sel
     model = avatar.head_model
     faces = np.asarray(model.faces)[np.asarray(avatar.bald.extras["binding"], np.int64)]
     sel = np.zeros(len(avatar.bald) + len(avatar.hair), bool)
@@ -272,7 +285,9 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     from avatarkit.track.build_pose import align_to_build
     from avatarkit.track.video import tracked_with_built_avatar
 
-    with tracked_with_built_avatar(avatar, video, tracking.meshes) as (folder, result):
+    from avatarkit.track.tracker import TrackOptions
+
+    with tracked_with_built_avatar(avatar, video, tracking.meshes, TrackOptions(refine=REFINE)) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
         # are fitted where the neck will be
@@ -280,7 +295,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         saved = load_avatar(folder)
     ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
     rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)
-    select = fusion_selection(saved)
+    select = fusion_selection(saved, None if FUSE_ALL else REGIONS)
     if len(rows) == 0:
         return avatar, {"frames": [], "updated": 0}
     from avatarkit.track.keyframes import read_frames
@@ -301,5 +316,5 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
+           "FUSE_ALL", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]

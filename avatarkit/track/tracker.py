@@ -93,7 +93,12 @@ class TrackOptions:
     wide-open mouth needs coefficients the stronger prior held back (glasses clip, chosen there:
     the fitted mouth width followed the detected one with slope 0.02, now 0.38; landmark error
     2.16 -> 1.84 px), and the rendered heads do not pay for it (shaded template video 3.11 ->
-    3.10 deg, jaw 0.046 -> 0.047 rad; grey clip 1.48 -> 1.36 px)."""
+    3.10 deg, jaw 0.046 -> 0.047 rad; grey clip 1.48 -> 1.36 px).
+    refine: "photometric", with an avatar (`track_video(avatar=)`): each frame's rigid head pose
+    refined against the frame by rendering the avatar (`track.photometric`; docs/tracking.md,
+    session 13), before the smoother; None: the landmark fit's pose. refine_every: only every
+    k-th frame with a face is refined, the others get the change interpolated from their
+    refined neighbours."""
 
     face_index: int = 0
     smoothing: float = 4.0
@@ -110,6 +115,8 @@ class TrackOptions:
     mirror_landmarks: bool = False
     subject_calibration: bool = False
     subject_part: str = "full"
+    refine: str | None = None
+    refine_every: int = 1
 
 
 @dataclass(eq=False)
@@ -135,6 +142,7 @@ class TrackResult:
     embedding: Any = None      # its landmark embedding, calibrated offsets included (not stored)
     meshes: list | None = None  # the per-frame face meshes (None: no face), for `track_frames(meshes=)`
     subject_calibration: Any = None  # `subject_calibration.SubjectCalibration` when one was made
+    refinement: dict | None = None   # `track_frames(refiner=)`'s figures when the pose was refined
 
     @property
     def num_frames(self) -> int:
@@ -308,7 +316,7 @@ class FrameTracker:
 
 def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, int], fps: float,
                  options: TrackOptions | None = None, progress: Callable[[int], None] | None = None,
-                 name: str = "", embedding=None, meshes: list | None = None) -> TrackResult:
+                 name: str = "", embedding=None, meshes: list | None = None, refiner=None) -> TrackResult:
     """Track `frames` (objects with `.index` and `.rgb` (H, W, 3) uint8, e.g. `video.Frame`s)
     of size (width, height) at `fps` with `model` and identity `shape` (S,). `progress(i)` is
     called after each frame. Raises InputError when no frame has a face.
@@ -317,6 +325,12 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     used instead of running the face mesh again. The landmark step does not depend on the head
     model (its regions come from the previous mesh), so a second tracking of the same frames
     with another model gives the same result as tracking from scratch, at the fits' cost only.
+
+    refiner: a `photometric.PoseRefiner` for these frames (their size and the tracker's focal):
+    each frame's rigid pose is refined against the frame after the landmark fit (every
+    `options.refine_every`-th frame with a face; the others get their neighbours' change,
+    interpolated), before the smoother. The first frames, whose fits wait for the landmark
+    calibration, keep a small copy of the frame until then.
     """
     options = options or TrackOptions()
     ft = FrameTracker(model, shape, size, options, embedding)
@@ -339,10 +353,36 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         else:
             conf[row] = c
 
+    refined: dict = {}                # row -> (rotation change (3,), translation change (3,))
+    waiting: dict = {}                # row -> the small frame, until the calibration refits it
+    every = max(1, int(options.refine_every))
+    stats = {"frames": 0, "seconds": 0.0, "before": [], "after": [], "renders": []}
+
+    def refine(row, small):
+        import time
+
+        from avatarkit.rotations import matrix_to_axis_angle
+
+        t0 = time.perf_counter()
+        r0, t0_ = rows["rotation"][row], rows["translation"][row]
+        out = refiner.refine(small, r0, t0_, rows["jaw"][row], rows["expr"][row][:ft.expr_components],
+                             rows["eyes"][row])
+        dR = axis_angle_to_matrix(out.rotation).astype(np.float64) @ axis_angle_to_matrix(r0).astype(np.float64).T
+        refined[row] = (np.asarray(matrix_to_axis_angle(dR), np.float64).reshape(3),
+                        np.asarray(out.translation, np.float64) - np.asarray(t0_, np.float64))
+        stats["frames"] += 1
+        stats["seconds"] += time.perf_counter() - t0
+        stats["before"].append(out.start_residual)
+        stats["after"].append(out.residual)
+        stats["renders"].append(out.renders)
+
     def calibrate():
         ft.calibrate([m for _, m in pending])
         for row, m in pending:
             store(row, *ft.fit(m))
+            if row in waiting:
+                refine(row, waiting.pop(row))
+    faces = 0
     for i, frame in enumerate(frames):
         if meshes is None:
             mesh = ft.landmarks(frame.rgb)
@@ -362,7 +402,14 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         else:
             found.append(True)
             marks.append(np.asarray(mesh.points[:, :2], np.float32))
-            store(len(index) - 1, *ft.fit(mesh))
+            row = len(index) - 1
+            store(row, *ft.fit(mesh))
+            if refiner is not None and faces % every == 0:
+                if pending is not None:
+                    waiting[row] = refiner.shrink(frame.rgb)
+                else:
+                    refine(row, frame.rgb)
+            faces += 1
             if pending is not None:
                 pending.append((len(index) - 1, mesh))
                 if len(pending) == options.calibration_frames:
@@ -377,12 +424,43 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     found = np.asarray(found)
     if not found.any():
         raise InputError(f"no face found in any of the {len(index)} frames")
+    for row, small in list(waiting.items()):       # too few frames for the calibration
+        refine(row, small)
     raw = {k: np.asarray(v, np.float64).reshape(len(index), -1) for k, v in rows.items()}
+    if refiner is not None:
+        apply_refinement(raw, refined, found)
     conf = np.asarray(conf, np.float64)
     landmarks = np.stack(marks)
     result = finish(raw, conf, found, np.asarray(index), landmarks, ft, fps, options, name)
     result.meshes = seen
+    if refiner is not None:
+        result.refinement = {"frames": stats["frames"], "seconds": stats["seconds"],
+                             "residual_before_px": float(np.nanmedian(stats["before"])) if stats["before"] else None,
+                             "residual_after_px": float(np.nanmedian(stats["after"])) if stats["after"] else None,
+                             "renders": float(np.mean(stats["renders"])) if stats["renders"] else None,
+                             "size": refiner.camera.width}
     return result
+
+
+def apply_refinement(raw: dict, refined: dict, found: np.ndarray) -> None:
+    """Move raw["rotation"] / raw["translation"] (T, 3) in place by the refinement's changes
+    `refined` {row: (rotation change (3,) axis-angle, applied on the left; translation change
+    (3,))}; the rows with a face that were not refined get the changes interpolated linearly
+    between their refined neighbours (held at the ends)."""
+    from avatarkit.rotations import matrix_to_axis_angle
+
+    if not refined:
+        return
+    done = np.array(sorted(refined))
+    dr = np.stack([refined[k][0] for k in done])
+    dt = np.stack([refined[k][1] for k in done])
+    rows = np.flatnonzero(found)
+    ir = np.stack([np.interp(rows, done, dr[:, j]) for j in range(3)], 1)
+    it = np.stack([np.interp(rows, done, dt[:, j]) for j in range(3)], 1)
+    for k, row in enumerate(rows):
+        R = axis_angle_to_matrix(ir[k]).astype(np.float64) @ axis_angle_to_matrix(raw["rotation"][row]).astype(np.float64)
+        raw["rotation"][row] = np.asarray(matrix_to_axis_angle(R), np.float64).reshape(3)
+        raw["translation"][row] = raw["translation"][row] + it[k]
 
 
 def finish(raw: dict, confidence: np.ndarray, found: np.ndarray, frame_index: np.ndarray,

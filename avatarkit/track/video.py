@@ -12,6 +12,10 @@ Subject calibration. With an avatar and `TrackOptions(subject_calibration=True)`
 mesh's reading bias is calibrated on renders of the avatar at known poses before tracking
 (`track.subject_calibration`), and the fit uses that view correction.
 
+Pose refinement. With an avatar and `TrackOptions(refine="photometric")`, each frame's rigid
+head pose is refined against the frame by rendering the avatar (`track.photometric`) before the
+smoother; without an avatar it is an InputError.
+
 Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
 (`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
 each clip frame); a constant-rate one keeps its frames and rate.
@@ -83,6 +87,10 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
     if avatar is not None and head_model is not None:
         raise InputError("give either an avatar or a head model, not both")
     options = options or TrackOptions()
+    if options.refine not in (None, "photometric"):
+        raise InputError(f"pose refinement: {options.refine!r} (only 'photometric')")
+    if options.refine is not None and avatar is None:
+        raise InputError("the photometric pose refinement renders the avatar: it needs an avatar")
     p = os.fspath(path)
     try:
         return _track(p, avatar, head_model, landmark_embedding, start, end, options, progress, meshes)
@@ -91,11 +99,12 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
 
 
 @contextmanager
-def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None):
+def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None, options: TrackOptions | None = None):
     """Track `video` with an `Avatar` that exists only in memory (a video build's later stages):
     it is saved without its preview to a temporary folder, which `track_video(avatar=)` reads
     as a user's avatar would be read. Yields (folder, TrackResult); the folder is removed on
-    exit. meshes: the face meshes of an earlier tracking of the same video, reused."""
+    exit. meshes: the face meshes of an earlier tracking of the same video, reused; options:
+    the tracker's (default `TrackOptions()`)."""
     import tempfile
     from pathlib import Path
 
@@ -108,7 +117,7 @@ def tracked_with_built_avatar(avatar, video: str | os.PathLike, meshes=None):
             save_avatar(avatar, folder)
         finally:
             avatar.preview = preview
-        yield folder, track_video(video, avatar=folder, meshes=meshes)
+        yield folder, track_video(video, avatar=folder, meshes=meshes, options=options)
 
 
 
@@ -150,7 +159,15 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         frames = _with_source_index(frames)
         step = (lambda i: progress(i + 1, total)) if progress is not None else None
         name = os.path.splitext(os.path.basename(p.rstrip("/")))[0]
-        result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes)
+        refiner = None
+        if options.refine is not None:
+            from avatarkit.avatar import load_avatar
+            from avatarkit.recon.fit import portrait_focal
+            from avatarkit.track.photometric import PoseRefiner
+
+            focal = float(options.focal) if options.focal else portrait_focal(*size)
+            refiner = PoseRefiner(load_avatar(avatar), focal, size)
+        result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes, refiner)
         result.subject_calibration = calibration
         return result
 

@@ -1,0 +1,369 @@
+"""Refine one frame's rigid head pose against the frame by rendering the avatar (analysis by
+synthesis), when the avatar the video shows is known (`track --avatar`, `evaluate`).
+
+The landmark fit (`track.solve`) reads the pose from the face mesh's 468 points, which sit on a
+turned face with a pose-dependent bias (docs/tracking.md). Here the avatar is rendered at the
+frame's tracked parameters and compared with the frame itself; only the rigid pose (rotation,
+translation) moves, the jaw, expression and eyes stay the landmark fit's.
+
+`PoseRefiner.refine` (the fast path), per outer iteration:
+1. render the avatar posed by the frame's parameters at `Settings.size` pixels (longer side),
+   over the frame itself (so the background compares equal), the hair riding the head rigidly
+   (`subject_calibration._turned`), the head's Gaussians following jaw, expression and eyes;
+2. rasterise the posed head mesh (`synthetic.mesh_raster`) for each pixel's 3D point on the head,
+   keeping only the pixels of the face and scalp (not the neck: in a talking-head video it does
+   not move with the head, docs/tracking.md "The head on the neck") that the render covers;
+3. dense optical flow render -> frame (`cv2.DISOpticalFlow`), kept where the flow back frame ->
+   render returns to within `fb_tolerance` pixels;
+4. a robust (Huber, iteratively reweighted) Gauss-Newton for the 6-DoF pose change that moves
+   the 3D points onto their flowed image positions (a linearised PnP), the rotation about the
+   points' centroid; a small ridge keeps a poorly seen direction (depth) from running away.
+It stops after `Settings.iterations` renders or when the change is below `Settings.tolerance`.
+
+`refine_reference` (the slow obvious reference): a pattern search (`register.pattern_search`)
+over the same 6 parameters on the mean squared colour difference between the render (over the
+frame) and the frame inside the face region of the starting pose, dilated.
+
+Poses are the tracker's view frame (`track.tracker`): X_view = R X_head + t, X_head the head
+model's vertices at zero root pose with the frame's jaw, expression and eyes; the camera is the
+OpenCV pinhole diag(1, -1, -1) at the origin, focal `focal`, principal point at the image centre.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from avatarkit.render.camera import Camera
+from avatarkit.rotations import axis_angle_to_matrix
+
+_C = np.diag([1.0, -1.0, -1.0])
+
+
+@dataclass
+class Settings:
+    """size: the longer side (px) rendered and compared at; iterations: renders (outer
+    iterations) at most; tolerance: stop when the rotation changes less than this (radians) and
+    the translation less than tolerance * 0.1 m; gauss_newton: reweighted solves per render;
+    supersample: the render is made at this many times `size` and area-averaged down as the
+    frame is (a splat render at 224 px compared with a 480 px frame scaled down read the pose
+    0.56 deg / 2.2 mm off the truth on the portrait avatar: a splat's footprint does not scale
+    with the image);
+    huber: the Huber threshold (px, at `size`); fb_tolerance: forward-backward flow mismatch
+    (px) above which a pixel is dropped; min_points: fewer kept pixels: no change; ridge: the
+    normal equations' ridge relative to their trace / 6."""
+
+    size: int = 224
+    supersample: int = 2
+    iterations: int = 4
+    tolerance: float = 2e-4
+    gauss_newton: int = 4
+    huber: float = 1.0
+    fb_tolerance: float = 1.0
+    min_points: int = 150
+    ridge: float = 1e-3
+
+
+@dataclass
+class Refinement:
+    """rotation (3,) axis-angle and translation (3,) metres: the refined pose (view frame);
+    renders: outer iterations run; points: pixels used in the last solve; residual: their
+    median image distance (px at `Settings.size`) after it, before it: `start_residual`."""
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    renders: int
+    points: int
+    residual: float
+    start_residual: float
+
+
+def view_camera(focal: float, size: tuple[int, int], longer: int | None) -> Camera:
+    """The tracker's camera (module docstring) for a frame of `size` (W, H), scaled so its
+    longer side is `longer` pixels (None: as it is)."""
+    W, H = int(size[0]), int(size[1])
+    w2c = np.eye(4)
+    w2c[:3, :3] = _C
+    cam = Camera(float(focal), float(focal), W / 2.0, H / 2.0, W, H, w2c)
+    if longer is None or max(W, H) <= longer:
+        return cam
+    k = longer / max(W, H)
+    return cam.with_size(max(1, int(round(W * k))), max(1, int(round(H * k))))
+
+
+def pose_matrix(rotation, translation) -> np.ndarray:
+    """(4, 4) X_view = R X + t."""
+    a = np.eye(4)
+    a[:3, :3] = axis_angle_to_matrix(np.asarray(rotation, np.float64)).astype(np.float64)
+    a[:3, 3] = np.asarray(translation, np.float64)
+    return a
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    return axis_angle_to_matrix(np.asarray(w, np.float64)).astype(np.float64)
+
+
+def apply_delta(rotation, translation, delta: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pose moved by delta (6,) (w: a turn (axis-angle) about `centre` (3,), view frame;
+    d: then a shift): R' = exp(w) R, t' = exp(w) (t - centre) + centre + d."""
+    E = _exp(delta[:3])
+    R = _exp(rotation)
+    t = np.asarray(translation, np.float64)
+    c = np.asarray(centre, np.float64)
+    return _rotvec(E @ R), E @ (t - c) + c + np.asarray(delta[3:6], np.float64)
+
+
+class PoseRefiner:
+    """An avatar's head-pose refiner for frames of `size` (W, H) seen with focal `focal` px
+    (module docstring). The posed avatar of the last (jaw, expression, eyes) is kept, so the
+    outer iterations of one frame pose the Gaussians once."""
+
+    def __init__(self, avatar, focal: float, size: tuple[int, int], settings: Settings | None = None):
+        from avatarkit.track.subject_calibration import _rest_person
+
+        self.avatar = avatar
+        self.model = avatar.head_model
+        self.shape = np.asarray(avatar.shape, np.float32).reshape(-1)
+        self.settings = settings or Settings()
+        self.size = (int(size[0]), int(size[1]))
+        self.focal = float(focal)
+        self.camera = view_camera(self.focal, self.size, self.settings.size)
+        k = max(1, int(self.settings.supersample))
+        self.render_camera = self.camera.with_size(self.camera.width * k, self.camera.height * k)
+        rest, self.axis = _rest_person(avatar)
+        n_bald = len(avatar.bald)
+        self.hair = rest.replace(means=rest.means[n_bald:], quats=rest.quats[n_bald:], scales=rest.scales[n_bald:],
+                                 opacities=rest.opacities[n_bald:], sh=rest.sh[n_bald:], extras={}) \
+            if len(rest) > n_bald else None
+        # the face and scalp: every vertex that is not the neck's (the neck stays with the body)
+        weight = np.ones(self.model.num_vertices)
+        if "neck" in self.model.regions:
+            weight[self.model.regions["neck"]] = 0.0
+        self.vertex_weight = weight
+        self._key = None
+        self._posed = None
+
+    # -- the avatar at a frame's non-rigid parameters, root at rest ----------------------------
+    def posed(self, jaw, expr, eyes):
+        """(GaussianSet of the avatar at zero root pose with this jaw (3,), expression (E,) and
+        eyes (6,); head vertices (V, 3) float64)."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+        from avatarkit.head.model import HeadParams
+        from avatarkit.rig.binding_kernel import binding_to_world
+
+        E = self.model.num_expr
+        ex = np.zeros(E)
+        e = np.asarray(expr, np.float64).reshape(-1)[:E]
+        ex[:len(e)] = e
+        key = (tuple(np.round(np.asarray(jaw, np.float64), 12)), tuple(np.round(ex, 12)),
+               tuple(np.round(np.asarray(eyes, np.float64), 12)))
+        if key != self._key:
+            params = HeadParams(expr=ex[None].astype(np.float32), rotation=np.zeros((1, 3), np.float32),
+                                translation=np.zeros((1, 3), np.float32), neck=np.zeros((1, 3), np.float32),
+                                jaw=np.asarray(jaw, np.float32).reshape(1, 3),
+                                eyes=np.asarray(eyes, np.float32).reshape(1, 6), shape=self.shape)
+            v = self.model.forward(params)[0][0]
+            means, quats, scales = binding_to_world(self.avatar.binding, np.ascontiguousarray(v, np.float32))
+            parts = [self.avatar.bald.replace(means=means, quats=quats, scales=scales, extras={})]
+            if self.hair is not None:
+                parts.append(self.hair)
+            self._posed = (GaussianSet.concat(parts), v.astype(np.float64))
+            self._key = key
+        return self._posed
+
+    def render(self, person, rotation, translation, frame_small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)) of the posed
+        `person` turned and shifted by the pose."""
+        from avatarkit.render import render
+        from avatarkit.track.subject_calibration import _turned
+
+        import cv2
+
+        r = render(_turned(person, self.axis, pose_matrix(rotation, translation)), self.render_camera, (0.0, 0.0, 0.0))
+        rgb, alpha = r.rgb, r.alpha
+        if self.render_camera.width != self.camera.width:
+            size = (self.camera.width, self.camera.height)
+            rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            alpha = cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
+        a = np.clip(alpha, 0.0, 1.0)[..., None]
+        return np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32), alpha
+
+    def points(self, vertices: np.ndarray, rotation, translation) -> tuple[np.ndarray, np.ndarray]:
+        """Per pixel of the small camera: (the head's 3D point (h, w, 3), view frame; the face
+        weight (h, w), 0 where the head mesh does not cover the pixel or it is the neck's)."""
+        from avatarkit.synthetic.mesh_raster import rasterise
+
+        a = pose_matrix(rotation, translation)
+        v = vertices @ a[:3, :3].T + a[:3, 3]
+        ras = rasterise(v, self.model.faces, np.concatenate([v, self.vertex_weight[:, None]], 1), self.camera)
+        w = np.where(ras.covered, ras.attributes[..., 3], 0.0)
+        return ras.attributes[..., :3], w
+
+    def shrink(self, rgb: np.ndarray) -> np.ndarray:
+        """The frame (H, W, 3) uint8 at the small camera's size (uint8; a frame already that
+        size as it is): what `refine` needs of a frame, to keep while it waits."""
+        import cv2
+
+        im = np.asarray(rgb)
+        if im.shape[:2] == (self.camera.height, self.camera.width):
+            return im
+        return cv2.resize(im, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+
+    def small(self, rgb: np.ndarray) -> np.ndarray:
+        """`shrink`, float32 in [0, 1]."""
+        return self.shrink(rgb).astype(np.float32) / 255.0
+
+    # -- the fast path -------------------------------------------------------------------------
+    def refine(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes) -> Refinement:
+        """The refined pose of frame `rgb` (H, W, 3) uint8 (the refiner's size, or `shrink`'s
+        answer) starting from the
+        landmark fit's rotation (3,), translation (3,), with its jaw (3,), expr (E,), eyes (6,)."""
+        s = self.settings
+        target = self.small(rgb)
+        person, verts = self.posed(jaw, expr, eyes)
+        rot, tr = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+        first = None
+        n, res, renders = 0, float("nan"), 0
+        for _ in range(s.iterations):
+            comp, alpha = self.render(person, rot, tr, target)
+            renders += 1
+            X, w = self.points(verts, rot, tr)
+            keep = (w > 0.5) & (alpha > 0.5)
+            flow, ok = consistent_flow(comp, target, s.fb_tolerance)
+            keep &= ok
+            n = int(keep.sum())
+            if n < s.min_points:
+                break
+            ys, xs = np.nonzero(keep)
+            uv = np.stack([xs + 0.5, ys + 0.5], 1) + flow[ys, xs]
+            P = X[ys, xs]
+            delta, centre, before, res = solve_pose_delta(P, uv, self.camera, s.huber, s.gauss_newton, s.ridge)
+            first = before if first is None else first
+            rot, tr = apply_delta(rot, tr, delta, centre)
+            if np.linalg.norm(delta[:3]) < s.tolerance and np.linalg.norm(delta[3:]) < 0.1 * s.tolerance:
+                break
+        return Refinement(rot, tr, renders, n, res, float("nan") if first is None else first)
+
+    # -- the slow obvious reference ------------------------------------------------------------
+    def refine_reference(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes,
+                         steps=(0.02, 0.02, 0.02, 0.004, 0.004, 0.004), rounds: int = 5) -> Refinement:
+        """`refine` by a pattern search on the masked colour error (module docstring)."""
+        import cv2
+
+        from avatarkit.track.register import pattern_search
+
+        target = self.small(rgb)
+        person, verts = self.posed(jaw, expr, eyes)
+        rot0, tr0 = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+        X, w = self.points(verts, rot0, tr0)
+        mask = cv2.dilate((w > 0.5).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+        centre = X[w > 0.5].mean(axis=0)
+        n = [0]
+
+        def cost(p) -> float:
+            n[0] += 1
+            r, t = apply_delta(rot0, tr0, p, centre)
+            comp, _ = self.render(person, r, t, target)
+            return float(np.mean((comp[mask] - target[mask]) ** 2))
+
+        p, _ = pattern_search(cost, np.zeros(6), cost(np.zeros(6)), steps, rounds)
+        r, t = apply_delta(rot0, tr0, p, centre)
+        return Refinement(r, t, n[0], int(mask.sum()), float("nan"), float("nan"))
+
+
+def _grey(im: np.ndarray) -> np.ndarray:
+    import cv2
+
+    a = np.asarray(im)
+    if a.dtype != np.uint8:
+        a = np.clip(np.round(a * 255.0), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(a, cv2.COLOR_RGB2GRAY)
+
+
+def consistent_flow(source: np.ndarray, target: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(flow (h, w, 2) source -> target in pixels, ok (h, w) bool: where the backward flow,
+    sampled where the forward flow lands, comes back to within `tolerance` px). Images (h, w,
+    3) float in [0, 1] or uint8."""
+    import cv2
+
+    a, b = _grey(source), _grey(target)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    fwd = dis.calc(a, b, None)
+    bwd = dis.calc(b, a, None)
+    h, w = a.shape
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    mx, my = gx + fwd[..., 0], gy + fwd[..., 1]
+    back = cv2.remap(bwd, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
+    inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
+    ok = inside & (np.linalg.norm(fwd + back, axis=-1) < tolerance)
+    return fwd.astype(np.float64), ok
+
+
+def project(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(pixel coordinates (N, 2), Jacobian (N, 2, 3) of them by the view-frame point) of view-
+    frame points (N, 3) in `camera` (the tracker's: w2c = [diag(1, -1, -1) | 0])."""
+    pc = points @ _C.T
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    uv = np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy], 1)
+    J = np.zeros((len(points), 2, 3))
+    J[:, 0, 0] = camera.fx / z
+    J[:, 0, 2] = -camera.fx * x / z ** 2
+    J[:, 1, 1] = camera.fy / z
+    J[:, 1, 2] = -camera.fy * y / z ** 2
+    return uv, J @ _C
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices of v (N, 3)."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
+    return S
+
+
+def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, huber: float = 1.0,
+                     iterations: int = 4, ridge: float = 1e-3):
+    """The rigid change delta (6,) (turn about the points' centroid, then shift: `apply_delta`)
+    that moves view-frame points (N, 3) to project onto targets (N, 2) px, by iteratively
+    reweighted Gauss-Newton with Huber weights (threshold `huber` px). Returns (delta, centre
+    (3,), median residual before, after)."""
+    P = np.asarray(points, np.float64)
+    q = np.asarray(targets, np.float64)
+    c = P.mean(axis=0)
+    delta = np.zeros(6)
+    before = None
+    for _ in range(max(1, iterations)):
+        E = _exp(delta[:3])
+        turned = (P - c) @ E.T
+        X = turned + c + delta[3:]
+        uv, J = project(X, camera)
+        r = uv - q                                                    # (N, 2)
+        dist = np.linalg.norm(r, axis=1)
+        if before is None:
+            before = float(np.median(dist))
+        w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+        # d X / d (a small turn w applied after E) = -[E (P - c)]x ; d X / d (shift) = I
+        A = np.concatenate([-J @ _skew(turned), J], axis=2)         # (N, 2, 6)
+        A2 = A.reshape(-1, 6)
+        w2 = np.repeat(w, 2)
+        H = A2.T @ (w2[:, None] * A2)
+        g = A2.T @ (w2 * r.reshape(-1))
+        H += ridge * np.trace(H) / 6.0 * np.eye(6)
+        step = -np.linalg.solve(H, g)
+        # compose: the turn's increment is applied after E (left), the shift adds
+        delta[:3] = _rotvec(_exp(step[:3]) @ E)
+        delta[3:] = delta[3:] + step[3:]
+    E = _exp(delta[:3])
+    uv, _ = project((P - c) @ E.T + c + delta[3:], camera)
+    return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
+
+
+__all__ = ["PoseRefiner", "Refinement", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
+           "solve_pose_delta", "view_camera"]
