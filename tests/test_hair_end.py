@@ -15,19 +15,23 @@ R = 0.08
 SIZE = 96
 
 
-def _labels(cam, hair_from: float, behind_only: bool = False) -> np.ndarray:
-    """(SIZE, SIZE) labels of the sphere seen by cam: hair where the first hit lies above
-    hair_from (and behind the centre, z < 0, when behind_only), skin elsewhere on it."""
-    ys, xs = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+def _first_hits(cam, size: int):
+    """The sphere seen by cam at size x size pixels: (first hit points (size, size, 3), hit
+    (size, size) bool)."""
+    ys, xs = np.mgrid[0:size, 0:size] + 0.5
     r = cam.rotation
     d = ((xs[..., None] - cam.cx) / cam.fx) * r[0] + ((ys[..., None] - cam.cy) / cam.fy) * r[1] + r[2]
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     c = np.asarray(cam.camera_center, np.float64)
     b = d @ c
     disc = b ** 2 - (c @ c - R ** 2)
-    t = -b - np.sqrt(np.maximum(disc, 0))
-    p = c + t[..., None] * d
-    on = disc > 0
+    return c + (-b - np.sqrt(np.maximum(disc, 0)))[..., None] * d, disc > 0
+
+
+def _labels(cam, hair_from: float, behind_only: bool = False) -> np.ndarray:
+    """(SIZE, SIZE) labels of the sphere seen by cam: hair where the first hit lies above
+    hair_from (and behind the centre, z < 0, when behind_only), skin elsewhere on it."""
+    p, on = _first_hits(cam, SIZE)
     hair = on & (p[..., 1] > hair_from) & ((p[..., 2] < 0) if behind_only else True)
     return np.where(hair, HAIR, np.where(on, SKIN, 0)).astype(np.int32)
 
@@ -90,16 +94,10 @@ def test_connected_hair_keeps_the_body_of_hair_and_bridges_small_gaps():
 def _with_speck(view, y_from, y_to, where):
     """The view's labels plus hair on the sphere's points p between heights y_from and y_to
     where where(p, towards the camera) holds."""
-    cam, size = view.camera, view.labels.shape[0]
-    ys, xs = np.mgrid[0:size, 0:size] + 0.5
-    r = cam.rotation
-    d = ((xs[..., None] - cam.cx) / cam.fx) * r[0] + ((ys[..., None] - cam.cy) / cam.fy) * r[1] + r[2]
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    cam = view.camera
+    p, on = _first_hits(cam, view.labels.shape[0])
     c = np.asarray(cam.camera_center, np.float64)
-    b = d @ c
-    disc = b ** 2 - (c @ c - R ** 2)
-    p = c + (-b - np.sqrt(np.maximum(disc, 0)))[..., None] * d
-    speck = (disc > 0) & (p[..., 1] > y_from) & (p[..., 1] < y_to) & where(p, c / np.linalg.norm(c))
+    speck = on & (p[..., 1] > y_from) & (p[..., 1] < y_to) & where(p, c / np.linalg.norm(c))
     return View(view.image, cam, np.where(speck, HAIR, view.labels).astype(np.int32), 1.0, 0, False)
 
 
