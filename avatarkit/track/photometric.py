@@ -159,8 +159,6 @@ class PoseRefiner:
         self.size = (int(size[0]), int(size[1]))
         self.focal = float(focal)
         self.camera = view_camera(self.focal, self.size, self.settings.size)
-        k = max(1, int(self.settings.supersample))
-        self.render_camera = self.camera.with_size(self.camera.width * k, self.camera.height * k)
         rest, self.axis = _rest_person(avatar)
         n_bald = len(avatar.bald)
         self.hair = rest.replace(means=rest.means[n_bald:], quats=rest.quats[n_bald:], scales=rest.scales[n_bald:],
