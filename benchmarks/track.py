@@ -168,7 +168,8 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 
 def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> None:
     """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
-    "photometric")`, `track.photometric`; refining every k-th frame for k in `every`), in this
+    "photometric")`, `track.photometric`; refining every k-th frame for k in `every`, and every
+    frame with the first round's settings `photometric.SESSION13`: the speed baseline), in this
     process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored video is
     refined against the avatar as it is (not mirrored): a face that is not quite the avatar's,
     as on a real clip. The template-head videos have no avatar to render: not refined."""
@@ -176,7 +177,7 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
     from avatarkit.synthetic.head_video import SyntheticFrame, avatar_video, head_video_camera
     from avatarkit.track import TrackOptions, track_frames
     from avatarkit.track.neck import head_rotation
-    from avatarkit.track.photometric import PoseRefiner
+    from avatarkit.track.photometric import SESSION13, PoseRefiner, Settings
 
     clip = mixed_clip(frames, 30.0)
     camera = head_video_camera(size, distance=0.55)
@@ -191,9 +192,11 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
     for view, frames_in, truth in (("as rendered", video, true_head),
                                    ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
         meshes = None
-        for label, k in [("tracker", 0)] + [(f"refined every {k}", k) for k in every]:
+        runs = [("tracker", 0, {})] + [("refined every 1, first-round settings", 1, SESSION13)] + \
+            [(f"refined every {k}", k, {}) for k in every]
+        for label, k, settings in runs:
             options = TrackOptions(refine="photometric" if k else None, refine_every=max(k, 1))
-            refiner = PoseRefiner(avatar, camera.fx, (size, size)) if k else None
+            refiner = PoseRefiner(avatar, camera.fx, (size, size), Settings(**settings)) if k else None
             t0 = time.perf_counter()
             r = track_frames(frames_in, model, shape, (size, size), 30.0, options, meshes=meshes, refiner=refiner)
             t_track = time.perf_counter() - t0
@@ -209,7 +212,8 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
             extra = "" if r.refinement is None else (f"; refined {r.refinement['frames']} frames, "
                                                      f"{r.refinement['seconds']:.1f} s, residual "
                                                      f"{r.refinement['residual_before_px']:.2f} -> "
-                                                     f"{r.refinement['residual_after_px']:.2f} px")
+                                                     f"{r.refinement['residual_after_px']:.2f} px, "
+                                                     f"{r.refinement['renders']:.2f} passes per frame")
             print(f"  {view:11s} {label}: rotation error median {np.median(rot):.2f} deg (p90 "
                   f"{np.percentile(rot, 90):.2f}; before the smoother {np.median(raw):.2f}), jaw {np.median(jaw):.3f} rad, root wander median "
                   f"{np.median(trn):.1f} mm, landmark error {np.nanmedian(r.landmark_error):.2f} px; track "

@@ -104,3 +104,61 @@ def test_refinement_needs_an_avatar(tmp_path):
 
     with pytest.raises(InputError, match="avatar"):
         track_video(tmp_path / "none.mp4", options=TrackOptions(refine="photometric"))
+
+
+def test_moving_the_camera_renders_what_turning_the_gaussians_does(scene):
+    """A pass's pose change as the inverse change of the camera (the Gaussians turned once, to
+    the frame's starting pose) draws the image turning every Gaussian draws: to float noise when
+    every Gaussian turns rigidly, to second order when the principal-axis hair turns by the
+    shortest arc; and the head's box alone (a shifted principal point) draws that window of the
+    whole frame's image."""
+    from avatarkit.track.subject_calibration import _turned
+
+    refiner, frame = scene["refiner"], scene["frame"]
+    target = refiner.small(frame)
+    person, verts = refiner.posed(*scene["nonrigid"])
+    (r0, t0), r1, t1 = scene["start"], scene["rot"], scene["tr"]
+    change = ph.pose_matrix(r1, t1) @ np.linalg.inv(ph.pose_matrix(r0, t0))
+    assert np.degrees(np.linalg.norm(ph._rotvec(change[:3, :3]))) > 2.5
+    for axis, worst, mean in ((None, 1e-4, 1e-5), (refiner.axis, 0.1, 2e-3)):
+        turned, _ = ph.PoseRefiner.render(_with_axis(refiner, axis), person, r1, t1, target)
+        moved, _ = _with_axis(refiner, axis).render_moved(_turned(person, axis, ph.pose_matrix(r0, t0)), change, target)
+        diff = np.abs(turned - moved)
+        assert diff.max() < worst and diff.mean() < mean, (axis is None, diff.max(), diff.mean())
+    assert refiner.axis is not None and refiner.settings.move_camera
+    x0, y0, x1, y1 = box = refiner.box(verts, r1, t1, 8)
+    assert 0 < x1 - x0 < SIZE and 0 < y1 - y0 < SIZE
+    whole, alpha = refiner.render(person, r1, t1, target)
+    part, part_alpha = refiner.render(person, r1, t1, target[y0:y1, x0:x1], refiner.crop_camera(box))
+    # the head's mesh box itself (the margin's ring off): the renderer clamps the footprint of
+    # a splat far outside the image (1.3x its half field of view), the crop's edge moves that
+    inner = (slice(8, -8), slice(8, -8))
+    # and the tiles fall elsewhere on the splats (a splat enters the tiles its 3-sigma box touches)
+    d, da = np.abs(part - whole[y0:y1, x0:x1])[inner], np.abs(part_alpha - alpha[y0:y1, x0:x1])[inner]
+    assert d.max() < 3e-3 and d.mean() < 1e-5 and da.max() < 3e-3 and da.mean() < 1e-5
+    X, w = refiner.points(verts, r1, t1)
+    Xc, wc = refiner.points(verts, r1, t1, refiner.crop_camera(box))
+    assert np.array_equal(wc > 0.5, w[y0:y1, x0:x1] > 0.5) and np.abs(w[y0:y1].sum() - w.sum()) < 1e-9
+    assert np.allclose(Xc[wc > 0.5], X[y0:y1, x0:x1][wc > 0.5], atol=1e-9)
+
+
+def _with_axis(refiner, axis):
+    """A shallow copy of `refiner` whose hair turns by `axis` (None: rigidly)."""
+    import copy
+
+    out = copy.copy(refiner)
+    out.axis = axis
+    return out
+
+
+def test_fast_settings_agree_with_the_first_rounds(scene):
+    """The camera-moving, head-box, early-stopping passes land where the first round's (every
+    pass turning the Gaussians, whole frame, 0.011 deg stop) do, in no more passes."""
+    refiner, frame = scene["refiner"], scene["frame"]
+    r0, t0 = scene["start"]
+    first = ph.PoseRefiner(refiner.avatar, FOCAL, (SIZE, SIZE), ph.Settings(size=SIZE, iterations=6, **ph.SESSION13))
+    a = first.refine(frame, r0, t0, *scene["nonrigid"])
+    b = refiner.refine(frame, r0, t0, *scene["nonrigid"])
+    assert _angle(a.rotation, b.rotation) < 0.1
+    assert np.linalg.norm(a.translation - b.translation) < 5e-4
+    assert b.renders <= a.renders

@@ -18,7 +18,17 @@ translation) moves, the jaw, expression and eyes stay the landmark fit's.
 4. a robust (Huber, iteratively reweighted) Gauss-Newton for the 6-DoF pose change that moves
    the 3D points onto their flowed image positions (a linearised PnP), the rotation about the
    points' centroid; a small ridge keeps a poorly seen direction (depth) from running away.
-It stops after `Settings.iterations` renders or when the change is below `Settings.tolerance`.
+It stops after `Settings.iterations` renders or when a pass's change is below
+`Settings.tolerance` (rotation) and `Settings.shift_tolerance` (translation).
+
+What makes a pass cheap (session 13, second round; docs/tracking.md): the avatar is posed
+(jaw, expression, eyes) and turned to the frame's starting pose once per frame; each pass's pose
+change is the inverse rigid change of the CAMERA (`Settings.move_camera`), so no pass re-turns
+the ~80k Gaussians. Optionally (`Settings.crop_margin`, off) only the head's box on the image
+(the projected face-and-scalp mesh at the pass's pose plus a margin) is rendered, rasterised and
+flowed, through a `Camera` of that size whose principal point is shifted by the box's corner
+(`crop_camera`: the same pixels as the whole frame's render). `render` (the avatar turned by the
+pose) stays as the obvious version; a test compares the two.
 
 `refine_reference` (the slow obvious reference): a pattern search (`register.pattern_search`)
 over the same 6 parameters on the mean squared colour difference between the render (over the
@@ -44,24 +54,39 @@ _C = np.diag([1.0, -1.0, -1.0])
 class Settings:
     """size: the longer side (px) rendered and compared at; iterations: renders (outer
     iterations) at most; tolerance: stop when the rotation changes less than this (radians) and
-    the translation less than tolerance * 0.1 m; gauss_newton: reweighted solves per render;
+    the translation less than `shift_tolerance` (m); gauss_newton: reweighted solves per render;
     supersample: the render is made at this many times `size` and area-averaged down as the
     frame is (a splat render at 224 px compared with a 480 px frame scaled down read the pose
     0.56 deg / 2.2 mm off the truth on the portrait avatar: a splat's footprint does not scale
     with the image);
     huber: the Huber threshold (px, at `size`); fb_tolerance: forward-backward flow mismatch
     (px) above which a pixel is dropped; min_points: fewer kept pixels: no change; ridge: the
-    normal equations' ridge relative to their trace / 6."""
+    normal equations' ridge relative to their trace / 6;
+    move_camera: a pass's pose change moves the camera, the Gaussians turned once per frame
+    (False: each pass turns them, `render`); crop_margin: render and flow only the head's box on
+    the image plus this many pixels (at `size`) each side (None, the default: the whole frame;
+    the crop saves little, a render's cost is its Gaussians', and DIS on the smaller image flows
+    differently: mirrored synthetic clip 2.05 -> 2.31 deg at 16 px, docs/tracking.md).
+    Until session 13's second round: tolerance 2e-4, shift_tolerance 2e-5, move_camera False,
+    crop_margin None (`SESSION13`)."""
 
     size: int = 224
     supersample: int = 2
     iterations: int = 4
-    tolerance: float = 2e-4
+    tolerance: float = float(np.radians(0.05))
+    shift_tolerance: float = 2e-4
     gauss_newton: int = 4
     huber: float = 1.0
     fb_tolerance: float = 1.0
     min_points: int = 150
     ridge: float = 1e-3
+    move_camera: bool = True
+    crop_margin: int | None = None
+
+
+# the first round's settings (every pass turns the Gaussians and renders the whole frame; the
+# passes stop only at 0.011 deg / 0.02 mm): the speed baseline of docs/tracking.md
+SESSION13 = dict(tolerance=2e-4, shift_tolerance=2e-5, move_camera=False, crop_margin=None)
 
 
 @dataclass
@@ -134,8 +159,6 @@ class PoseRefiner:
         self.size = (int(size[0]), int(size[1]))
         self.focal = float(focal)
         self.camera = view_camera(self.focal, self.size, self.settings.size)
-        k = max(1, int(self.settings.supersample))
-        self.render_camera = self.camera.with_size(self.camera.width * k, self.camera.height * k)
         rest, self.axis = _rest_person(avatar)
         n_bald = len(avatar.bald)
         self.hair = rest.replace(means=rest.means[n_bald:], quats=rest.quats[n_bald:], scales=rest.scales[n_bald:],
@@ -177,31 +200,74 @@ class PoseRefiner:
             self._key = key
         return self._posed
 
-    def render(self, person, rotation, translation, frame_small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def render(self, person, rotation, translation, frame_small: np.ndarray,
+               camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)) of the posed
-        `person` turned and shifted by the pose."""
-        from avatarkit.render import render
+        `person` turned and shifted by the pose (the obvious way: every Gaussian moved), seen by
+        `camera` (a `crop_camera`; None: the small camera), `frame_small` its size."""
         from avatarkit.track.subject_calibration import _turned
+
+        return self.render_moved(_turned(person, self.axis, pose_matrix(rotation, translation)), np.eye(4),
+                                 frame_small, camera)
+
+    def render_moved(self, moved, change: np.ndarray, frame_small: np.ndarray,
+                     camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """`render` of Gaussians `moved` (already turned to a pose a0, view frame) at the pose
+        change @ a0, change (4, 4): the camera moves by the inverse change instead of the
+        Gaussians (the same image up to the hair's twist: `_turned` turns a principal-axis
+        hair Gaussian by the shortest arc, which a composition of turns does only to second
+        order)."""
+        from avatarkit.render import render
 
         import cv2
 
-        r = render(_turned(person, self.axis, pose_matrix(rotation, translation)), self.render_camera, (0.0, 0.0, 0.0))
+        cam = self.camera if camera is None else camera
+        k = max(1, int(self.settings.supersample))
+        big = cam.with_size(cam.width * k, cam.height * k)
+        w2c = np.eye(4)
+        w2c[:3, :3] = _C
+        big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height, w2c @ np.asarray(change, np.float64))
+        r = render(moved, big, (0.0, 0.0, 0.0))
         rgb, alpha = r.rgb, r.alpha
-        if self.render_camera.width != self.camera.width:
-            size = (self.camera.width, self.camera.height)
+        if k > 1:
+            size = (cam.width, cam.height)
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             alpha = cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
         a = np.clip(alpha, 0.0, 1.0)[..., None]
         return np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32), alpha
 
-    def points(self, vertices: np.ndarray, rotation, translation) -> tuple[np.ndarray, np.ndarray]:
-        """Per pixel of the small camera: (the head's 3D point (h, w, 3), view frame; the face
-        weight (h, w), 0 where the head mesh does not cover the pixel or it is the neck's)."""
+    def box(self, vertices: np.ndarray, rotation, translation, margin: int) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1): the small camera's pixels holding the face-and-scalp mesh at the
+        pose, `margin` pixels more each side, within the image."""
+        a = pose_matrix(rotation, translation)
+        v = vertices[self.vertex_weight > 0] @ a[:3, :3].T + a[:3, 3]
+        uv, _ = project(v, self.camera)
+        W, H = self.camera.width, self.camera.height
+        x0, y0 = np.floor(uv.min(0)).astype(int) - margin
+        x1, y1 = np.ceil(uv.max(0)).astype(int) + margin
+        x0, y0, x1, y1 = max(0, x0), max(0, y0), min(W, x1), min(H, y1)
+        if x1 - x0 < 8 or y1 - y0 < 8:                 # off the image: the whole frame
+            return 0, 0, W, H
+        return int(x0), int(y0), int(x1), int(y1)
+
+    def crop_camera(self, box: tuple[int, int, int, int]) -> Camera:
+        """The small camera's view of `box`'s pixels only (the principal point shifted by its
+        corner): its pixel (i, j) is the small camera's (i + y0, j + x0)."""
+        x0, y0, x1, y1 = box
+        c = self.camera
+        return Camera(c.fx, c.fy, c.cx - x0, c.cy - y0, x1 - x0, y1 - y0, c.world_to_camera)
+
+    def points(self, vertices: np.ndarray, rotation, translation,
+               camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Per pixel of `camera` (None: the small camera): (the head's 3D point (h, w, 3), view
+        frame; the face weight (h, w), 0 where the head mesh does not cover the pixel or it is
+        the neck's)."""
         from avatarkit.synthetic.mesh_raster import rasterise
 
         a = pose_matrix(rotation, translation)
         v = vertices @ a[:3, :3].T + a[:3, 3]
-        ras = rasterise(v, self.model.faces, np.concatenate([v, self.vertex_weight[:, None]], 1), self.camera)
+        ras = rasterise(v, self.model.faces, np.concatenate([v, self.vertex_weight[:, None]], 1),
+                        self.camera if camera is None else camera)
         w = np.where(ras.covered, ras.attributes[..., 3], 0.0)
         return ras.attributes[..., :3], w
 
@@ -224,18 +290,30 @@ class PoseRefiner:
         """The refined pose of frame `rgb` (H, W, 3) uint8 (the refiner's size, or `shrink`'s
         answer) starting from the
         landmark fit's rotation (3,), translation (3,), with its jaw (3,), expr (E,), eyes (6,)."""
+        from avatarkit.track.subject_calibration import _turned
+
         s = self.settings
         target = self.small(rgb)
         person, verts = self.posed(jaw, expr, eyes)
         rot, tr = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+        a0 = pose_matrix(rot, tr)
+        moved = _turned(person, self.axis, a0) if s.move_camera else None     # once per frame
         first = None
         n, res, renders = 0, float("nan"), 0
         for _ in range(s.iterations):
-            comp, alpha = self.render(person, rot, tr, target)
+            if s.crop_margin is None:
+                x0, y0, cam, tgt = 0, 0, self.camera, target
+            else:
+                x0, y0, x1, y1 = self.box(verts, rot, tr, int(s.crop_margin))
+                cam, tgt = self.crop_camera((x0, y0, x1, y1)), target[y0:y1, x0:x1]
+            if s.move_camera:
+                comp, alpha = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam)
+            else:
+                comp, alpha = self.render(person, rot, tr, tgt, cam)
             renders += 1
-            X, w = self.points(verts, rot, tr)
+            X, w = self.points(verts, rot, tr, cam)
             keep = (w > 0.5) & (alpha > 0.5)
-            flow, ok = consistent_flow(comp, target, s.fb_tolerance)
+            flow, ok = consistent_flow(comp, tgt, s.fb_tolerance)
             keep &= ok
             n = int(keep.sum())
             if n < s.min_points:
@@ -243,10 +321,10 @@ class PoseRefiner:
             ys, xs = np.nonzero(keep)
             uv = np.stack([xs + 0.5, ys + 0.5], 1) + flow[ys, xs]
             P = X[ys, xs]
-            delta, centre, before, res = solve_pose_delta(P, uv, self.camera, s.huber, s.gauss_newton, s.ridge)
+            delta, centre, before, res = solve_pose_delta(P, uv, cam, s.huber, s.gauss_newton, s.ridge)
             first = before if first is None else first
             rot, tr = apply_delta(rot, tr, delta, centre)
-            if np.linalg.norm(delta[:3]) < s.tolerance and np.linalg.norm(delta[3:]) < 0.1 * s.tolerance:
+            if np.linalg.norm(delta[:3]) < s.tolerance and np.linalg.norm(delta[3:]) < s.shift_tolerance:
                 break
         return Refinement(rot, tr, renders, n, res, float("nan") if first is None else first)
 
@@ -365,5 +443,5 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
 
 
-__all__ = ["PoseRefiner", "Refinement", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
+__all__ = ["PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
            "solve_pose_delta", "view_camera"]
