@@ -123,8 +123,11 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
         import numpy as np
 
         err = np.nanmedian(result.landmark_error)
+        # the refined pose follows the frames' pixels, not the face mesh's landmarks (which read
+        # a turned face with a bias): the error against them rises while the pose improves
+        why = " (against the face mesh's landmarks, which the refined pose no longer follows)" if refine else ""
         click.echo(f"tracked {result.num_frames} frames at {result.clip.fps:g} fps: face in {found}, "
-                   f"interpolated {result.num_frames - found}; median landmark error {err:.2f} px", err=True)
+                   f"interpolated {result.num_frames - found}; median landmark error {err:.2f} px{why}", err=True)
         if aligned is not None and aligned["frame"] is not None:
             parts = [n for n, k in (("eyes", "eyes"), ("head pose", "head_pose")) if aligned[k]]
             click.echo(f"aligned to the avatar's build frame {aligned['frame']} ({' and '.join(parts)})", err=True)

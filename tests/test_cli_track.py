@@ -110,3 +110,19 @@ def test_photometric_refinement_needs_an_avatar(tmp_path, capsys, head_mp4):
     assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine-every", "3")
     assert code == 2 and "--refine" in cap.err and not (tmp_path / "c.npz").exists()
+
+
+def test_a_refined_track_says_its_landmark_error_is_against_landmarks_it_no_longer_follows(
+        tmp_path, capsys, head_mp4, tmp_path_factory):
+    """With --refine the pose follows the frames' pixels, so the landmark error it prints rises
+    while the pose gets better (docs/tracking.md): the summary says what the figure measures."""
+    from test_avatar import saved_avatar
+
+    avatar = saved_avatar(tmp_path_factory)
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "r.npz"), "--avatar", str(avatar),
+                    "--refine", "photometric")
+    assert code == 0, cap.err
+    assert "landmark error" in cap.err and "no longer follows" in cap.err
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "p.npz"), "--avatar", str(avatar))
+    assert code == 0, cap.err
+    assert "landmark error" in cap.err and "no longer follows" not in cap.err
