@@ -38,6 +38,13 @@ def scene():
     the current hair is the cap's front-top only (what one frontal view grows); keyframes
     from the front (reference), 60 degrees to either side and 120 degrees (behind the ear),
     labelled from the truth."""
+    return _cap_scene(R_HAIR, 120.0)
+
+
+def _cap_scene(r_hair: float, behind: float):
+    """(sdf, bald, truth, current, views): the head sphere, a true hair cap of radius r_hair over
+    the top and the back, the current hair its front-top only, and keyframes from the front
+    (reference), 60 degrees either side and `behind` degrees, labelled from the truth."""
     import trimesh
 
     from avatarkit.head.sdf_grid import HeadSDF
@@ -46,12 +53,12 @@ def scene():
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=R_HEAD)
     sdf = HeadSDF.build(mesh.vertices, mesh.faces, spacing=0.004)
     bald = _shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
-    truth = _shell(R_HAIR, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2, True)
+    truth = _shell(r_hair, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2, True)
     current = truth.subset((truth.means[:, 2] > -0.01) & (truth.means[:, 1] > 0.02))
     union = GaussianSet.concat([bald, truth.replace(extras={})])
     part = np.r_[np.full(len(bald), SKIN), np.full(len(truth), HAIR)].astype(np.int32)
     views = []
-    for k, az in enumerate((0.0, 60.0, -60.0, 120.0)):
+    for k, az in enumerate((0.0, 60.0, -60.0, behind)):
         cam = Camera.orbit(np.zeros(3), az, 10.0, 0.5, 35.0, SIZE, SIZE)
         image = (np.clip(render(union, cam, background=(1.0, 1.0, 1.0)).rgb, 0, 1) * 255).round().astype(np.uint8)
         labels = render_label_images(union, part, [cam], n_labels=4)[0]
@@ -129,24 +136,7 @@ def thin_scene():
     hair its front-top only; keyframes from the front (reference), 60 degrees either side and 100
     degrees (behind the ear). The bald sphere covers nearly all of the cap's pixels: the side
     views show the cap's hair over covered scalp, not beyond the outline."""
-    from avatarkit.head.sdf_grid import HeadSDF
-    from avatarkit.recon.label_lifting import render_label_images
-    import trimesh
-
-    mesh = trimesh.creation.icosphere(subdivisions=3, radius=R_HEAD)
-    sdf = HeadSDF.build(mesh.vertices, mesh.faces, spacing=0.004)
-    bald = _shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
-    truth = _shell(R_THIN, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2, True)
-    current = truth.subset((truth.means[:, 2] > -0.01) & (truth.means[:, 1] > 0.02))
-    union = GaussianSet.concat([bald, truth.replace(extras={})])
-    part = np.r_[np.full(len(bald), SKIN), np.full(len(truth), HAIR)].astype(np.int32)
-    views = []
-    for k, az in enumerate((0.0, 60.0, -60.0, 100.0)):
-        cam = Camera.orbit(np.zeros(3), az, 10.0, 0.5, 35.0, SIZE, SIZE)
-        image = (np.clip(render(union, cam, background=(1.0, 1.0, 1.0)).rgb, 0, 1) * 255).round().astype(np.uint8)
-        labels = render_label_images(union, part, [cam], n_labels=4)[0]
-        views.append(View(image, cam, labels, 1.0, k, k == 0))
-    return sdf, bald, truth, current, views
+    return _cap_scene(R_THIN, 100.0)
 
 
 def test_bare_scalp_grows_the_thin_cap_and_nothing_over_the_face(thin_scene, monkeypatch):
