@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from avatarkit.render.camera import Camera
-from avatarkit.rotations import axis_angle_to_matrix
+from avatarkit.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 
 _C = np.diag([1.0, -1.0, -1.0])
 
@@ -124,24 +124,14 @@ def pose_matrix(rotation, translation) -> np.ndarray:
     return a
 
 
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()
-
-
-def _exp(w: np.ndarray) -> np.ndarray:
-    return axis_angle_to_matrix(np.asarray(w, np.float64)).astype(np.float64)
-
-
 def apply_delta(rotation, translation, delta: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The pose moved by delta (6,) (w: a turn (axis-angle) about `centre` (3,), view frame;
     d: then a shift): R' = exp(w) R, t' = exp(w) (t - centre) + centre + d."""
-    E = _exp(delta[:3])
-    R = _exp(rotation)
+    E = axis_angle_to_matrix(delta[:3])
+    R = axis_angle_to_matrix(rotation)
     t = np.asarray(translation, np.float64)
     c = np.asarray(centre, np.float64)
-    return _rotvec(E @ R), E @ (t - c) + c + np.asarray(delta[3:6], np.float64)
+    return matrix_to_axis_angle(E @ R), E @ (t - c) + c + np.asarray(delta[3:6], np.float64)
 
 
 class PoseRefiner:
@@ -418,7 +408,7 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
     delta = np.zeros(6)
     before = None
     for _ in range(max(1, iterations)):
-        E = _exp(delta[:3])
+        E = axis_angle_to_matrix(delta[:3])
         turned = (P - c) @ E.T
         X = turned + c + delta[3:]
         uv, J = project(X, camera)
@@ -436,9 +426,9 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
         H += ridge * np.trace(H) / 6.0 * np.eye(6)
         step = -np.linalg.solve(H, g)
         # compose: the turn's increment is applied after E (left), the shift adds
-        delta[:3] = _rotvec(_exp(step[:3]) @ E)
+        delta[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
         delta[3:] = delta[3:] + step[3:]
-    E = _exp(delta[:3])
+    E = axis_angle_to_matrix(delta[:3])
     uv, _ = project((P - c) @ E.T + c + delta[3:], camera)
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
 
