@@ -131,3 +131,24 @@ def test_library_raises_format_error_with_path(tmp_path):
     bad.write_bytes(b"ply\nformat ascii 1.0\n")
     with pytest.raises(FormatError, match=str(bad)):
         inspect_file(bad)
+
+
+def test_inspect_a_crate_that_fails_while_its_prims_are_read(capsys, tmp_path, monkeypatch):
+    """The fuzz long run's find (session 14): a damaged crate opened, then USD raised while
+    `inspect` counted an attribute's time samples; one line, exit 2, naming the file."""
+    from pxr import Tf
+
+    from avatarkit.export import usd_stage
+    from avatarkit.gaussians.usd import save_usd
+
+    path = tmp_path / "s.usdc"
+    save_usd(path, random_gaussians(6, seed=1))
+
+    def damaged(prim):
+        raise Tf.ErrorException("Failed verification: ' !propName.IsEmpty() '")
+
+    monkeypatch.setattr(usd_stage, "_max_samples", damaged)
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "s.usdc" in err[0] \
+        and "not a readable USD file" in err[0], err

@@ -58,7 +58,7 @@ import numpy as np
 from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdUtils, UsdVol, Vt
 
 from avatarkit.baked import BakeFrame, BakeStatic, StreamingWriter, check_fps
-from avatarkit.errors import AvatarKitError, InputError, OutputError, last_line
+from avatarkit.errors import AvatarKitError, FormatError, InputError, OutputError, last_line
 from avatarkit.fileio import make_temp_folder, write_failed
 from avatarkit.gaussians.usd import USD_EXTENSIONS, validate_stage
 from avatarkit.gaussians.usd_prims import (PointsPrimWriter, SplatPrimWriter, bounding_box, check_frame_arrays,
@@ -581,10 +581,19 @@ def inspect_usd(path: Path):
     """Summary of any USD file: stage metadata, time range, value clips, and the geometry prims
     (type, element count, time-sample count, extent at the first frame); splat prims add their
     SH degree and precision. Works for bake stages and `avatarkit convert`'s files alike."""
-    from avatarkit.inspect import ByteCount, Summary
-
     path = Path(path)
     stage = open_usd_stage(path)
+    try:
+        return _summarise(path, stage)
+    except Tf.ErrorException as e:
+        # a damaged crate opens and fails only when a value or its sample count is read (found by
+        # the fuzz tests' long run)
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
+
+
+def _summarise(path: Path, stage: Usd.Stage):
+    from avatarkit.inspect import ByteCount, Summary
+
     s = Summary("USD stage", str(path))
     s.add("format", _describe_format(path)).add("file size", ByteCount(path.stat().st_size))
     s.add("up axis", str(UsdGeom.GetStageUpAxis(stage))).add("meters per unit", UsdGeom.GetStageMetersPerUnit(stage))

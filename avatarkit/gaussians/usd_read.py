@@ -17,6 +17,7 @@ from pxr import Sdf, Tf, Usd, UsdGeom, UsdVol
 from avatarkit.errors import AvatarKitError, FormatError, InputError, last_line
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.gaussians.sh import SH_COUNTS
+from avatarkit.gaussians.usd_probe import probe_usd_file
 from avatarkit.gaussians.usd_prims import ATTRIBUTE_NAMES, SH_DEGREE_ATTR, Y_TO_Z, check_prim_path, stage_up_axis
 from avatarkit.native_output import native_stderr_as_warnings
 
@@ -177,12 +178,20 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
 
 def open_usd_stage(path: str | os.PathLike) -> Usd.Stage:
     """The USD stage of `path`, fully loaded; FormatError/InputError naming the file when it
-    is missing or unreadable (USD's own complaints about missing references become warnings)."""
+    is missing or unreadable (USD's own complaints about missing references become warnings).
+    Binary files are read once in a child process first (`usd_probe`): one that crashes USD's
+    reader is a FormatError here instead of a crash."""
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path)
+    probe_usd_file(path)  # a damaged crate can crash USD's reader: learn that in a child process
     try:
         with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+            held = Sdf.Layer.Find(str(path))
+            if held is not None:
+                # USD's layer registry hands back a layer still alive as it was first read: a file
+                # rewritten since reads stale, and one cut shorter crashes reading the old mapping
+                held.Reload(force=True)
             stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
         raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
