@@ -9,18 +9,21 @@ with them (`rig.binding`): a pink and dark-red sheet between the lips, nothing b
 `open_mouth` does two things, both from the model's geometry and skinning weights (never vertex
 ids, so a FLAME-compatible model works the same way):
 
-1. Parting the lips. The faces whose area grows with the jaw (posed at `PROBE_JAW` rad: area
-   ratio above `STRETCH`) carry no Gaussians: each Gaussian on one is bound instead to the
-   nearest face that does not stretch on its own side of the mouth (its face's jaw weight above
-   or below 0.5). At rest nothing moves (the Gaussian keeps its place; only its host changes).
+1. Parting the lips. The lips' and mouth interior's faces whose area grows with the jaw (posed
+   at `PROBE_JAW` rad: area ratio above `STRETCH`) carry no Gaussians: each Gaussian on one is
+   bound instead to the nearest face that does not stretch on its own side of the mouth (its
+   face's jaw weight above or below 0.5). At rest nothing moves (the Gaussian keeps its place;
+   only its host changes).
 2. Teeth and cavity. An upper and a lower row of flat Gaussians along a parabolic arch behind the
    lips' crease (the front teeth `TEETH_BEHIND` behind the deepest point of the mouth interior
-   on the midline), and a dark wall `CAVITY_BEHIND` further back; the upper row and the upper
-   half of the wall ride faces skinned to the skull (jaw weight ~0), the lower ones faces skinned
-   to the jaw (~1), so nothing of them stretches. Each half of the wall reaches past the mouth
-   line into the other jaw's side (`CAVITY_REACH` eye distances), so the two overlap up to a wide
-   opening. Only Gaussians at least `INSIDE_MARGIN` inside the rest head (its signed distance)
-   are kept: hidden behind the closed lips at rest from every side.
+   on the midline; heights from the lips' inner edges, `UPPER_SHOW`, `LOWER_HIDE`), and a
+   mouth-coloured wall `CAVITY_BEHIND` further back; the upper row and the upper half of the
+   wall ride faces that stay with the skull when the jaw opens, the lower ones faces that move
+   rigidly with the jaw (`rigid_faces`: measured by posing the model, pose correctives
+   included), so nothing of them stretches. Each half of the wall reaches past the mouth line
+   into the other side (`CAVITY_REACH_*` eye distances, leaning back `CAVITY_LEAN`), so the two
+   overlap up to a wide opening. Only Gaussians at least `INSIDE_MARGIN` (`TEETH_MARGIN`) inside
+   the rest head (its signed distance) are kept: hidden behind the closed lips at rest.
 
 Colour: the photo's teeth when it shows them (`photo_teeth_colour`: bright, unsaturated pixels
 inside the inner-lip landmarks), else `TEETH_RGB`; shaded darker toward the back of the arch.
@@ -48,10 +51,16 @@ TEETH_BEHIND = 0.004
 LOWER_BEHIND = 0.0015
 #: the cavity wall this far (m) behind the teeth
 CAVITY_BEHIND = 0.006
-#: teeth heights (m) around the mouth line: each row reaches past it (at rest into the other lip,
-#: hidden there), so it shows below the upper lip / above the lower one when the mouth opens
-UPPER_SPAN = (-0.0015, 0.008)
-LOWER_SPAN = (-0.007, 0.001)
+#: teeth heights. The upper row from UPPER_SHOW below the upper lip's inner edge (the lowest
+#: point of the mouth's skull-side vertices on the midline: what stays of the lip when the jaw
+#: drops) up to UPPER_TOP above the mouth line: that band shows under the upper lip when the
+#: mouth opens. The lower row from LOWER_BOTTOM up to LOWER_HIDE below the lower lip's inner edge
+#: (the highest jaw-side vertex): the lower teeth hide behind the lower lip, as in the clips. A
+#: lower row level with the lip's edge showed a bright band 3 mm high (seen from the camera's
+#: height over a jaw tilted down) filling the half-open mouth where the clips show a dark one
+#: (grey, jaw 0.1-0.2 rad: -1.0 to -1.6 dB in the mouth box)
+UPPER_SHOW, UPPER_TOP = 0.0025, 0.008
+LOWER_HIDE, LOWER_BOTTOM = 0.002, -0.010
 #: half the arch's width and how far back its ends are, in eye distances
 ARCH_HALF = 0.30
 ARCH_BACK = 0.15
@@ -85,11 +94,15 @@ class MouthGeometry:
     """Where the mouth is on a rest head (metres, the model's frame: +Y up, face toward +Z).
 
     centre: (3,) the mouth line's point on the midline at the teeth's front; u: eye distance;
-    half_width: half the lips' width."""
+    half_width: half the lips' width; upper_edge, lower_edge: the upper lip's lowest and the
+    lower lip's highest point on the midline, relative to the mouth line (the template: about
+    +-2 mm, the lip crease)."""
 
     centre: np.ndarray
     u: float
     half_width: float
+    upper_edge: float = 0.002
+    lower_edge: float = -0.002
 
 
 def mouth_geometry(model, vertices: np.ndarray) -> MouthGeometry | None:
@@ -110,7 +123,15 @@ def mouth_geometry(model, vertices: np.ndarray) -> MouthGeometry | None:
     y = float(np.median(v[inner, 1]))
     z = float(v[near, 2].min()) - TEETH_BEHIND
     half = float(np.abs(v[lips, 0] - mid_x).max())
-    return MouthGeometry(np.array([mid_x, y, z]), u, half)
+    from avatarkit.face.fit import JAW_JOINT
+
+    mid = (inner | lips) & (np.abs(v[:, 0] - mid_x) < 0.05 * u)
+    jaw = (np.asarray(model.weights[:, JAW_JOINT]) >= 0.5) if model.weights.shape[1] > JAW_JOINT \
+        else np.zeros(len(v), bool)
+    up, low = mid & ~jaw, mid & jaw
+    upper = float(v[up, 1].min()) - y if up.any() else 0.002
+    lower = float(v[low, 1].max()) - y if low.any() else -0.002
+    return MouthGeometry(np.array([mid_x, y, z]), u, half, upper, lower)
 
 
 def posed_rest(model, shape: np.ndarray, jaw: float) -> np.ndarray:
@@ -310,12 +331,14 @@ def teeth_and_cavity(model, vertices: np.ndarray, shape: np.ndarray, sdf=None, t
     cav_half = max(geo.half_width, half)
     parts = []
     up, low = CAVITY_REACH_UPPER * geo.u, CAVITY_REACH_LOWER * geo.u
+    upper_span = (min(geo.upper_edge - UPPER_SHOW, 0.0), UPPER_TOP)
+    lower_span = (LOWER_BOTTOM, min(geo.lower_edge - LOWER_HIDE, 0.0))
     #  (y span, back, half width, lower jaw?, part, reach)
     for span, back, hw, lower, part, reach in (
-            (UPPER_SPAN, 0.0, half, False, PART_TEETH, 0.0),
-            (LOWER_SPAN, LOWER_BEHIND, half, True, PART_TEETH, 0.0),
-            ((-up, UPPER_SPAN[1]), CAVITY_BEHIND, cav_half, False, PART_MOUTH, up),
-            ((LOWER_SPAN[0], low), CAVITY_BEHIND + 0.5 * SPACING, cav_half, True, PART_MOUTH, low)):
+            (upper_span, 0.0, half, False, PART_TEETH, 0.0),
+            (lower_span, LOWER_BEHIND, half, True, PART_TEETH, 0.0),
+            ((-up, UPPER_TOP), CAVITY_BEHIND, cav_half, False, PART_MOUTH, up),
+            ((LOWER_BOTTOM, low), CAVITY_BEHIND + 0.5 * SPACING, cav_half, True, PART_MOUTH, low)):
         pts, nrm, side, y = _sheet(geo, hw, span, back)
         if part == PART_MOUTH:
             # lens-shaped: the far half of each wall narrows toward the corners
