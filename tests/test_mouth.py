@@ -106,3 +106,24 @@ def test_photo_teeth_colour():
     img[40:50, 25:75] = (230, 225, 210)                          # teeth showing
     np.testing.assert_allclose(mouth.photo_teeth_colour(img, poly), np.array([230, 225, 210]) / 255, atol=0.01)
     assert mouth.photo_teeth_colour(img, None) is None
+
+
+@pytest.mark.slow
+def test_build_with_the_open_mouth_round_trips(tmp_path, monkeypatch):
+    """pipeline.OPEN_MOUTH on the sample portrait: the teeth and cavity are saved as bald
+    Gaussians with their binding and come back from the avatar folder."""
+    from pathlib import Path
+
+    from avatarkit.avatar import load_avatar
+    from avatarkit.recon import pipeline
+
+    monkeypatch.setattr(pipeline, "OPEN_MOUTH", True)
+    sample = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
+    options = pipeline.BuildOptions(n_bald=6000, n_hair=5000, cage_vertices=200, preview=False)
+    avatar = pipeline.build_avatar(sample, options)
+    info = avatar.provenance["build"]["mouth"]
+    assert info["teeth"] > 300 and info["cavity"] > 1000
+    loaded = load_avatar(pipeline.save_avatar(avatar, tmp_path / "av"))
+    assert len(loaded.bald) == 6000 + avatar.provenance["build"]["coverage"]["bald_added"] \
+        + info["teeth"] + info["cavity"]
+    np.testing.assert_array_equal(loaded.bald.extras["binding"], avatar.bald.extras["binding"])
