@@ -305,7 +305,8 @@ def _mouth_sdf(v: np.ndarray, faces: np.ndarray, geo: MouthGeometry):
     return HeadSDF.build(v[used], local.reshape(-1, 3), spacing=SDF_SPACING, margin=0.005)
 
 
-def teeth_and_cavity(model, vertices: np.ndarray, shape: np.ndarray, sdf=None, teeth_rgb=None) -> tuple[GaussianSet, np.ndarray, dict]:
+def teeth_and_cavity(model, vertices: np.ndarray, shape: np.ndarray, sdf=None,
+                     teeth_rgb=None) -> tuple[GaussianSet, np.ndarray, dict]:
     """The teeth and cavity Gaussians at rest (module docstring) -> (GaussianSet, host faces (P,)
     int64, info); an empty set when the model has no mouth regions or jaw weights.
 
@@ -406,5 +407,5 @@ def open_mouth(model, vertices: np.ndarray, shape: np.ndarray, bald: GaussianSet
     return out.replace(extras=extras), info
 
 
-__all__ = ["INNER_LIPS", "MouthGeometry", "inner_lips", "open_mouth", "part_lips", "photo_teeth_colour", "stretching_faces",
-           "teeth_and_cavity", "mouth_geometry"]
+__all__ = ["INNER_LIPS", "MouthGeometry", "inner_lips", "mouth_geometry", "open_mouth", "part_lips",
+           "photo_teeth_colour", "rigid_faces", "stretching_faces", "teeth_and_cavity"]
