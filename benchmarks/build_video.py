@@ -5,7 +5,8 @@ Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip
 [--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
 [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
 `recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
-two session-12 options, both off by default
+two session-12 options, both off by default; `AVATARKIT_OPEN_MOUTH=0|1` the teeth and parted lips
+(`recon.mouth`, session 14, off)
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -80,6 +81,9 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     # the lifter's hair end from the turned keyframes (`recon.hair_end`)
     if os.environ.get("AVATARKIT_HAIR_END") in ("0", "1"):
         pipeline.HAIR_END_FROM_VIEWS = os.environ["AVATARKIT_HAIR_END"] == "1"
+    # teeth, cavity and parted lips (`recon.mouth`, off by default)
+    if os.environ.get("AVATARKIT_OPEN_MOUTH") in ("0", "1"):
+        pipeline.OPEN_MOUTH = os.environ["AVATARKIT_OPEN_MOUTH"] == "1"
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()

@@ -86,6 +86,9 @@ FACING_REFINE = False
 #: Gaussians on the photo's head pixels the assembled avatar leaves uncovered in the input view
 #: (`recon.coverage`), before the colour matching
 COVER_SILHOUETTE = True
+#: teeth and a mouth cavity behind the lips, and lips that part instead of stretching across the
+#: opening (`recon.mouth`; docs/building.md "The open mouth", session 14)
+OPEN_MOUTH = False
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512
 
@@ -458,6 +461,14 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald, hair, figures = refine_facing(bald, hair, keyviews,
                                                 sdf.query(np.concatenate([bald.means, hair.means]))[1], keep)
             report.info["facing_refine"] = {**figures, "seconds": round(time.perf_counter() - t0, 3)}
+        if OPEN_MOUTH:
+            # after the colour matching: hidden at rest, the teeth would only soak up the
+            # residual of the lips in front of them
+            from avatarkit.recon.mouth import inner_lips, open_mouth, photo_teeth_colour
+
+            teeth_rgb = photo_teeth_colour(image, inner_lips(analysis.mesh))
+            bald, report.info["mouth"] = open_mouth(fit.model, fit.rest_vertices, fit.shape, bald,
+                                                    teeth_rgb=teeth_rgb)
     with stage("hair_rig"):
         if len(hair) == 0:  # a bald person: nothing to cage or rig
             mode = "none"
