@@ -166,21 +166,31 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
               f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
 
 
-def refine_columns(frames: int, size: int, avatar_dir: str, every=(1,), jaw_every=(1, 3),
-                   first_round: bool = False) -> None:
+# `refine_columns`' runs: (label, refine every k-th frame (0: the tracker alone), photometric.
+# Settings fields); "jaw": `refine="photometric-jaw"`
+REFINE_RUNS = (("tracker", 0, {}),
+               ("refined every 1 (session 13: the pose)", 1, {}),
+               ("refined every 1, render depth", 1, dict(render_depth=True)),
+               ("refined every 1, with the jaw", 1, dict(jaw=True)),
+               ("refined every 1, with the jaw, render depth", 1, dict(jaw=True, render_depth=True)),
+               ("refined every 1, with the jaw, render depth, 3 passes", 1, dict(jaw=True, render_depth=True, iterations=3)),
+               ("refined every 3, with the jaw, render depth", 3, dict(jaw=True, render_depth=True)))
+
+
+def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
     """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
-    "photometric")`, `track.photometric`; refining every k-th frame for k in `every`; with the
-    jaw's opening (`refine="photometric-jaw"`) every k-th frame for k in `jaw_every`; with
-    `first_round` every frame with the first round's settings `photometric.SESSION13`: session
-    13's speed baseline), in this process, on the avatar's mixed-clip video as rendered and
-    mirrored. The mirrored video is
+    "photometric")`, `track.photometric`), each of `runs` (`REFINE_RUNS`: with the jaw's opening
+    (`refine="photometric-jaw"`), the points from the render's depth, fewer passes, every k-th
+    frame; `photometric.SESSION13` as settings: session 13's first round, its speed baseline),
+    in this process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored
+    video is
     refined against the avatar as it is (not mirrored): a face that is not quite the avatar's,
     as on a real clip. The template-head videos have no avatar to render: not refined."""
     from avatarkit.avatar import load_avatar
     from avatarkit.synthetic.head_video import SyntheticFrame, avatar_video, head_video_camera
     from avatarkit.track import TrackOptions, track_frames
     from avatarkit.track.neck import head_rotation
-    from avatarkit.track.photometric import SESSION13, PoseRefiner, Settings
+    from avatarkit.track.photometric import PoseRefiner, Settings
 
     clip = mixed_clip(frames, 30.0)
     camera = head_video_camera(size, distance=0.55)
@@ -195,9 +205,6 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1,), jaw_ever
     for view, frames_in, truth in (("as rendered", video, true_head),
                                    ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
         meshes = None
-        runs = [("tracker", 0, {})] + ([("refined every 1, first-round settings", 1, SESSION13)] if first_round else []) + \
-            [(f"refined every {k}", k, {}) for k in every] + \
-            [(f"refined every {k}, with the jaw", k, dict(jaw=True)) for k in jaw_every]
         for label, k, settings in runs:
             options = TrackOptions(refine=("photometric-jaw" if settings.get("jaw") else "photometric") if k else None,
                                    refine_every=max(k, 1))

@@ -41,6 +41,15 @@ that far from it costs as much as one pixel's error on every point used), so an 
 frame barely shows does not run away. A pass whose opening changed re-poses the head's Gaussians
 (`posed`) and turns them to the frame's starting pose (the hair's turn is kept: `_returned`).
 
+Why a pass recovered only ~2/3 of the turn (session 14, `Settings.render_depth`): the 3D
+points came from the head mesh, while the image the flow follows is the splats', whose surface
+sits off the mesh (portrait build: a median 1.6 mm, more at the hairline and the outline). The
+parallax that tells a turn from a shift is read with the wrong depths. With each pixel's point
+taken from the render's own depth (`render_moved(depth=True)`, `unproject`; the mesh raster still
+gives the face-and-scalp weight and the jaw's derivative), one pass from 2.7 deg off lands 0.50
+deg off instead of 0.99 (with the true image motion in place of the flow: 0.17 / 0.08; the
+flow's gain against the true motion is ~1 everywhere, so it is not the flow's scale).
+
 `refine_reference` (the slow obvious reference): a pattern search (`register.pattern_search`)
 over the same 6 parameters on the mean squared colour difference between the render (over the
 frame) and the frame inside the face region of the starting pose, dilated (with the jaw: over
@@ -85,7 +94,10 @@ class Settings:
     landmark fit's) with the pose (module docstring, "The jaw"); jaw_sigma: its prior toward the
     landmark fit's opening (radians): an opening that far from it costs as much as one pixel's
     error on every point used; jaw_tolerance: with the jaw, a pass also stops the refinement
-    only when the opening changes less than this (radians)."""
+    only when the opening changes less than this (radians).
+    render_depth: each pixel's 3D point from the render's own depth (the splats' expected
+    depth) instead of the head mesh's raster (which still gives the face weight and the jaw's
+    derivative): module docstring, "Why a pass recovered only ~2/3"."""
 
     size: int = 224
     supersample: int = 2
@@ -101,6 +113,7 @@ class Settings:
     crop_margin: int | None = None
     jaw: bool = False
     jaw_sigma: float = 0.3
+    render_depth: bool = False
     jaw_tolerance: float = 2e-3
 
 
@@ -235,22 +248,24 @@ class PoseRefiner:
         return (out[0] - out[1]) / (2.0 * step)
 
     def render(self, person, rotation, translation, frame_small: np.ndarray,
-               camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)) of the posed
-        `person` turned and shifted by the pose (the obvious way: every Gaussian moved), seen by
-        `camera` (a `crop_camera`; None: the small camera), `frame_small` its size."""
+               camera: Camera | None = None, depth: bool = False):
+        """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)[, depth (h, w)]) of
+        the posed `person` turned and shifted by the pose (the obvious way: every Gaussian
+        moved), seen by `camera` (a `crop_camera`; None: the small camera), `frame_small` its
+        size."""
         from avatarkit.track.subject_calibration import _turned
 
         return self.render_moved(_turned(person, self.axis, pose_matrix(rotation, translation)), np.eye(4),
-                                 frame_small, camera)
+                                 frame_small, camera, depth)
 
     def render_moved(self, moved, change: np.ndarray, frame_small: np.ndarray,
-                     camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     camera: Camera | None = None, depth: bool = False):
         """`render` of Gaussians `moved` (already turned to a pose a0, view frame) at the pose
         change @ a0, change (4, 4): the camera moves by the inverse change instead of the
         Gaussians (the same image up to the hair's twist: `_turned` turns a principal-axis
         hair Gaussian by the shortest arc, which a composition of turns does only to second
-        order)."""
+        order). depth: also the splats' expected camera depth (h, w) (alpha-weighted, area-
+        averaged as the colours are, divided by the alpha: 0 where nothing is drawn)."""
         from avatarkit.render import render
 
         import cv2
@@ -262,13 +277,17 @@ class PoseRefiner:
         w2c[:3, :3] = _C
         big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height, w2c @ np.asarray(change, np.float64))
         r = render(moved, big, (0.0, 0.0, 0.0))
-        rgb, alpha = r.rgb, r.alpha
+        rgb, alpha, z = r.rgb, r.alpha, r.depth
         if k > 1:
             size = (cam.width, cam.height)
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             alpha = cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
+            z = cv2.resize(z, size, interpolation=cv2.INTER_AREA) if depth else z
         a = np.clip(alpha, 0.0, 1.0)[..., None]
-        return np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32), alpha
+        comp = np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32)
+        if not depth:
+            return comp, alpha
+        return comp, alpha, np.where(alpha > 1e-3, z / np.maximum(alpha, 1e-3), 0.0)
 
     def box(self, vertices: np.ndarray, rotation, translation, margin: int) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1): the small camera's pixels holding the face-and-scalp mesh at the
@@ -355,14 +374,19 @@ class PoseRefiner:
                 x0, y0, x1, y1 = self.box(verts, rot, tr, int(s.crop_margin))
                 cam, tgt = self.crop_camera((x0, y0, x1, y1)), target[y0:y1, x0:x1]
             if s.move_camera:
-                comp, alpha = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam)
+                drawn_ = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam, s.render_depth)
             else:
-                comp, alpha = self.render(person, rot, tr, tgt, cam)
+                drawn_ = self.render(person, rot, tr, tgt, cam, s.render_depth)
+            comp, alpha = drawn_[:2]
             renders += 1
             if s.jaw:
                 X, w, dX = self.points(verts, rot, tr, cam, self.jaw_derivative(jaw_now, expr, eyes), self.jaw_weight)
             else:
                 X, w = self.points(verts, rot, tr, cam)
+            if s.render_depth:
+                # the surface the image shows is the splats', not the mesh's (a few mm off it,
+                # more at the hairline): its depth sets the parallax the turn is read from
+                X = unproject(drawn_[2], cam)
             keep = (w > 0.5) & (alpha > 0.5)
             flow, ok = consistent_flow(comp, tgt, s.fb_tolerance)
             keep &= ok
@@ -478,6 +502,16 @@ def project(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]
     return uv, J @ _C
 
 
+def unproject(depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """(h, w, 3) view-frame points of each pixel centre of `camera` (the tracker's) at camera
+    depth `depth` (h, w) (positive, in front): `project`'s inverse."""
+    h, w = depth.shape
+    gx, gy = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    z = np.asarray(depth, np.float64)
+    pc = np.stack([(gx - camera.cx) * z / camera.fx, (gy - camera.cy) * z / camera.fy, z], -1)
+    return pc @ _C.T                                                  # _C is its own inverse
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """(N, 3, 3) cross-product matrices of v (N, 3)."""
     S = np.zeros((len(v), 3, 3))
@@ -546,4 +580,4 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
 
 
 __all__ = ["PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
-           "solve_pose_delta", "view_camera"]
+           "solve_pose_delta", "unproject", "view_camera"]
