@@ -302,3 +302,29 @@ def test_unproject_inverts_project_and_the_render_depth_lies_on_the_head(scene):
                                   ph.Settings(size=SIZE, iterations=6, render_depth=True))
     out = depth_points.refine(frame, r0, t0, *scene["nonrigid"])
     assert _angle(out.rotation, rot) < 0.5 and np.linalg.norm(out.translation - tr) < 0.002
+
+
+def test_rejawed_draws_what_posing_and_turning_every_gaussian_does(scene):
+    """A pass's new opening re-poses only the Gaussians the jaw moves (`rejawed`): the same
+    Gaussians, to float32 rounding, as posing the whole avatar at it and turning it
+    (`posed`, `_turned`: the obvious way); the ones it leaves are exactly those that do not move."""
+    from avatarkit.track.subject_calibration import _turned
+
+    refiner = scene["refiner"]
+    jaw, expr, eyes = scene["nonrigid"]
+    r0, t0 = scene["start"]
+    a0 = ph.pose_matrix(r0, t0)
+    person, _ = refiner.posed(jaw, expr, eyes)
+    moved = _turned(person, refiner.axis, a0)
+    other = jaw + np.array([0.09, 0.0, 0.0])
+    fast, verts = refiner.rejawed(moved, other, expr, eyes, a0)
+    slow_person, slow_verts = refiner.posed(other, expr, eyes)
+    slow = _turned(slow_person, refiner.axis, a0)
+    assert np.allclose(verts, slow_verts, atol=1e-7)
+    for name in ("means", "quats", "scales"):
+        assert np.abs(getattr(fast, name) - getattr(slow, name)).max() < 2e-6, name
+    ids, _ = refiner._jaw_part()
+    still = np.ones(len(moved), bool)
+    still[ids] = False
+    assert 0 < len(ids) < len(refiner.avatar.bald)
+    assert np.array_equal(moved.means[still], slow.means[still])

@@ -38,8 +38,9 @@ so the lips and chin, skinned to the jaw joint, move with it and the rest does n
 inside (`mouth_interior`) is left out of the points (a poor model: dark discs where the lips
 part). A quadratic prior pulls the opening toward the landmark fit's (`jaw_sigma`: an opening
 that far from it costs as much as one pixel's error on every point used), so an opening the
-frame barely shows does not run away. A pass whose opening changed re-poses the head's Gaussians
-(`posed`) and turns them to the frame's starting pose (the hair's turn is kept: `_returned`).
+frame barely shows does not run away. A pass whose opening changed re-poses the Gaussians the
+jaw moves (~1/6 of them) and turns them to the frame's starting pose (`rejawed`; the rest, the
+hair included, keep their turn).
 
 Why a pass recovered only ~2/3 of the turn (session 14, `Settings.render_depth`): the 3D
 points came from the head mesh, while the image the flow follows is the splats', whose surface
@@ -200,6 +201,7 @@ class PoseRefiner:
         if "mouth_interior" in self.model.regions:
             jw[self.model.regions["mouth_interior"]] = 0.0
         self.jaw_weight = jw
+        self._jaw_ids = None
         self._key = None
         self._posed = None
 
@@ -364,9 +366,10 @@ class PoseRefiner:
         n, res, renders = 0, float("nan"), 0
         for _ in range(s.iterations):
             if s.jaw and not np.array_equal(drawn, jaw_now):
-                person, verts = self.posed(jaw_now, expr, eyes)
                 if s.move_camera:
-                    moved = self._returned(moved, person, a0)
+                    moved, verts = self.rejawed(moved, jaw_now, expr, eyes, a0)
+                else:
+                    person, verts = self.posed(jaw_now, expr, eyes)
                 drawn = jaw_now.copy()
             if s.crop_margin is None:
                 x0, y0, cam, tgt = 0, 0, self.camera, target
@@ -412,19 +415,38 @@ class PoseRefiner:
                 break
         return Refinement(rot, tr, renders, n, res, float("nan") if first is None else first, jaw_now)
 
-    def _returned(self, moved, person, a0: np.ndarray):
-        """`moved` (the posed avatar turned by a0 (4, 4), `_turned`) with its head's Gaussians
-        (the first len(bald): the jaw moves only those) taken from `person` turned by a0: the
-        hair's turn is kept (it does not follow the jaw)."""
-        from avatarkit.track.subject_calibration import _turned
+    def _jaw_part(self) -> tuple[np.ndarray, object]:
+        """(indices (M,) of the head's Gaussians the jaw's opening moves: those on a triangle
+        with a vertex that moves (the jaw's skinning or its pose correctives), their binding)."""
+        if self._jaw_ids is None:
+            zeros = np.zeros(3)
+            v = [self.model.forward(self._params(np.array([j, 0.0, 0.0]), zeros, np.zeros(6))[1])[0][0]
+                 for j in (0.0, 0.3)]
+            moving = np.any(v[0] != v[1], axis=1)                         # (V,)
+            b = self.avatar.binding
+            self._jaw_ids = np.flatnonzero(moving[np.asarray(b.faces)[np.asarray(b.face_ids)]].any(axis=1))
+            self._jaw_binding = b.subset(self._jaw_ids)
+        return self._jaw_ids, self._jaw_binding
 
-        nb = len(self.avatar.bald)
-        head = person.replace(means=person.means[:nb], quats=person.quats[:nb], scales=person.scales[:nb],
-                              opacities=person.opacities[:nb], sh=person.sh[:nb], extras={})
-        t = _turned(head, None, a0)
-        return moved.replace(means=np.concatenate([t.means, moved.means[nb:]]),
-                             quats=np.concatenate([t.quats, moved.quats[nb:]]),
-                             scales=np.concatenate([t.scales, moved.scales[nb:]]))
+    def rejawed(self, moved, jaw, expr, eyes, a0: np.ndarray):
+        """(`moved` (the avatar posed at another opening and turned by a0 (4, 4), `_turned`)
+        with the Gaussians the jaw moves re-posed at this jaw (3,) and turned by a0; the head
+        vertices (V, 3) at it, zero root pose): what `_turned(posed(jaw, ...)[0], axis, a0)`
+        draws, at the cost of the ~1/6 of the Gaussians that move (a test compares them)."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+        from avatarkit.rig.binding_kernel import binding_to_world
+        from avatarkit.rotations import matrix_to_quat, quat_multiply
+
+        ids, binding = self._jaw_part()
+        v = self.model.forward(self._params(jaw, expr, eyes)[1])[0][0]
+        m, q, sc = binding_to_world(binding, np.ascontiguousarray(v, np.float32))
+        R = a0[:3, :3]
+        means, quats, scales = moved.means.copy(), moved.quats.copy(), moved.scales.copy()
+        means[ids] = (np.asarray(m, np.float64) @ R.T + a0[:3, 3]).astype(np.float32)
+        turn = np.repeat(matrix_to_quat(R)[None], len(ids), 0)
+        quats[ids] = quat_multiply(turn, np.asarray(q, np.float64)).astype(np.float32)
+        scales[ids] = sc
+        return GaussianSet.from_checked(means, quats, scales, moved.opacities, moved.sh), v.astype(np.float64)
 
     # -- the slow obvious reference ------------------------------------------------------------
     def refine_reference(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes,
