@@ -167,14 +167,15 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 
 
 # `refine_columns`' runs: (label, refine every k-th frame (0: the tracker alone), photometric.
-# Settings fields); "jaw": `refine="photometric-jaw"`
+# Settings fields); with "jaw": `refine="photometric-jaw"`. Session 14 also ran: the pose from the
+# render's depth (render_depth=True), the jaw in 3 passes from the mesh's points, the jaw from the
+# render's depth in 4 passes (docs/tracking.md)
+_JAW = dict(jaw=True, render_depth=True, iterations=3)        # tracker.REFINE_SETTINGS["photometric-jaw"]
 REFINE_RUNS = (("tracker", 0, {}),
-               ("refined every 1 (session 13: the pose)", 1, {}),
-               ("refined every 1, render depth", 1, dict(render_depth=True)),
-               ("refined every 1, with the jaw", 1, dict(jaw=True)),
-               ("refined every 1, with the jaw, render depth", 1, dict(jaw=True, render_depth=True)),
-               ("refined every 1, with the jaw, render depth, 3 passes", 1, dict(jaw=True, render_depth=True, iterations=3)),
-               ("refined every 3, with the jaw, render depth", 3, dict(jaw=True, render_depth=True)))
+               ("refined every 1, the pose (photometric, session 13)", 1, {}),
+               ("refined every 1, with the jaw, 4 passes from the mesh's points", 1, dict(jaw=True)),
+               ("refined every 1, photometric-jaw (the jaw, the render's depth, 3 passes)", 1, _JAW),
+               ("refined every 3, photometric-jaw", 3, _JAW))
 
 
 def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:

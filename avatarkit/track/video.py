@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 
 from avatarkit.errors import InputError
-from avatarkit.track.tracker import REFINE_CHOICES, FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
+from avatarkit.track.tracker import REFINE_CHOICES, REFINE_SETTINGS, FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
 
 IDENTITY_FRAMES = 8
 IDENTITY_SECONDS = 3.0
@@ -166,7 +166,7 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
             from avatarkit.track.photometric import PoseRefiner, Settings
 
             focal = float(options.focal) if options.focal else portrait_focal(*size)
-            refiner = PoseRefiner(load_avatar(avatar), focal, size, Settings(jaw=options.refine == "photometric-jaw"))
+            refiner = PoseRefiner(load_avatar(avatar), focal, size, Settings(**REFINE_SETTINGS[options.refine]))
         result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes, refiner)
         result.subject_calibration = calibration
         return result
