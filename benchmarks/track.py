@@ -166,18 +166,32 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
               f"{np.median(t[:, 7]):.3f} rad   targets <= 2 deg, <= 0.05 rad")
 
 
-def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> None:
+# `refine_columns`' runs: (label, refine every k-th frame (0: the tracker alone), photometric.
+# Settings fields); with "jaw": `refine="photometric-jaw"`. Session 14 also ran: the pose from the
+# render's depth (render_depth=True), the jaw in 3 passes from the mesh's points, the jaw from the
+# render's depth in 4 passes (docs/tracking.md)
+_JAW = dict(jaw=True, render_depth=True, iterations=3)        # tracker.REFINE_SETTINGS["photometric-jaw"]
+REFINE_RUNS = (("tracker", 0, {}),
+               ("refined every 1, the pose (photometric, session 13)", 1, {}),
+               ("refined every 1, with the jaw, 4 passes from the mesh's points", 1, dict(jaw=True)),
+               ("refined every 1, photometric-jaw (the jaw, the render's depth, 3 passes)", 1, _JAW),
+               ("refined every 3, photometric-jaw", 3, _JAW))
+
+
+def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
     """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
-    "photometric")`, `track.photometric`; refining every k-th frame for k in `every`, and every
-    frame with the first round's settings `photometric.SESSION13`: the speed baseline), in this
-    process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored video is
+    "photometric")`, `track.photometric`), each of `runs` (`REFINE_RUNS`: with the jaw's opening
+    (`refine="photometric-jaw"`), the points from the render's depth, fewer passes, every k-th
+    frame; `photometric.SESSION13` as settings: session 13's first round, its speed baseline),
+    in this process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored
+    video is
     refined against the avatar as it is (not mirrored): a face that is not quite the avatar's,
     as on a real clip. The template-head videos have no avatar to render: not refined."""
     from avatarkit.avatar import load_avatar
     from avatarkit.synthetic.head_video import SyntheticFrame, avatar_video, head_video_camera
     from avatarkit.track import TrackOptions, track_frames
     from avatarkit.track.neck import head_rotation
-    from avatarkit.track.photometric import SESSION13, PoseRefiner, Settings
+    from avatarkit.track.photometric import PoseRefiner, Settings
 
     clip = mixed_clip(frames, 30.0)
     camera = head_video_camera(size, distance=0.55)
@@ -192,10 +206,9 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
     for view, frames_in, truth in (("as rendered", video, true_head),
                                    ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
         meshes = None
-        runs = [("tracker", 0, {})] + [("refined every 1, first-round settings", 1, SESSION13)] + \
-            [(f"refined every {k}", k, {}) for k in every]
         for label, k, settings in runs:
-            options = TrackOptions(refine="photometric" if k else None, refine_every=max(k, 1))
+            options = TrackOptions(refine=("photometric-jaw" if settings.get("jaw") else "photometric") if k else None,
+                                   refine_every=max(k, 1))
             refiner = PoseRefiner(avatar, camera.fx, (size, size), Settings(**settings)) if k else None
             t0 = time.perf_counter()
             r = track_frames(frames_in, model, shape, (size, size), 30.0, options, meshes=meshes, refiner=refiner)
@@ -204,6 +217,7 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
             rot = [angle_deg(a, b) for a, b in zip(head_rotation(r.clip.rotation, r.clip.neck), truth)]
             jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
             raw = [angle_deg(a, b) for a, b in zip(r.raw["rotation"], truth)]    # before the smoother
+            raw_jaw = np.abs(r.raw["jaw"][:, 0] - clip.jaw[:, 0])
             # translation: the clip's world is the view frame less the median head position, so
             # compare the frame-to-frame motion of the head's root (truth: still)
             tr = r.clip.translation - np.median(r.clip.translation, axis=0)
@@ -215,7 +229,8 @@ def refine_columns(frames: int, size: int, avatar_dir: str, every=(1, 3)) -> Non
                                                      f"{r.refinement['residual_after_px']:.2f} px, "
                                                      f"{r.refinement['renders']:.2f} passes per frame")
             print(f"  {view:11s} {label}: rotation error median {np.median(rot):.2f} deg (p90 "
-                  f"{np.percentile(rot, 90):.2f}; before the smoother {np.median(raw):.2f}), jaw {np.median(jaw):.3f} rad, root wander median "
+                  f"{np.percentile(rot, 90):.2f}; before the smoother {np.median(raw):.2f}), jaw {np.median(jaw):.3f} rad (p90 "
+                  f"{np.percentile(jaw, 90):.3f}; before the smoother {np.median(raw_jaw):.3f}), root wander median "
                   f"{np.median(trn):.1f} mm, landmark error {np.nanmedian(r.landmark_error):.2f} px; track "
                   f"{t_track:.1f} s ({frames / t_track:.2f} frames/s{', face mesh included' if k == 0 else ''}){extra}",
                   flush=True)

@@ -38,9 +38,10 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(["photometric"]), default=None,
+@click.option("--refine", type=click.Choice(["photometric", "photometric-jaw"]), default=None,
               help="With --avatar: refine each frame's head pose against the frame by rendering the "
-              "avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md).")
+              "avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md); photometric-jaw: "
+              "the jaw's opening with it.")
 @click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --refine: refine every k-th frame, interpolate the change between.")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
@@ -82,7 +83,7 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
     if subject_part != "full" and not subject_calibration:
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
     if refine is not None and avatar is None:
-        raise click.UsageError("--refine photometric renders the avatar: it needs --avatar")
+        raise click.UsageError(f"--refine {refine} renders the avatar: it needs --avatar")
     if refine_every != 1 and refine is None:
         raise click.UsageError("--refine-every goes with --refine")
     options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration,

@@ -106,8 +106,9 @@ def test_subject_part_needs_the_subject_calibration(tmp_path, capsys, head_mp4):
 
 
 def test_photometric_refinement_needs_an_avatar(tmp_path, capsys, head_mp4):
-    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine", "photometric")
-    assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
+    for how in ("photometric", "photometric-jaw"):
+        code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine", how)
+        assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine-every", "3")
     assert code == 2 and "--refine" in cap.err and not (tmp_path / "c.npz").exists()
 
@@ -126,3 +127,14 @@ def test_a_refined_track_says_its_landmark_error_is_against_landmarks_it_no_long
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "p.npz"), "--avatar", str(avatar))
     assert code == 0, cap.err
     assert "landmark error" in cap.err and "no longer follows" not in cap.err
+    # photometric-jaw: the jaw's opening moves too (the pose-only refinement leaves the fit's)
+    code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "j.npz"), "--avatar", str(avatar),
+                    "--refine", "photometric-jaw")
+    assert code == 0, cap.err
+    assert "no longer follows" in cap.err
+    from avatarkit.track.io import load_tracking
+
+    plain, pose, jaw = (load_tracking(tmp_path / f"{n}.npz").clip for n in ("p", "r", "j"))
+    np.testing.assert_allclose(pose.jaw, plain.jaw, atol=1e-6)
+    assert np.abs(jaw.jaw[:, 0] - plain.jaw[:, 0]).max() > 1e-3
+    np.testing.assert_allclose(jaw.jaw[:, 1:], plain.jaw[:, 1:], atol=1e-6)

@@ -3,8 +3,9 @@ synthesis), when the avatar the video shows is known (`track --avatar`, `evaluat
 
 The landmark fit (`track.solve`) reads the pose from the face mesh's 468 points, which sit on a
 turned face with a pose-dependent bias (docs/tracking.md). Here the avatar is rendered at the
-frame's tracked parameters and compared with the frame itself; only the rigid pose (rotation,
-translation) moves, the jaw, expression and eyes stay the landmark fit's.
+frame's tracked parameters and compared with the frame itself; the rigid pose (rotation,
+translation) moves, and with `Settings.jaw` the jaw's opening; the rest of the jaw, the
+expression and eyes stay the landmark fit's.
 
 `PoseRefiner.refine` (the fast path), per outer iteration:
 1. render the avatar posed by the frame's parameters at `Settings.size` pixels (longer side),
@@ -30,9 +31,30 @@ flowed, through a `Camera` of that size whose principal point is shifted by the 
 (`crop_camera`: the same pixels as the whole frame's render). `render` (the avatar turned by the
 pose) stays as the obvious version; a test compares the two.
 
+The jaw (`Settings.jaw`, session 14): the jaw's opening (the FLAME jaw pose's first axis) is
+a seventh unknown of the same Gauss-Newton. Each 3D point carries its derivative by the opening
+(`jaw_derivative`: a central difference of the posed head vertices, rasterised with the points,
+so the lips and chin, skinned to the jaw joint, move with it and the rest does not); the mouth's
+inside (`mouth_interior`) is left out of the points (a poor model: dark discs where the lips
+part). A quadratic prior pulls the opening toward the landmark fit's (`jaw_sigma`: an opening
+that far from it costs as much as one pixel's error on every point used), so an opening the
+frame barely shows does not run away. A pass whose opening changed re-poses the Gaussians the
+jaw moves (~1/6 of them) and turns them to the frame's starting pose (`rejawed`; the rest, the
+hair included, keep their turn).
+
+Why a pass recovered only ~2/3 of the turn (session 14, `Settings.render_depth`): the 3D
+points came from the head mesh, while the image the flow follows is the splats', whose surface
+sits off the mesh (portrait build: a median 1.6 mm, more at the hairline and the outline). The
+parallax that tells a turn from a shift is read with the wrong depths. With each pixel's point
+taken from the render's own depth (`render_moved(depth=True)`, `unproject`; the mesh raster still
+gives the face-and-scalp weight and the jaw's derivative), one pass from 2.7 deg off lands 0.50
+deg off instead of 0.99 (with the true image motion in place of the flow: 0.17 / 0.08; the
+flow's gain against the true motion is ~1 everywhere, so it is not the flow's scale).
+
 `refine_reference` (the slow obvious reference): a pattern search (`register.pattern_search`)
 over the same 6 parameters on the mean squared colour difference between the render (over the
-frame) and the frame inside the face region of the starting pose, dilated.
+frame) and the frame inside the face region of the starting pose, dilated (with the jaw: over
+the opening too, without the prior).
 
 Poses are the tracker's view frame (`track.tracker`): X_view = R X_head + t, X_head the head
 model's vertices at zero root pose with the frame's jaw, expression and eyes; the camera is the
@@ -68,7 +90,15 @@ class Settings:
     the crop saves little, a render's cost is its Gaussians', and DIS on the smaller image flows
     differently: mirrored synthetic clip 2.05 -> 2.31 deg at 16 px, docs/tracking.md).
     Until session 13's second round: tolerance 2e-4, shift_tolerance 2e-5, move_camera False,
-    crop_margin None (`SESSION13`)."""
+    crop_margin None (`SESSION13`).
+    jaw: also refine the jaw's opening (FLAME jaw pose, its first axis; the other two stay the
+    landmark fit's) with the pose (module docstring, "The jaw"); jaw_sigma: its prior toward the
+    landmark fit's opening (radians): an opening that far from it costs as much as one pixel's
+    error on every point used; jaw_tolerance: with the jaw, a pass also stops the refinement
+    only when the opening changes less than this (radians).
+    render_depth: each pixel's 3D point from the render's own depth (the splats' expected
+    depth) instead of the head mesh's raster (which still gives the face weight and the jaw's
+    derivative): module docstring, "Why a pass recovered only ~2/3"."""
 
     size: int = 224
     supersample: int = 2
@@ -82,6 +112,10 @@ class Settings:
     ridge: float = 1e-3
     move_camera: bool = True
     crop_margin: int | None = None
+    jaw: bool = False
+    jaw_sigma: float = 0.3
+    render_depth: bool = False
+    jaw_tolerance: float = 2e-3
 
 
 # the first round's settings (every pass turns the Gaussians and renders the whole frame; the
@@ -93,7 +127,8 @@ SESSION13 = dict(tolerance=2e-4, shift_tolerance=2e-5, move_camera=False, crop_m
 class Refinement:
     """rotation (3,) axis-angle and translation (3,) metres: the refined pose (view frame);
     renders: outer iterations run; points: pixels used in the last solve; residual: their
-    median image distance (px at `Settings.size`) after it, before it: `start_residual`."""
+    median image distance (px at `Settings.size`) after it, before it: `start_residual`; jaw
+    (3,): the refined jaw pose (the one given where `Settings.jaw` is off)."""
 
     rotation: np.ndarray
     translation: np.ndarray
@@ -101,6 +136,7 @@ class Refinement:
     points: int
     residual: float
     start_residual: float
+    jaw: np.ndarray | None = None
 
 
 def view_camera(focal: float, size: tuple[int, int], longer: int | None) -> Camera:
@@ -159,28 +195,39 @@ class PoseRefiner:
         if "neck" in self.model.regions:
             weight[self.model.regions["neck"]] = 0.0
         self.vertex_weight = weight
+        # with the jaw: not the mouth's inside either (a poor model: where the lips part the
+        # render shows whatever the avatar put there, dark discs on a portrait's build)
+        jw = weight.copy()
+        if "mouth_interior" in self.model.regions:
+            jw[self.model.regions["mouth_interior"]] = 0.0
+        self.jaw_weight = jw
+        self._jaw_ids = None
         self._key = None
         self._posed = None
 
     # -- the avatar at a frame's non-rigid parameters, root at rest ----------------------------
-    def posed(self, jaw, expr, eyes):
-        """(GaussianSet of the avatar at zero root pose with this jaw (3,), expression (E,) and
-        eyes (6,); head vertices (V, 3) float64)."""
-        from avatarkit.gaussians.gaussian_set import GaussianSet
+    def _params(self, jaw, expr, eyes):
         from avatarkit.head.model import HeadParams
-        from avatarkit.rig.binding_kernel import binding_to_world
 
         E = self.model.num_expr
         ex = np.zeros(E)
         e = np.asarray(expr, np.float64).reshape(-1)[:E]
         ex[:len(e)] = e
+        return ex, HeadParams(expr=ex[None].astype(np.float32), rotation=np.zeros((1, 3), np.float32),
+                              translation=np.zeros((1, 3), np.float32), neck=np.zeros((1, 3), np.float32),
+                              jaw=np.asarray(jaw, np.float32).reshape(1, 3),
+                              eyes=np.asarray(eyes, np.float32).reshape(1, 6), shape=self.shape)
+
+    def posed(self, jaw, expr, eyes):
+        """(GaussianSet of the avatar at zero root pose with this jaw (3,), expression (E,) and
+        eyes (6,); head vertices (V, 3) float64)."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+        from avatarkit.rig.binding_kernel import binding_to_world
+
+        ex, params = self._params(jaw, expr, eyes)
         key = (tuple(np.round(np.asarray(jaw, np.float64), 12)), tuple(np.round(ex, 12)),
                tuple(np.round(np.asarray(eyes, np.float64), 12)))
         if key != self._key:
-            params = HeadParams(expr=ex[None].astype(np.float32), rotation=np.zeros((1, 3), np.float32),
-                                translation=np.zeros((1, 3), np.float32), neck=np.zeros((1, 3), np.float32),
-                                jaw=np.asarray(jaw, np.float32).reshape(1, 3),
-                                eyes=np.asarray(eyes, np.float32).reshape(1, 6), shape=self.shape)
             v = self.model.forward(params)[0][0]
             means, quats, scales = binding_to_world(self.avatar.binding, np.ascontiguousarray(v, np.float32))
             parts = [self.avatar.bald.replace(means=means, quats=quats, scales=scales, extras={})]
@@ -190,23 +237,37 @@ class PoseRefiner:
             self._key = key
         return self._posed
 
+    def jaw_derivative(self, jaw, expr, eyes, step: float = 0.01) -> np.ndarray:
+        """(V, 3) the head vertices' derivative (zero root pose) by the jaw's opening (its first
+        axis), a central difference of `step` radians (the model is float32: a smaller step is
+        rounding; the opening moves the vertices by a turn about the jaw joint, skinned, plus
+        pose correctives: smooth at this scale)."""
+        out = []
+        for k in (1.0, -1.0):
+            j = np.asarray(jaw, np.float64).reshape(3).copy()
+            j[0] += k * step
+            out.append(self.model.forward(self._params(j, expr, eyes)[1])[0][0].astype(np.float64))
+        return (out[0] - out[1]) / (2.0 * step)
+
     def render(self, person, rotation, translation, frame_small: np.ndarray,
-               camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)) of the posed
-        `person` turned and shifted by the pose (the obvious way: every Gaussian moved), seen by
-        `camera` (a `crop_camera`; None: the small camera), `frame_small` its size."""
+               camera: Camera | None = None, depth: bool = False):
+        """(render over the frame (h, w, 3) float32 in [0, 1], alpha (h, w)[, depth (h, w)]) of
+        the posed `person` turned and shifted by the pose (the obvious way: every Gaussian
+        moved), seen by `camera` (a `crop_camera`; None: the small camera), `frame_small` its
+        size."""
         from avatarkit.track.subject_calibration import _turned
 
         return self.render_moved(_turned(person, self.axis, pose_matrix(rotation, translation)), np.eye(4),
-                                 frame_small, camera)
+                                 frame_small, camera, depth)
 
     def render_moved(self, moved, change: np.ndarray, frame_small: np.ndarray,
-                     camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     camera: Camera | None = None, depth: bool = False):
         """`render` of Gaussians `moved` (already turned to a pose a0, view frame) at the pose
         change @ a0, change (4, 4): the camera moves by the inverse change instead of the
         Gaussians (the same image up to the hair's twist: `_turned` turns a principal-axis
         hair Gaussian by the shortest arc, which a composition of turns does only to second
-        order)."""
+        order). depth: also the splats' expected camera depth (h, w) (alpha-weighted, area-
+        averaged as the colours are, divided by the alpha: 0 where nothing is drawn)."""
         from avatarkit.render import render
 
         import cv2
@@ -218,13 +279,17 @@ class PoseRefiner:
         w2c[:3, :3] = _C
         big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height, w2c @ np.asarray(change, np.float64))
         r = render(moved, big, (0.0, 0.0, 0.0))
-        rgb, alpha = r.rgb, r.alpha
+        rgb, alpha, z = r.rgb, r.alpha, r.depth
         if k > 1:
             size = (cam.width, cam.height)
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             alpha = cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
+            z = cv2.resize(z, size, interpolation=cv2.INTER_AREA) if depth else z
         a = np.clip(alpha, 0.0, 1.0)[..., None]
-        return np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32), alpha
+        comp = np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32)
+        if not depth:
+            return comp, alpha
+        return comp, alpha, np.where(alpha > 1e-3, z / np.maximum(alpha, 1e-3), 0.0)
 
     def box(self, vertices: np.ndarray, rotation, translation, margin: int) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1): the small camera's pixels holding the face-and-scalp mesh at the
@@ -247,19 +312,24 @@ class PoseRefiner:
         c = self.camera
         return Camera(c.fx, c.fy, c.cx - x0, c.cy - y0, x1 - x0, y1 - y0, c.world_to_camera)
 
-    def points(self, vertices: np.ndarray, rotation, translation,
-               camera: Camera | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, vertices: np.ndarray, rotation, translation, camera: Camera | None = None,
+               derivative: np.ndarray | None = None, weight: np.ndarray | None = None):
         """Per pixel of `camera` (None: the small camera): (the head's 3D point (h, w, 3), view
         frame; the face weight (h, w), 0 where the head mesh does not cover the pixel or it is
-        the neck's)."""
+        the neck's (`weight` (V,): this per-vertex weight instead of `vertex_weight`)); with
+        `derivative` (V, 3) (head frame, `jaw_derivative`) also the point's derivative (h, w, 3),
+        view frame, interpolated as the points are."""
         from avatarkit.synthetic.mesh_raster import rasterise
 
         a = pose_matrix(rotation, translation)
         v = vertices @ a[:3, :3].T + a[:3, 3]
-        ras = rasterise(v, self.model.faces, np.concatenate([v, self.vertex_weight[:, None]], 1),
-                        self.camera if camera is None else camera)
+        wv = self.vertex_weight if weight is None else weight
+        cols = [v, wv[:, None]] + ([] if derivative is None else [derivative @ a[:3, :3].T])
+        ras = rasterise(v, self.model.faces, np.concatenate(cols, 1), self.camera if camera is None else camera)
         w = np.where(ras.covered, ras.attributes[..., 3], 0.0)
-        return ras.attributes[..., :3], w
+        if derivative is None:
+            return ras.attributes[..., :3], w
+        return ras.attributes[..., :3], w, ras.attributes[..., 4:7]
 
     def shrink(self, rgb: np.ndarray) -> np.ndarray:
         """The frame (H, W, 3) uint8 at the small camera's size (uint8; a frame already that
@@ -279,29 +349,47 @@ class PoseRefiner:
     def refine(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes) -> Refinement:
         """The refined pose of frame `rgb` (H, W, 3) uint8 (the refiner's size, or `shrink`'s
         answer) starting from the
-        landmark fit's rotation (3,), translation (3,), with its jaw (3,), expr (E,), eyes (6,)."""
+        landmark fit's rotation (3,), translation (3,), with its jaw (3,), expr (E,), eyes (6,)
+        (with `Settings.jaw`, the jaw's opening too, pulled toward the fit's)."""
         from avatarkit.track.subject_calibration import _turned
 
         s = self.settings
         target = self.small(rgb)
-        person, verts = self.posed(jaw, expr, eyes)
+        jaw0 = np.asarray(jaw, np.float64).reshape(3)
+        jaw_now = jaw0.copy()
+        person, verts = self.posed(jaw_now, expr, eyes)
         rot, tr = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
         a0 = pose_matrix(rot, tr)
         moved = _turned(person, self.axis, a0) if s.move_camera else None     # once per frame
+        drawn = jaw_now.copy()                                                # the jaw `moved` has
         first = None
         n, res, renders = 0, float("nan"), 0
         for _ in range(s.iterations):
+            if s.jaw and not np.array_equal(drawn, jaw_now):
+                if s.move_camera:
+                    moved, verts = self.rejawed(moved, jaw_now, expr, eyes, a0)
+                else:
+                    person, verts = self.posed(jaw_now, expr, eyes)
+                drawn = jaw_now.copy()
             if s.crop_margin is None:
                 x0, y0, cam, tgt = 0, 0, self.camera, target
             else:
                 x0, y0, x1, y1 = self.box(verts, rot, tr, int(s.crop_margin))
                 cam, tgt = self.crop_camera((x0, y0, x1, y1)), target[y0:y1, x0:x1]
             if s.move_camera:
-                comp, alpha = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam)
+                drawn_ = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam, s.render_depth)
             else:
-                comp, alpha = self.render(person, rot, tr, tgt, cam)
+                drawn_ = self.render(person, rot, tr, tgt, cam, s.render_depth)
+            comp, alpha = drawn_[:2]
             renders += 1
-            X, w = self.points(verts, rot, tr, cam)
+            if s.jaw:
+                X, w, dX = self.points(verts, rot, tr, cam, self.jaw_derivative(jaw_now, expr, eyes), self.jaw_weight)
+            else:
+                X, w = self.points(verts, rot, tr, cam)
+            if s.render_depth:
+                # the surface the image shows is the splats', not the mesh's (a few mm off it,
+                # more at the hairline): its depth sets the parallax the turn is read from
+                X = unproject(drawn_[2], cam)
             keep = (w > 0.5) & (alpha > 0.5)
             flow, ok = consistent_flow(comp, tgt, s.fb_tolerance)
             keep &= ok
@@ -311,38 +399,87 @@ class PoseRefiner:
             ys, xs = np.nonzero(keep)
             uv = np.stack([xs + 0.5, ys + 0.5], 1) + flow[ys, xs]
             P = X[ys, xs]
-            delta, centre, before, res = solve_pose_delta(P, uv, cam, s.huber, s.gauss_newton, s.ridge)
+            if s.jaw:
+                # the prior: an opening jaw_sigma from the landmark fit's costs as much as a
+                # pixel's error on every point used
+                delta, centre, before, res = solve_pose_delta(
+                    P, uv, cam, s.huber, s.gauss_newton, s.ridge, extra=dX[ys, xs][:, :, None],
+                    prior=np.array([n / s.jaw_sigma ** 2]), prior_target=np.array([jaw0[0] - jaw_now[0]]))
+                jaw_now[0] += delta[6]
+            else:
+                delta, centre, before, res = solve_pose_delta(P, uv, cam, s.huber, s.gauss_newton, s.ridge)
             first = before if first is None else first
-            rot, tr = apply_delta(rot, tr, delta, centre)
-            if np.linalg.norm(delta[:3]) < s.tolerance and np.linalg.norm(delta[3:]) < s.shift_tolerance:
+            rot, tr = apply_delta(rot, tr, delta[:6], centre)
+            if np.linalg.norm(delta[:3]) < s.tolerance and np.linalg.norm(delta[3:6]) < s.shift_tolerance \
+                    and (not s.jaw or abs(delta[6]) < s.jaw_tolerance):
                 break
-        return Refinement(rot, tr, renders, n, res, float("nan") if first is None else first)
+        return Refinement(rot, tr, renders, n, res, float("nan") if first is None else first, jaw_now)
+
+    def _jaw_part(self) -> tuple[np.ndarray, object]:
+        """(indices (M,) of the head's Gaussians the jaw's opening moves: those on a triangle
+        with a vertex that moves (the jaw's skinning or its pose correctives), their binding)."""
+        if self._jaw_ids is None:
+            zeros = np.zeros(3)
+            v = [self.model.forward(self._params(np.array([j, 0.0, 0.0]), zeros, np.zeros(6))[1])[0][0]
+                 for j in (0.0, 0.3)]
+            moving = np.any(v[0] != v[1], axis=1)                         # (V,)
+            b = self.avatar.binding
+            self._jaw_ids = np.flatnonzero(moving[np.asarray(b.faces)[np.asarray(b.face_ids)]].any(axis=1))
+            self._jaw_binding = b.subset(self._jaw_ids)
+        return self._jaw_ids, self._jaw_binding
+
+    def rejawed(self, moved, jaw, expr, eyes, a0: np.ndarray):
+        """(`moved` (the avatar posed at another opening and turned by a0 (4, 4), `_turned`)
+        with the Gaussians the jaw moves re-posed at this jaw (3,) and turned by a0; the head
+        vertices (V, 3) at it, zero root pose): what `_turned(posed(jaw, ...)[0], axis, a0)`
+        draws, at the cost of the ~1/6 of the Gaussians that move (a test compares them)."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+        from avatarkit.rig.binding_kernel import binding_to_world
+        from avatarkit.rotations import matrix_to_quat, quat_multiply
+
+        ids, binding = self._jaw_part()
+        v = self.model.forward(self._params(jaw, expr, eyes)[1])[0][0]
+        m, q, sc = binding_to_world(binding, np.ascontiguousarray(v, np.float32))
+        R = a0[:3, :3]
+        means, quats, scales = moved.means.copy(), moved.quats.copy(), moved.scales.copy()
+        means[ids] = (np.asarray(m, np.float64) @ R.T + a0[:3, 3]).astype(np.float32)
+        turn = np.repeat(matrix_to_quat(R)[None], len(ids), 0)
+        quats[ids] = quat_multiply(turn, np.asarray(q, np.float64)).astype(np.float32)
+        scales[ids] = sc
+        return GaussianSet.from_checked(means, quats, scales, moved.opacities, moved.sh), v.astype(np.float64)
 
     # -- the slow obvious reference ------------------------------------------------------------
     def refine_reference(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes,
-                         steps=(0.02, 0.02, 0.02, 0.004, 0.004, 0.004), rounds: int = 5) -> Refinement:
-        """`refine` by a pattern search on the masked colour error (module docstring)."""
+                         steps=(0.02, 0.02, 0.02, 0.004, 0.004, 0.004, 0.02), rounds: int = 5) -> Refinement:
+        """`refine` by a pattern search on the masked colour error (module docstring); with
+        `Settings.jaw` over the jaw's opening too (steps' last), with no prior (the colour
+        error's own minimum)."""
         import cv2
 
         from avatarkit.track.register import pattern_search
 
         target = self.small(rgb)
-        person, verts = self.posed(jaw, expr, eyes)
+        jaw0 = np.asarray(jaw, np.float64).reshape(3)
+        person, verts = self.posed(jaw0, expr, eyes)
         rot0, tr0 = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
         X, w = self.points(verts, rot0, tr0)
         mask = cv2.dilate((w > 0.5).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
         centre = X[w > 0.5].mean(axis=0)
+        k = 7 if self.settings.jaw else 6
         n = [0]
+
+        def jaw_of(p):
+            return jaw0 + np.array([p[6] if k == 7 else 0.0, 0.0, 0.0])
 
         def cost(p) -> float:
             n[0] += 1
-            r, t = apply_delta(rot0, tr0, p, centre)
-            comp, _ = self.render(person, r, t, target)
+            r, t = apply_delta(rot0, tr0, p[:6], centre)
+            comp, _ = self.render(self.posed(jaw_of(p), expr, eyes)[0], r, t, target)
             return float(np.mean((comp[mask] - target[mask]) ** 2))
 
-        p, _ = pattern_search(cost, np.zeros(6), cost(np.zeros(6)), steps, rounds)
-        r, t = apply_delta(rot0, tr0, p, centre)
-        return Refinement(r, t, n[0], int(mask.sum()), float("nan"), float("nan"))
+        p, _ = pattern_search(cost, np.zeros(k), cost(np.zeros(k)), tuple(steps)[:k], rounds)
+        r, t = apply_delta(rot0, tr0, p[:6], centre)
+        return Refinement(r, t, n[0], int(mask.sum()), float("nan"), float("nan"), jaw_of(p))
 
 
 def _grey(im: np.ndarray) -> np.ndarray:
@@ -387,6 +524,16 @@ def project(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]
     return uv, J @ _C
 
 
+def unproject(depth: np.ndarray, camera: Camera) -> np.ndarray:
+    """(h, w, 3) view-frame points of each pixel centre of `camera` (the tracker's) at camera
+    depth `depth` (h, w) (positive, in front): `project`'s inverse."""
+    h, w = depth.shape
+    gx, gy = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    z = np.asarray(depth, np.float64)
+    pc = np.stack([(gx - camera.cx) * z / camera.fx, (gy - camera.cy) * z / camera.fy, z], -1)
+    return pc @ _C.T                                                  # _C is its own inverse
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """(N, 3, 3) cross-product matrices of v (N, 3)."""
     S = np.zeros((len(v), 3, 3))
@@ -397,41 +544,62 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, huber: float = 1.0,
-                     iterations: int = 4, ridge: float = 1e-3):
+                     iterations: int = 4, ridge: float = 1e-3, extra: np.ndarray | None = None,
+                     prior: np.ndarray | None = None, prior_target: np.ndarray | None = None):
     """The rigid change delta (6,) (turn about the points' centroid, then shift: `apply_delta`)
     that moves view-frame points (N, 3) to project onto targets (N, 2) px, by iteratively
     reweighted Gauss-Newton with Huber weights (threshold `huber` px). Returns (delta, centre
-    (3,), median residual before, after)."""
+    (3,), median residual before, after).
+
+    extra: (N, 3, K) the points' derivatives (view frame) by K more parameters a (the jaw's
+    opening): the points moved are E (P + extra a - c) + c + d, and delta is (6 + K,), a last;
+    prior: (K,) weights (px^2 per unit^2) of a quadratic pull of a toward prior_target (K,)
+    (zeros where None)."""
     P = np.asarray(points, np.float64)
     q = np.asarray(targets, np.float64)
+    D = np.zeros((len(P), 3, 0)) if extra is None else np.asarray(extra, np.float64).reshape(len(P), 3, -1)
+    K = D.shape[2]
+    pw = np.zeros(K) if prior is None else np.asarray(prior, np.float64).reshape(K)
+    pt = np.zeros(K) if prior_target is None else np.asarray(prior_target, np.float64).reshape(K)
     c = P.mean(axis=0)
-    delta = np.zeros(6)
+    delta = np.zeros(6 + K)
+
+    def moved(d):
+        E = axis_angle_to_matrix(d[:3])
+        local = P + D @ d[6:] - c                                     # (N, 3) before the turn
+        return E, local @ E.T
+
     before = None
     for _ in range(max(1, iterations)):
-        E = axis_angle_to_matrix(delta[:3])
-        turned = (P - c) @ E.T
-        X = turned + c + delta[3:]
+        E, turned = moved(delta)
+        X = turned + c + delta[3:6]
         uv, J = project(X, camera)
         r = uv - q                                                    # (N, 2)
         dist = np.linalg.norm(r, axis=1)
         if before is None:
             before = float(np.median(dist))
         w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
-        # d X / d (a small turn w applied after E) = -[E (P - c)]x ; d X / d (shift) = I
-        A = np.concatenate([-J @ _skew(turned), J], axis=2)         # (N, 2, 6)
-        A2 = A.reshape(-1, 6)
+        # d X / d (a small turn w applied after E) = -[E (P - c)]x ; d X / d (shift) = I;
+        # d X / d a = E D
+        cols = [-J @ _skew(turned), J]
+        if K:
+            cols.append(J @ (E[None] @ D))
+        A = np.concatenate(cols, axis=2)                              # (N, 2, 6 + K)
+        A2 = A.reshape(-1, 6 + K)
         w2 = np.repeat(w, 2)
         H = A2.T @ (w2[:, None] * A2)
         g = A2.T @ (w2 * r.reshape(-1))
-        H += ridge * np.trace(H) / 6.0 * np.eye(6)
+        H += ridge * np.trace(H) / (6.0 + K) * np.eye(6 + K)
+        H[6:, 6:] += np.diag(pw)
+        g[6:] += pw * (delta[6:] - pt)
         step = -np.linalg.solve(H, g)
-        # compose: the turn's increment is applied after E (left), the shift adds
+        # compose: the turn's increment is applied after E (left), the rest adds
         delta[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
         delta[3:] = delta[3:] + step[3:]
-    E = axis_angle_to_matrix(delta[:3])
-    uv, _ = project((P - c) @ E.T + c + delta[3:], camera)
+    E, turned = moved(delta)
+    uv, _ = project(turned + c + delta[3:6], camera)
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
 
 
 __all__ = ["PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
-           "solve_pose_delta", "view_camera"]
+           "solve_pose_delta", "unproject", "view_camera"]

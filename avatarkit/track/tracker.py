@@ -56,6 +56,14 @@ CALIBRATION_MIN = 5
 CALIBRATION_ROUNDS = 2
 
 
+# TrackOptions.refine's values (None: no refinement) and the `photometric.Settings` fields each
+# sets: "photometric-jaw" refines the jaw's opening too, from the render's depth, in 3 passes
+# (docs/tracking.md, session 14: on both real clips within 0.02 dB of 4 passes from the mesh's
+# points, on the synthetic avatar video as good, ~1.3x faster)
+REFINE_SETTINGS = {"photometric": {}, "photometric-jaw": dict(jaw=True, render_depth=True, iterations=3)}
+REFINE_CHOICES = (None, *REFINE_SETTINGS)
+
+
 @dataclass
 class TrackOptions:
     """face_index: which face, left to right, on the first detection; smoothing: the Whittaker
@@ -98,7 +106,9 @@ class TrackOptions:
     refined against the frame by rendering the avatar (`track.photometric`; docs/tracking.md,
     session 13), before the smoother; None: the landmark fit's pose. refine_every: only every
     k-th frame with a face is refined, the others get the change interpolated from their
-    refined neighbours."""
+    refined neighbours. "photometric-jaw": the jaw's opening refined with the pose (the other two
+    jaw axes, expression and eyes stay the landmark fit's; `REFINE_SETTINGS`; docs/tracking.md,
+    session 14)."""
 
     face_index: int = 0
     smoothing: float = 4.0
@@ -353,7 +363,7 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         else:
             conf[row] = c
 
-    refined: dict = {}                # row -> (rotation change (3,), translation change (3,))
+    refined: dict = {}                # row -> (rotation change (3,), translation change (3,), jaw change (3,))
     waiting: dict = {}                # row -> the small frame, until the calibration refits it
     every = max(1, int(options.refine_every))
     stats = {"frames": 0, "seconds": 0.0, "before": [], "after": [], "renders": []}
@@ -368,8 +378,10 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         out = refiner.refine(small, r0, t0_, rows["jaw"][row], rows["expr"][row][:ft.expr_components],
                              rows["eyes"][row])
         dR = axis_angle_to_matrix(out.rotation).astype(np.float64) @ axis_angle_to_matrix(r0).astype(np.float64).T
+        jaw = rows["jaw"][row] if out.jaw is None else out.jaw
         refined[row] = (np.asarray(matrix_to_axis_angle(dR), np.float64).reshape(3),
-                        np.asarray(out.translation, np.float64) - np.asarray(t0_, np.float64))
+                        np.asarray(out.translation, np.float64) - np.asarray(t0_, np.float64),
+                        np.asarray(jaw, np.float64).reshape(3) - np.asarray(rows["jaw"][row], np.float64).reshape(3))
         stats["frames"] += 1
         stats["seconds"] += time.perf_counter() - t0
         stats["before"].append(out.start_residual)
@@ -443,10 +455,11 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
 
 
 def apply_refinement(raw: dict, refined: dict, found: np.ndarray) -> None:
-    """Move raw["rotation"] / raw["translation"] (T, 3) in place by the refinement's changes
-    `refined` {row: (rotation change (3,) axis-angle, applied on the left; translation change
-    (3,))}; the rows with a face that were not refined get the changes interpolated linearly
-    between their refined neighbours (held at the ends)."""
+    """Move raw["rotation"] / raw["translation"] (T, 3) (and raw["jaw"] (T, 3)) in place by the
+    refinement's changes `refined` {row: (rotation change (3,) axis-angle, applied on the left;
+    translation change (3,)[; jaw change (3,), added])}; the rows with a face that were not
+    refined get the changes interpolated linearly between their refined neighbours (held at the
+    ends)."""
     from avatarkit.rotations import matrix_to_axis_angle
 
     if not refined:
@@ -454,13 +467,15 @@ def apply_refinement(raw: dict, refined: dict, found: np.ndarray) -> None:
     done = np.array(sorted(refined))
     dr = np.stack([refined[k][0] for k in done])
     dt = np.stack([refined[k][1] for k in done])
+    dj = np.stack([refined[k][2] if len(refined[k]) > 2 else np.zeros(3) for k in done])
     rows = np.flatnonzero(found)
-    ir = np.stack([np.interp(rows, done, dr[:, j]) for j in range(3)], 1)
-    it = np.stack([np.interp(rows, done, dt[:, j]) for j in range(3)], 1)
+    ir, it, ij = (np.stack([np.interp(rows, done, d[:, j]) for j in range(3)], 1) for d in (dr, dt, dj))
     for k, row in enumerate(rows):
         R = axis_angle_to_matrix(ir[k]).astype(np.float64) @ axis_angle_to_matrix(raw["rotation"][row]).astype(np.float64)
         raw["rotation"][row] = np.asarray(matrix_to_axis_angle(R), np.float64).reshape(3)
         raw["translation"][row] = raw["translation"][row] + it[k]
+        if "jaw" in raw:
+            raw["jaw"][row] = raw["jaw"][row] + ij[k]
 
 
 def finish(raw: dict, confidence: np.ndarray, found: np.ndarray, frame_index: np.ndarray,

@@ -14,7 +14,7 @@ mesh's reading bias is calibrated on renders of the avatar at known poses before
 
 Pose refinement. With an avatar and `TrackOptions(refine="photometric")`, each frame's rigid
 head pose is refined against the frame by rendering the avatar (`track.photometric`) before the
-smoother; without an avatar it is an InputError.
+smoother (`"photometric-jaw"`: the jaw's opening with it); without an avatar it is an InputError.
 
 Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
 (`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 
 from avatarkit.errors import InputError
-from avatarkit.track.tracker import FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
+from avatarkit.track.tracker import REFINE_CHOICES, REFINE_SETTINGS, FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
 
 IDENTITY_FRAMES = 8
 IDENTITY_SECONDS = 3.0
@@ -87,8 +87,8 @@ def track_video(path: str | os.PathLike, *, avatar: str | os.PathLike | None = N
     if avatar is not None and head_model is not None:
         raise InputError("give either an avatar or a head model, not both")
     options = options or TrackOptions()
-    if options.refine not in (None, "photometric"):
-        raise InputError(f"pose refinement: {options.refine!r} (only 'photometric')")
+    if options.refine not in REFINE_CHOICES:
+        raise InputError(f"pose refinement: {options.refine!r} (one of {', '.join(map(repr, REFINE_CHOICES[1:]))})")
     if options.refine is not None and avatar is None:
         raise InputError("the photometric pose refinement renders the avatar: it needs an avatar")
     p = os.fspath(path)
@@ -163,10 +163,10 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         if options.refine is not None:
             from avatarkit.avatar import load_avatar
             from avatarkit.recon.fit import portrait_focal
-            from avatarkit.track.photometric import PoseRefiner
+            from avatarkit.track.photometric import PoseRefiner, Settings
 
             focal = float(options.focal) if options.focal else portrait_focal(*size)
-            refiner = PoseRefiner(load_avatar(avatar), focal, size)
+            refiner = PoseRefiner(load_avatar(avatar), focal, size, Settings(**REFINE_SETTINGS[options.refine]))
         result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes, refiner)
         result.subject_calibration = calibration
         return result
