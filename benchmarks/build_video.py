@@ -5,7 +5,8 @@ Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip
 [--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
 [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
 `recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
-two session-12 options, both off by default
+two session-12 options, both off by default; `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline
+fitted to the keyframes' silhouettes (`recon.hair_outline`, session 14, on by default)
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -80,6 +81,9 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     # the lifter's hair end from the turned keyframes (`recon.hair_end`)
     if os.environ.get("AVATARKIT_HAIR_END") in ("0", "1"):
         pipeline.HAIR_END_FROM_VIEWS = os.environ["AVATARKIT_HAIR_END"] == "1"
+    # the hair's outline fitted to the keyframes' silhouettes (`recon.hair_outline`, on by default)
+    if os.environ.get("AVATARKIT_HAIR_OUTLINE") in ("0", "1"):
+        pipeline.FIT_HAIR_OUTLINE = os.environ["AVATARKIT_HAIR_OUTLINE"] == "1"
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()
@@ -258,6 +262,11 @@ def main() -> None:
 
         pipeline.FACING_REFINE = True                     # the timed builds run in this process
         print("facing-weighted colour refine over the keyframes: on")
+    if os.environ.get("AVATARKIT_HAIR_OUTLINE") in ("0", "1"):
+        from avatarkit.recon import pipeline
+
+        pipeline.FIT_HAIR_OUTLINE = os.environ["AVATARKIT_HAIR_OUTLINE"] == "1"   # the timed builds run here
+        print(f"the hair's outline fitted to the keyframes' silhouettes: {'on' if pipeline.FIT_HAIR_OUTLINE else 'off'}")
     if a.no_multiview_hair:
         print("multi-view hair directions and shell growth: off")
     counts = (40_000, 40_000)
