@@ -35,6 +35,10 @@ from avatarkit.recon.lifter import LiftResult
 from avatarkit.recon.visibility import depth_map
 from avatarkit.rotations import matrix_to_quat
 
+#: a hidden root (the back of the head) grows where the photo's silhouette shows at least this
+#: much hair (metres) at its polar angle
+HIDDEN_MIN_THICKNESS = 0.003
+
 
 def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
               rng: np.random.Generator, sdf=None, bald_set: GaussianSet | None = None,
@@ -82,7 +86,7 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
         visible_ok = lookup(shell.hair, px)
         # hidden roots grow where the silhouette shows hair at their polar angle, and below the
         # photo's lowest hair (the nape) when the hairline lets them
-        hidden_ok = (shell.thickness_at(px) > 0.003) | g.nape_roots(roots)
+        hidden_ok = (shell.thickness_at(px) > HIDDEN_MIN_THICKNESS) | g.nape_roots(roots)
         return roots[np.where(hidden, hidden_ok, visible_ok)]
 
     pilot = candidate_roots(600)

@@ -76,6 +76,16 @@ GROW_HAIR_HULL = True
 #: other views are flat within the seed noise (docs/video-build.md, "The hair's end, made
 #: robust", session 13)
 HAIR_END_FROM_VIEWS = False
+#: a video build moves its outermost hair out to where the keyframes' silhouettes show the
+#: person's hair beyond the avatar's outline (`recon.hair_outline`; the tracking's edge frames
+#: do not count). Off: on the benchmark's eased clip it gains at every profile over two lifter
+#: seeds (sample avatar +1.43 / +2.05..+2.15 dB at +90 / -90, its profile gain over the
+#: single-frame build +3.00 at the benchmark's seed; mesh subject +0.22..+0.24 / +0.06..+0.14;
+#: the held-out bob -0.05 / +0.27; front and +-45 within -0.29..+0.21), but on the 32-frame whip clip, whose
+#: turn-end frames' yaw is read short without the face being lost, it costs the sample avatar
+#: 0.98 dB at +45 (docs/video-build.md, "Where the profile's error is", session 14). A video with
+#: one keyframe (the real clips) never runs it
+FIT_HAIR_OUTLINE = False
 #: a video build (several keyframes) then matches its colours to every keyframe at once, each
 #: Gaussian's update led by the keyframes that face it best (`recon.facing_refine`). Off:
 #: measured on the synthetic turning videos (eased clip, gain front / +-45 / +-90 degrees) the
@@ -403,6 +413,12 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 
             grown, report.info["segment3d"]["hull"] = grow_hull(lifted.bald, hair, keyviews, sdf)
             hair = GaussianSet.concat([hair, grown]) if len(grown) else hair
+        if keyviews and len(hair) and FIT_HAIR_OUTLINE:
+            from avatarkit.recon.hair_outline import fit_outline
+
+            edge = frozenset(views.info.get("tracking_edge", []))
+            hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(lifted.bald, hair, keyviews, sdf,
+                                                                                   edge)
         if len(hair) == 0:
             report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):

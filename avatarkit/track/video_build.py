@@ -193,7 +193,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                                    for k, f in enumerate(kf.frame_index)],
                            {"keyframes": [int(f) for f in kf.frame_index],
                             "identity_median_error_px": [round(float(e), 3) for e in jf.median_error_px],
-                            "identity_shape": [round(float(c), 4) for c in jf.shape]})
+                            "identity_shape": [round(float(c), 4) for c in jf.shape],
+                            "tracking_edge": edge})
     else:
         source["mode"] = "single frame (the head does not turn: one keyframe)"
     with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp:

@@ -1,0 +1,226 @@
+"""The hair's outline fitted to the keyframes' silhouettes: hair Gaussians moved out where a
+keyframe shows the person's hair standing beyond the avatar's outline.
+
+The lifter's hair shell is as thick as the reference photo's silhouette says at each polar
+angle, and the back of the head borrows the front view's thickness; where a keyframe looks
+edge-on at hair the photo never showed edge-on (the strand tips standing off the back of the
+head and the nape, the crown seen from the side), the subject's hair stands millimetres beyond
+the avatar's outline. Session 14 put 42-47 % of the sample avatar's profile error there, 20-24 %
+of the mesh subject's and 53-66 % of the bob's, and the video build left it where the
+single-frame build has it (docs/video-build.md, "Where the profile's error is").
+
+For each labelled keyframe but the tracking's edge (`fit_outline`'s skip: frames whose yaw the
+landmark fit under-reads, whose silhouettes sit degrees off the avatar's):
+1. the avatar (bald + hair) is rendered from it (at most `hair_hull.RENDER_SIDE` px); a hair
+   Gaussian is on its outline when its centre lies within `ON_OUTLINE` px of an uncovered
+   pixel (alpha <= `multiview.ALPHA_MIN`);
+2. from that nearest uncovered pixel, outward (away from the centre's own pixel), the pixels the
+   keyframe shows as the person's hair (the soft person mask >= 0.5, within `HAIR_NEAR` px of a
+   hair label) that the avatar leaves uncovered are the gap (at most `MAX_GAP` px), less
+   `GAP_MARGIN`;
+3. the gap becomes a push: across the view's ray in the image's outward direction (`DIRECTION`
+   "image", the least motion that closes it) or along the scalp's normal ("normal").
+A Gaussian on several keyframes' outlines takes the least of their pushes, and one within
+`VETO_BAND` px of a keyframe's outline that shows no gap there does not move (each silhouette
+bounds the hair from its side); only the Gaussians measured so move, at most `MAX_PUSH`, and a
+pushed centre must still project inside every such keyframe's person mask
+(`multiview.silhouette_outside`), else its push is halved (three times, then none).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.hair_strands import unit_vectors
+from avatarkit.recon.multiview import ALPHA_MIN, View, silhouette_outside, soft_person
+
+#: a hair Gaussian is on a view's outline within this many pixels (render scale) of it
+ON_OUTLINE = 2.0
+#: a person pixel counts as hair within this many pixels of a hair label
+HAIR_NEAR = 2
+#: pixels of a gap not counted: the render's edge and the person mask's are each read to the
+#: pixel, so a gap of one pixel is no evidence
+GAP_MARGIN = 1.0
+#: the longest gap measured, pixels (render scale)
+MAX_GAP = 12
+#: a hair Gaussian within this many pixels of a view's outline (but not on it) is held by that
+#: view where it shows no gap: the neighbouring keyframes' silhouettes bound what one of them
+#: (its pose a few degrees off) asks for. 8 rather than 4: on the 32-frame whip clip, whose
+#: turn-end frames' yaw is read 4-9 degrees short without the face being lost (so not the
+#: tracking's edge), 4 px let them cost the sample avatar 3.7 dB at -45 (8 px: 0.04)
+VETO_BAND = 8.0
+#: which way a Gaussian moves: "image" (across the view's ray, the image's outward direction)
+#: or "normal" (along the scalp's normal)
+DIRECTION = "image"
+#: the largest push, metres
+MAX_PUSH = 0.012
+#: a view moves a Gaussian outward by less than this many pixels per millimetre of push: the
+#: normal points along the ray, the view cannot tell its height
+MIN_PX_PER_MM = 0.1
+
+
+def _shrunk(camera):
+    from avatarkit.recon.hair_hull import _shrunk as shrunk
+
+    return shrunk(camera)
+
+
+def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
+              normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One keyframe's measurement (module docstring, steps 1-3) for hair centres points (N, 3)
+    with scalp normals (N, 3) -> (on (N,) bool: measured by this view (on its outline, or
+    within `VETO_BAND` of it with no gap), push (N, 3) metres (0 where the view shows no gap),
+    beyond (N,) bool: on the outline with the centre's own pixel not the person's, the avatar
+    standing beyond the silhouette there). alpha: (H, W) the avatar rendered by `camera` (the
+    view's camera at the render's size); the view's labels and image are resized to it."""
+    import cv2
+    from scipy import ndimage
+
+    from avatarkit.recon.segment import HAIR
+
+    h, w = alpha.shape
+    n = len(points)
+    on = np.zeros(n, bool)
+    push = np.zeros((n, 3), np.float64)
+    beyond = np.zeros(n, bool)
+    if view.labels is None or n == 0:
+        return on, push, beyond
+    labels = np.asarray(view.labels)
+    image = view.image
+    if labels.shape != (h, w):
+        labels = cv2.resize(labels.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+        image = cv2.resize(np.asarray(image), (w, h), interpolation=cv2.INTER_AREA) if image is not None else None
+    covered = alpha > ALPHA_MIN
+    person = soft_person(labels, image) >= 0.5
+    near_hair = ndimage.binary_dilation(labels == HAIR, iterations=HAIR_NEAR)
+    hair_gap = person & near_hair & ~covered
+    # the nearest uncovered pixel to every pixel, and how far it is
+    dist, (iy, ix) = ndimage.distance_transform_edt(covered, return_indices=True)
+    px, z = camera.project(points)
+    ok = np.isfinite(px).all(axis=1) & (z > 0)
+    px = np.where(ok[:, None], px, -1.0)
+    ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    xi = np.clip(px[:, 0].astype(np.int64), 0, w - 1)
+    yi = np.clip(px[:, 1].astype(np.int64), 0, h - 1)
+    # no depth test: near the outline the rendered depth is the near side of a surface seen
+    # edge-on, centimetres in front of the contour's own Gaussians
+    near = ok & (dist[yi, xi] <= max(ON_OUTLINE, VETO_BAND))
+    on = near & (dist[yi, xi] <= ON_OUTLINE)
+    idx = np.flatnonzero(near)
+    if len(idx) == 0:
+        return on, push, beyond
+    # outward: from the centre to its nearest uncovered pixel (a centre already uncovered: the
+    # direction away from the nearest covered pixel is unknown, take the normal's projection)
+    q = np.stack([ix[yi[idx], xi[idx]] + 0.5, iy[yi[idx], xi[idx]] + 0.5], axis=1)
+    d2 = q - px[idx]
+    eps = 1e-3
+    moved, _ = camera.project(points[idx] + eps * normals[idx])
+    along = (moved - px[idx]) / eps                                       # px per metre of push
+    small = np.linalg.norm(d2, axis=1) < 0.5
+    d2[small] = along[small]
+    u = d2 / np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-9)
+    # march outward from the nearest uncovered pixel over the hair the avatar leaves uncovered
+    gap = np.zeros(len(idx))
+    live = np.ones(len(idx), bool)
+    for k in range(MAX_GAP):
+        s = q + u * k
+        inside = (s[:, 0] >= 0) & (s[:, 0] < w) & (s[:, 1] >= 0) & (s[:, 1] < h)
+        sx = np.clip(s[:, 0].astype(np.int64), 0, w - 1)
+        sy = np.clip(s[:, 1].astype(np.int64), 0, h - 1)
+        live &= inside & hair_gap[sy, sx]
+        gap += live
+        if not live.any():
+            break
+    # the other side of the disagreement: the centre's own pixel not the person's (the
+    # avatar beyond the silhouette there)
+    beyond = np.zeros(n, bool)
+    beyond[idx] = ~person[yi[idx], xi[idx]]
+    # both edges are read to the pixel (the render's alpha and the person mask, each at 0.5)
+    gap = np.maximum(gap - GAP_MARGIN, 0.0)
+    rate = np.einsum("ij,ij->i", along, u)                                # px per metre, outward
+    can = rate > MIN_PX_PER_MM * 1000.0
+    if DIRECTION == "image":
+        # the least motion that closes the gap: across the ray, in the image's outward direction
+        # (a strand tip standing off the back of the head seen from the side moves back, not out
+        # along the scalp's normal, which also moves it sideways)
+        r = np.asarray(camera.rotation, np.float64)
+        u3 = u[:, :1] * r[0] / camera.fx + u[:, 1:] * r[1] / camera.fy           # metres per px at z 1
+        push[idx[can]] = (gap * z[idx])[can, None] * u3[can]
+    else:
+        push[idx[can]] = (gap[can] / rate[can])[:, None] * normals[idx[can]]
+    on[idx[~can]] = False
+    # within the band but not on the outline: only a view showing no gap there counts (a veto)
+    no_gap = np.zeros(n, bool)
+    no_gap[idx] = (gap == 0) & can
+    return on | (near & ~on & no_gap), push, beyond & on
+
+
+def fit_outline(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf,
+                skip: frozenset | set = frozenset()) -> tuple[GaussianSet, dict]:
+    """Hair pushed out to the keyframes' silhouettes (module docstring). bald, hair: the avatar
+    so far; views: the keyframes (the reference among them); sdf: the rest head's `HeadSDF`
+    (the normals); skip: frames whose keyframes do not count (the tracking's edge). Returns
+    (hair with moved centres, info: Gaussians measured, pushed, the pushes' median and 90th
+    percentile in mm, per keyframe its outline's Gaussians, those with a gap and those beyond
+    the silhouette). With fewer than two such labelled keyframes nothing moves."""
+    from avatarkit.render import render
+
+    labelled = [v for v in views if v.labels is not None and v.frame not in skip]
+    info = {"measured": 0, "pushed": 0, "push_mm_p50": 0.0, "push_mm_p90": 0.0}
+    if len(labelled) < 2 or len(hair) == 0:
+        return hair, info
+    means = np.asarray(hair.means, np.float64)
+    _, normals = sdf.query(means)
+    normals = unit_vectors(normals)
+    union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+    best = np.zeros((len(means), 3))
+    size = np.full(len(means), np.inf)
+    count = np.zeros(len(means), np.int64)             # keyframes the Gaussian is measured in
+    info["views"] = []
+    for v in labelled:
+        cam = _shrunk(v.camera)
+        r = render(union, cam, background=(0.0, 0.0, 0.0))
+        on, push, beyond = view_gaps(v, r.alpha, cam, means, normals)
+        norm = np.linalg.norm(push, axis=1)
+        # the least push any view on whose outline the Gaussian lies asks for
+        take = on & (norm < size)
+        best[take], size[take] = push[take], norm[take]
+        count += on
+        gap = on & (norm > 0)
+        info["views"].append({"frame": v.frame, "on_outline": int(on.sum()), "with_gap": int(gap.sum()),
+                              "beyond": int(beyond.sum()),
+                              "push_mm_p50": round(float(np.median(norm[gap])) * 1000, 2) if gap.any() else 0.0})
+    measured = count > 0
+    info["measured"] = int(measured.sum())
+    if not measured.any():
+        return hair, info
+    # only the measured move: the same push spread to their neighbours (6 mm) put hair beyond
+    # the sample avatar's outline at -45 degrees, where no trusted keyframe looks (-0.6 dB)
+    push = np.where(measured[:, None], best, 0.0)
+    norm = np.linalg.norm(push, axis=1)
+    push *= (np.minimum(norm, MAX_PUSH) / np.maximum(norm, 1e-12))[:, None]
+    # the visual hull: a pushed centre must stay inside every keyframe's person mask
+    for _ in range(3):
+        moved = np.linalg.norm(push, axis=1) > 0
+        if not moved.any():
+            break
+        out = silhouette_outside(means[moved] + push[moved], labelled) > 0
+        if not out.any():
+            break
+        push[np.flatnonzero(moved)[out]] *= 0.5
+    else:
+        moved = np.linalg.norm(push, axis=1) > 0
+        if moved.any():
+            out = silhouette_outside(means[moved] + push[moved], labelled) > 0
+            push[np.flatnonzero(moved)[out]] = 0.0
+    size = np.linalg.norm(push, axis=1)
+    pushed = size > 1e-4
+    info["pushed"] = int(pushed.sum())
+    if pushed.any():
+        info["push_mm_p50"] = round(float(np.median(size[pushed])) * 1000, 2)
+        info["push_mm_p90"] = round(float(np.percentile(size[pushed], 90)) * 1000, 2)
+    return hair.replace(means=(means + push).astype(np.float32)), info
+
+
+__all__ = ["DIRECTION", "GAP_MARGIN", "HAIR_NEAR", "MAX_GAP", "MAX_PUSH", "ON_OUTLINE", "VETO_BAND", "fit_outline",
+           "view_gaps"]
