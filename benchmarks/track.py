@@ -167,21 +167,21 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 
 
 # `refine_columns`' runs: (label, refine every k-th frame (0: the tracker alone), photometric.
-# Settings fields); with "jaw": `refine="photometric-jaw"`. Session 14 also ran: the pose from the
+# Settings fields); with "jaw": `refine="photometric"`, without: "photometric-pose". Session 14 also ran: the pose from the
 # render's depth (render_depth=True), the jaw in 3 passes from the mesh's points, the jaw from the
 # render's depth in 4 passes (docs/tracking.md)
-_JAW = dict(jaw=True, render_depth=True, iterations=3)        # tracker.REFINE_SETTINGS["photometric-jaw"]
+_JAW = dict(jaw=True, render_depth=True, iterations=3)        # tracker.REFINE_SETTINGS["photometric"]
 REFINE_RUNS = (("tracker", 0, {}),
-               ("refined every 1, the pose (photometric, session 13)", 1, {}),
+               ("refined every 1, the pose (photometric-pose, session 13's photometric)", 1, {}),
                ("refined every 1, with the jaw, 4 passes from the mesh's points", 1, dict(jaw=True)),
-               ("refined every 1, photometric-jaw (the jaw, the render's depth, 3 passes)", 1, _JAW),
-               ("refined every 3, photometric-jaw", 3, _JAW))
+               ("refined every 1, photometric (the jaw, the render's depth, 3 passes)", 1, _JAW),
+               ("refined every 3, photometric", 3, _JAW))
 
 
 def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
     """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
-    "photometric")`, `track.photometric`), each of `runs` (`REFINE_RUNS`: with the jaw's opening
-    (`refine="photometric-jaw"`), the points from the render's depth, fewer passes, every k-th
+    "photometric-pose")`, `track.photometric`), each of `runs` (`REFINE_RUNS`: with the jaw's opening
+    (`refine="photometric"`), the points from the render's depth, fewer passes, every k-th
     frame; `photometric.SESSION13` as settings: session 13's first round, its speed baseline),
     in this process, on the avatar's mixed-clip video as rendered and mirrored. The mirrored
     video is
@@ -207,7 +207,7 @@ def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) ->
                                    ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
         meshes = None
         for label, k, settings in runs:
-            options = TrackOptions(refine=("photometric-jaw" if settings.get("jaw") else "photometric") if k else None,
+            options = TrackOptions(refine=("photometric" if settings.get("jaw") else "photometric-pose") if k else None,
                                    refine_every=max(k, 1))
             refiner = PoseRefiner(avatar, camera.fx, (size, size), Settings(**settings)) if k else None
             t0 = time.perf_counter()

@@ -30,9 +30,9 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(["photometric", "photometric-jaw"]), default=None,
-              help="Track with each frame's head pose refined against the frame by rendering the "
-              "evaluated avatar (docs/tracking.md); photometric-jaw: the jaw's opening with it.")
+@click.option("--refine", type=click.Choice(["photometric", "photometric-pose"]), default=None,
+              help="Track with each frame's head pose and jaw opening refined against the frame by "
+              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only.")
 @click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --refine: refine every k-th frame, interpolate the change between.")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,

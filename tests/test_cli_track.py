@@ -106,7 +106,7 @@ def test_subject_part_needs_the_subject_calibration(tmp_path, capsys, head_mp4):
 
 
 def test_photometric_refinement_needs_an_avatar(tmp_path, capsys, head_mp4):
-    for how in ("photometric", "photometric-jaw"):
+    for how in ("photometric", "photometric-pose"):
         code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine", how)
         assert code == 2 and "--avatar" in cap.err and not (tmp_path / "c.npz").exists()
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "c.npz"), "--refine-every", "3")
@@ -121,15 +121,15 @@ def test_a_refined_track_says_its_landmark_error_is_against_landmarks_it_no_long
 
     avatar = saved_avatar(tmp_path_factory)
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "r.npz"), "--avatar", str(avatar),
-                    "--refine", "photometric")
+                    "--refine", "photometric-pose")
     assert code == 0, cap.err
     assert "landmark error" in cap.err and "no longer follows" in cap.err
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "p.npz"), "--avatar", str(avatar))
     assert code == 0, cap.err
     assert "landmark error" in cap.err and "no longer follows" not in cap.err
-    # photometric-jaw: the jaw's opening moves too (the pose-only refinement leaves the fit's)
+    # photometric: the jaw's opening moves too (the pose-only refinement leaves the fit's)
     code, cap = run(capsys, "track", str(head_mp4), "-o", str(tmp_path / "j.npz"), "--avatar", str(avatar),
-                    "--refine", "photometric-jaw")
+                    "--refine", "photometric")
     assert code == 0, cap.err
     assert "no longer follows" in cap.err
     from avatarkit.track.io import load_tracking

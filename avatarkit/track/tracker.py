@@ -57,10 +57,11 @@ CALIBRATION_ROUNDS = 2
 
 
 # TrackOptions.refine's values (None: no refinement) and the `photometric.Settings` fields each
-# sets: "photometric-jaw" refines the jaw's opening too, from the render's depth, in 3 passes
-# (docs/tracking.md, session 14: on both real clips within 0.02 dB of 4 passes from the mesh's
-# points, on the synthetic avatar video as good, ~1.3x faster)
-REFINE_SETTINGS = {"photometric": {}, "photometric-jaw": dict(jaw=True, render_depth=True, iterations=3)}
+# sets: "photometric" refines the jaw's opening with the pose, from the render's depth, in 3 passes
+# (docs/tracking.md, session 14: better than the pose alone on the synthetic avatar video and both
+# real clips, and ~1.2x faster); "photometric-pose" is session 13's pose-only refinement (4 passes
+# from the head mesh's points), kept for comparison
+REFINE_SETTINGS = {"photometric": dict(jaw=True, render_depth=True, iterations=3), "photometric-pose": {}}
 REFINE_CHOICES = (None, *REFINE_SETTINGS)
 
 
@@ -103,12 +104,11 @@ class TrackOptions:
     2.16 -> 1.84 px), and the rendered heads do not pay for it (shaded template video 3.11 ->
     3.10 deg, jaw 0.046 -> 0.047 rad; grey clip 1.48 -> 1.36 px).
     refine: "photometric", with an avatar (`track_video(avatar=)`): each frame's rigid head pose
-    refined against the frame by rendering the avatar (`track.photometric`; docs/tracking.md,
-    session 13), before the smoother; None: the landmark fit's pose. refine_every: only every
-    k-th frame with a face is refined, the others get the change interpolated from their
-    refined neighbours. "photometric-jaw": the jaw's opening refined with the pose (the other two
-    jaw axes, expression and eyes stay the landmark fit's; `REFINE_SETTINGS`; docs/tracking.md,
-    session 14)."""
+    and the jaw's opening refined against the frame by rendering the avatar (`track.photometric`;
+    the other two jaw axes, expression and eyes stay the landmark fit's; docs/tracking.md,
+    sessions 13-14), before the smoother; "photometric-pose": the rigid pose only (session 13's);
+    None: the landmark fit's. refine_every: only every k-th frame with a face is refined, the
+    others get the change interpolated from their refined neighbours (`REFINE_SETTINGS`)."""
 
     face_index: int = 0
     smoothing: float = 4.0

@@ -13,8 +13,9 @@ mesh's reading bias is calibrated on renders of the avatar at known poses before
 (`track.subject_calibration`), and the fit uses that view correction.
 
 Pose refinement. With an avatar and `TrackOptions(refine="photometric")`, each frame's rigid
-head pose is refined against the frame by rendering the avatar (`track.photometric`) before the
-smoother (`"photometric-jaw"`: the jaw's opening with it); without an avatar it is an InputError.
+head pose and jaw opening are refined against the frame by rendering the avatar
+(`track.photometric`) before the smoother (`"photometric-pose"`: the pose only); without an
+avatar it is an InputError.
 
 Frame rate. A clip has one fps. A variable-frame-rate video is resampled to its average rate
 (`video.resample`: nearest frame in time; the clip's `frame_index` names the source frame of
