@@ -61,6 +61,26 @@ def splat_plane(z: float, x_range, colour, step: float = 0.01) -> GaussianSet:
     return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
 
 
+def gaussian_shell(radius: float, keep, colour, n: int, seed: int, scale: float = 0.006,
+                   extras: dict | None = None) -> GaussianSet:
+    """Flat Gaussians lying on a sphere of `radius` about the origin: `n` random directions, those
+    `keep(points)` (unit vectors, (n, 3) -> (n,) bool) selects; a head or a hair cap for the
+    multi-view hair tests. `extras`: name -> value, each filled for every Gaussian kept."""
+    from avatarkit.rotations import matrix_to_quat
+    from avatarkit.recon.hair_strands import unit_vectors
+
+    rng = np.random.default_rng(seed)
+    p = unit_vectors(rng.normal(size=(n, 3)))
+    p = p[keep(p)] * radius
+    m = len(p)
+    nrm = unit_vectors(p)
+    t = unit_vectors(np.cross(nrm, [1.0, 0, 0]) + 1e-9)
+    rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
+    ex = {k: np.full(m, v, np.asarray(v).dtype) for k, v in extras.items()} if extras else None
+    return GaussianSet.from_colors(p, matrix_to_quat(rot), np.tile([scale, scale, 0.001], (m, 1)),
+                                   np.full(m, 0.95), np.tile(colour, (m, 1)), extras=ex)
+
+
 def one_error_line(cap) -> str:
     """The CLI's stderr (a pytest capture) is exactly one `error: ...` line and no traceback:
     returns that line."""

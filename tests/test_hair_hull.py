@@ -8,28 +8,14 @@ import pytest
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_hull import grow_hull, missing_hair
-from avatarkit.recon.hair_strands import unit_vectors
 from avatarkit.recon.multiview import View
 from avatarkit.recon.segment import HAIR, SKIN
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
-from avatarkit.rotations import matrix_to_quat
+from helpers import gaussian_shell
 
 R_HEAD, R_HAIR = 0.08, 0.095
 SIZE = 128
-
-
-def _shell(radius, keep, colour, n, seed, extras=False):
-    rng = np.random.default_rng(seed)
-    p = unit_vectors(rng.normal(size=(n, 3)))
-    p = p[keep(p)] * radius
-    m = len(p)
-    nrm = unit_vectors(p)
-    t = unit_vectors(np.cross(nrm, [1.0, 0, 0]) + 1e-9)
-    rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
-    ex = {"strand": np.full(m, 3, np.int32), "seen": np.ones(m, np.uint8)} if extras else None
-    return GaussianSet.from_colors(p, matrix_to_quat(rot), np.tile([0.006, 0.006, 0.001], (m, 1)),
-                                   np.full(m, 0.95), np.tile(colour, (m, 1)), extras=ex)
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +38,9 @@ def _cap_scene(r_hair: float, behind: float):
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=R_HEAD)
     sdf = HeadSDF.build(mesh.vertices, mesh.faces, spacing=0.004)
-    bald = _shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
-    truth = _shell(r_hair, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2, True)
+    bald = gaussian_shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
+    truth = gaussian_shell(r_hair, lambda p: (p[:, 1] > 0.0) | (p[:, 2] < -0.3), (0.2, 0.12, 0.05), 8000, 2,
+                           extras={"strand": np.int32(3), "seen": np.uint8(1)})
     current = truth.subset((truth.means[:, 2] > -0.01) & (truth.means[:, 1] > 0.02))
     union = GaussianSet.concat([bald, truth.replace(extras={})])
     part = np.r_[np.full(len(bald), SKIN), np.full(len(truth), HAIR)].astype(np.int32)

@@ -14,7 +14,7 @@ from avatarkit.recon.multiview import View
 from avatarkit.recon.segment import HAIR, SKIN
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
-from avatarkit.rotations import matrix_to_quat
+from helpers import gaussian_shell
 
 R_HEAD, R_TRUE, R_THIN = 0.08, 0.092, 0.084
 SIZE = 128
@@ -23,18 +23,6 @@ AZIMUTHS = (0.0, 60.0, -60.0, 120.0, 180.0)
 
 def _cap(p):
     return (p[:, 1] > 0.0) | (p[:, 2] < -0.3)
-
-
-def _shell(radius, keep, colour, n, seed):
-    rng = np.random.default_rng(seed)
-    p = unit_vectors(rng.normal(size=(n, 3)))
-    p = p[keep(p)] * radius
-    m = len(p)
-    nrm = unit_vectors(p)
-    t = unit_vectors(np.cross(nrm, [1.0, 0, 0]) + 1e-9)
-    rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
-    return GaussianSet.from_colors(p, matrix_to_quat(rot), np.tile([0.005, 0.005, 0.001], (m, 1)),
-                                   np.full(m, 0.95), np.tile(colour, (m, 1)))
 
 
 def _views(bald, hair, azimuths=AZIMUTHS):
@@ -59,9 +47,9 @@ def scene():
 
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=R_HEAD)
     sdf = HeadSDF.build(mesh.vertices, mesh.faces, spacing=0.004)
-    bald = _shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1)
-    truth = _shell(R_TRUE, _cap, (0.2, 0.12, 0.05), 5000, 2)
-    thin = _shell(R_THIN, _cap, (0.2, 0.12, 0.05), 5000, 3)
+    bald = gaussian_shell(R_HEAD, lambda p: np.ones(len(p), bool), (0.9, 0.7, 0.6), 6000, 1, scale=0.005)
+    truth = gaussian_shell(R_TRUE, _cap, (0.2, 0.12, 0.05), 5000, 2, scale=0.005)
+    thin = gaussian_shell(R_THIN, _cap, (0.2, 0.12, 0.05), 5000, 3, scale=0.005)
     return sdf, bald, truth, thin, _views(bald, truth)
 
 
