@@ -361,26 +361,26 @@ class PoseRefiner:
         rot, tr = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
         a0 = pose_matrix(rot, tr)
         moved = _turned(person, self.axis, a0) if s.move_camera else None     # once per frame
-        drawn = jaw_now.copy()                                                # the jaw `moved` has
+        jaw_drawn = jaw_now.copy()                                                # the jaw `moved` has
         first = None
         n, res, renders = 0, float("nan"), 0
         for _ in range(s.iterations):
-            if s.jaw and not np.array_equal(drawn, jaw_now):
+            if s.jaw and not np.array_equal(jaw_drawn, jaw_now):
                 if s.move_camera:
                     moved, verts = self.rejawed(moved, jaw_now, expr, eyes, a0)
                 else:
                     person, verts = self.posed(jaw_now, expr, eyes)
-                drawn = jaw_now.copy()
+                jaw_drawn = jaw_now.copy()
             if s.crop_margin is None:
                 x0, y0, cam, tgt = 0, 0, self.camera, target
             else:
                 x0, y0, x1, y1 = self.box(verts, rot, tr, int(s.crop_margin))
                 cam, tgt = self.crop_camera((x0, y0, x1, y1)), target[y0:y1, x0:x1]
             if s.move_camera:
-                drawn_ = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam, s.render_depth)
+                image = self.render_moved(moved, pose_matrix(rot, tr) @ np.linalg.inv(a0), tgt, cam, s.render_depth)
             else:
-                drawn_ = self.render(person, rot, tr, tgt, cam, s.render_depth)
-            comp, alpha = drawn_[:2]
+                image = self.render(person, rot, tr, tgt, cam, s.render_depth)
+            comp, alpha = image[:2]
             renders += 1
             if s.jaw:
                 X, w, dX = self.points(verts, rot, tr, cam, self.jaw_derivative(jaw_now, expr, eyes), self.jaw_weight)
@@ -389,7 +389,7 @@ class PoseRefiner:
             if s.render_depth:
                 # the surface the image shows is the splats', not the mesh's (a few mm off it,
                 # more at the hairline): its depth sets the parallax the turn is read from
-                X = unproject(drawn_[2], cam)
+                X = unproject(image[2], cam)
             keep = (w > 0.5) & (alpha > 0.5)
             flow, ok = consistent_flow(comp, tgt, s.fb_tolerance)
             keep &= ok
