@@ -413,12 +413,14 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 
             grown, report.info["segment3d"]["hull"] = grow_hull(lifted.bald, hair, keyviews, sdf)
             hair = GaussianSet.concat([hair, grown]) if len(grown) else hair
-        if keyviews and len(hair) and FIT_HAIR_OUTLINE:
+        if keyviews and len(hair) and FIT_HAIR_OUTLINE and views.info.get("fit_outline", True):
             from avatarkit.recon.hair_outline import fit_outline
 
-            edge = frozenset(views.info.get("tracking_edge", []))
-            hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(lifted.bald, hair, keyviews, sdf,
-                                                                                   edge)
+            edge = frozenset(views.info.get("tracking_edge", [])) | frozenset(views.info.get("untrusted_poses", []))
+            # the keyframes' poses registered against the draft build where the video build did so
+            # (`track.video_build.refine_keyframes`): a turn's end read short asks for pushes
+            hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(
+                lifted.bald, hair, views.outline_views(fit, keyviews), sdf, edge)
         if len(hair) == 0:
             report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):
