@@ -83,7 +83,10 @@ HAIR_END_FROM_VIEWS = False
 #: single-frame build +3.00 at the benchmark's seed; mesh subject +0.22..+0.24 / +0.06..+0.14;
 #: the held-out bob -0.05 / +0.27; front and +-45 within -0.29..+0.21), but on the 32-frame whip clip, whose
 #: turn-end frames' yaw is read short without the face being lost, it costs the sample avatar
-#: 0.98 dB at +45 (docs/video-build.md, "Where the profile's error is", session 14). A video with
+#: 0.98 dB at +45 (docs/video-build.md, "Where the profile's error is", session 14). With the
+#: keyframes' poses registered against the draft build (`track.video_build.OUTLINE_POSES`,
+#: session 14 later) the whip's +45 loss goes (-0.02 dB at two seeds) but -45 then loses 0.33 /
+#: 0.39 (its +50-degree end frame still registered 3 degrees short): still off. A video with
 #: one keyframe (the real clips) never runs it
 FIT_HAIR_OUTLINE = False
 #: a video build (several keyframes) then matches its colours to every keyframe at once, each
