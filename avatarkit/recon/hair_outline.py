@@ -10,7 +10,9 @@ of the mesh subject's and 53-66 % of the bob's, and the video build left it wher
 single-frame build has it (docs/video-build.md, "Where the profile's error is").
 
 For each labelled keyframe but the tracking's edge (`fit_outline`'s skip: frames whose yaw the
-landmark fit under-reads, whose silhouettes sit degrees off the avatar's):
+landmark fit under-reads, whose silhouettes sit degrees off the avatar's; the video build also
+skips a keyframe whose pose registered against its draft stopped at the search's end, and gives
+the others that registered pose: `track.video_build.refine_keyframes`, `OUTLINE_POSES`):
 1. the avatar (bald + hair) is rendered from it (at most `hair_hull.RENDER_SIDE` px); a hair
    Gaussian is on its outline when its centre lies within `ON_OUTLINE` px of an uncovered
    pixel (alpha <= `multiview.ALPHA_MIN`);

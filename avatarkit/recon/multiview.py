@@ -506,12 +506,15 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
 @dataclass
 class Keyframe:
     """A keyframe as the video build hands it over: image (H, W, 3) uint8; pose (4, 4) the
-    joint fit's head pose in the view frame; sharpness in [0, 1]; frame: video frame number."""
+    joint fit's head pose in the view frame; sharpness in [0, 1]; frame: video frame number;
+    outline_pose: (4, 4) the pose the hair's outline stage measures this keyframe's silhouette
+    with (`track.video_build.refine_keyframes`: registered against the draft build; None: pose)."""
 
     image: np.ndarray
     pose: np.ndarray
     sharpness: float
     frame: int
+    outline_pose: np.ndarray | None = None
 
 
 def _row_keys(points) -> np.ndarray:
@@ -567,6 +570,22 @@ class VideoViews:
                                             colours).astype(np.int32)
             views.append(v)
         return views
+
+    def outline_views(self, fit, views: list[View]) -> list[View]:
+        """`views` (as `register` made them, in the keyframes' order) with the camera of each
+        keyframe that has an `outline_pose` made from it instead (labels and image unchanged: they
+        are the frame's)."""
+        import dataclasses
+
+        ref = self.keyframes[0]
+        out = []
+        for k, v in zip(self.keyframes, views):
+            if k.outline_pose is not None and not v.reference:
+                cam = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), ref.pose,
+                                       [k.outline_pose])[0]
+                v = dataclasses.replace(v, camera=cam)
+            out.append(v)
+        return out
 
     def keep_view_colours(self, bald, hair):
         """Bald and hair with the colours `colour` gave the Gaussians only the other keyframes

@@ -78,14 +78,15 @@ GROW_HAIR_HULL = True
 HAIR_END_FROM_VIEWS = False
 #: a video build moves its outermost hair out to where the keyframes' silhouettes show the
 #: person's hair beyond the avatar's outline (`recon.hair_outline`; the tracking's edge frames
-#: do not count). Off: on the benchmark's eased clip it gains at every profile over two lifter
-#: seeds (sample avatar +1.43 / +2.05..+2.15 dB at +90 / -90, its profile gain over the
-#: single-frame build +3.00 at the benchmark's seed; mesh subject +0.22..+0.24 / +0.06..+0.14;
-#: the held-out bob -0.05 / +0.27; front and +-45 within -0.29..+0.21), but on the 32-frame whip clip, whose
-#: turn-end frames' yaw is read short without the face being lost, it costs the sample avatar
-#: 0.98 dB at +45 (docs/video-build.md, "Where the profile's error is", session 14). A video with
-#: one keyframe (the real clips) never runs it
-FIT_HAIR_OUTLINE = False
+#: do not count), each turned keyframe seen at its pose registered against the draft build, twice
+#: (`track.video_build.OUTLINE_POSES`, `SECOND_ROUND`). On since session 14 (later): with the
+#: joint fit's poses it cost the 32-frame whip clip's sample avatar 0.98 dB at +45 (turn-end
+#: frames read short without the face being lost); with the registered poses the whip's worst
+#: view is -0.04 (two seeds, both tuning subjects), and the eased clip keeps its profile gains
+#: (sample avatar +1.27 / +2.11 dB at +90 / -90, mesh subject +0.10 / +0.12, the held-out bob
+#: -0.11 / +0.24; docs/video-build.md, "Keyframe poses the outline can trust"). A video with one
+#: keyframe (the real clips) never runs it
+FIT_HAIR_OUTLINE = True
 #: a video build (several keyframes) then matches its colours to every keyframe at once, each
 #: Gaussian's update led by the keyframes that face it best (`recon.facing_refine`). Off:
 #: measured on the synthetic turning videos (eased clip, gain front / +-45 / +-90 degrees) the
@@ -413,12 +414,14 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 
             grown, report.info["segment3d"]["hull"] = grow_hull(lifted.bald, hair, keyviews, sdf)
             hair = GaussianSet.concat([hair, grown]) if len(grown) else hair
-        if keyviews and len(hair) and FIT_HAIR_OUTLINE:
+        if keyviews and len(hair) and FIT_HAIR_OUTLINE and views.info.get("fit_outline", True):
             from avatarkit.recon.hair_outline import fit_outline
 
-            edge = frozenset(views.info.get("tracking_edge", []))
-            hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(lifted.bald, hair, keyviews, sdf,
-                                                                                   edge)
+            edge = frozenset(views.info.get("tracking_edge", [])) | frozenset(views.info.get("untrusted_poses", []))
+            # the keyframes' poses registered against the draft build where the video build did so
+            # (`track.video_build.refine_keyframes`): a turn's end read short asks for pushes
+            hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(
+                lifted.bald, hair, views.outline_views(fit, keyviews), sdf, edge)
         if len(hair) == 0:
             report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):
