@@ -110,3 +110,21 @@ def test_outline_views_take_the_outline_pose_camera_and_keep_the_rest():
     keys[1].outline_pose = a.copy()
     np.testing.assert_allclose(vv.outline_views(fit, views)[1].camera.world_to_camera,
                                views[1].camera.world_to_camera, atol=1e-12)
+
+
+def test_without_a_draft_the_turned_keyframes_are_not_trusted_by_the_outline():
+    """No lost turn, no draft, no registration: a keyframe turned past REFINE_MIN_YAW keeps the
+    joint fit's pose, which a fast turn reads short, so the outline stage skips it; registered
+    ones and those near the front stay."""
+    from avatarkit.track.video_build import REFINE_MIN_YAW, unregistered_turned
+
+    deg = math.degrees(REFINE_MIN_YAW)
+    ref = pose_from_params([0.1, 0.0, 0.0, 0.0, -0.05, -0.5])
+    image = np.zeros((4, 4, 3), np.uint8)
+
+    def key(yaw, frame):
+        return Keyframe(image, pose_from_params([0.1 + math.radians(yaw), 0.0, 0.0, 0.0, -0.05, -0.5]), 1.0, frame)
+
+    keys = [Keyframe(image, ref, 1.0, 0), key(deg - 3, 1), key(deg + 3, 2), key(-(deg + 10), 3), key(deg + 20, 4)]
+    keys[4].outline_pose = keys[4].pose
+    assert unregistered_turned(VideoViews(np.zeros(10), keys)) == [2, 3]

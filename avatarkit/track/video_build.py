@@ -290,6 +290,12 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             timings["register"] = time.perf_counter() - t0
             if progress is not None:
                 progress("register", 0, len(STAGES), timings["register"])
+        elif views is not None and OUTLINE_POSES != "tracked" and _outline_on():
+            # no draft to register the keyframes against (the tracker lost no turn): a keyframe
+            # turned past REFINE_MIN_YAW keeps the joint fit's pose, which a fast turn reads a few
+            # degrees short (the whip clip, unregistered: -0.98 dB at +45), so the hair's outline
+            # does not measure with it
+            views.info["untrusted_poses"] = unregistered_turned(views)
         avatar = build_avatar(png, options, progress, views=views)
     if JAW_CORRECTIVE if jaw_corrective is None else jaw_corrective:
         from avatarkit.head.jaw_corrective import apply_jaw_corrective
@@ -352,6 +358,16 @@ def _outline_on() -> bool:
     from avatarkit.recon import pipeline
 
     return bool(pipeline.FIT_HAIR_OUTLINE)
+
+
+def unregistered_turned(views) -> list[int]:
+    """The frames of views' keyframes (not the reference) turned at least `REFINE_MIN_YAW` from the
+    reference keyframe that have no registered `outline_pose`."""
+    from avatarkit.track.register import params_from_pose
+
+    ref = params_from_pose(views.keyframes[0].pose)[0]
+    return [k.frame for k in views.keyframes[1:]
+            if k.outline_pose is None and abs(params_from_pose(k.pose)[0] - ref) >= REFINE_MIN_YAW]
 
 
 def refine_keyframes(draft, views, tracked: int, everywhere: bool = False, size: int | None = None) -> list[dict]:
@@ -433,5 +449,5 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
 __all__ = ["BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OUTLINE_POSES", "REFINE_BEFORE",
            "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
-           "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames",
+           "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
            "turned_guess"]
