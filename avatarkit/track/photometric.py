@@ -266,8 +266,9 @@ class PoseRefiner:
         change @ a0, change (4, 4): the camera moves by the inverse change instead of the
         Gaussians (the same image up to the hair's twist: `_turned` turns a principal-axis
         hair Gaussian by the shortest arc, which a composition of turns does only to second
-        order). depth: also the splats' expected camera depth (h, w) (alpha-weighted, area-
-        averaged as the colours are, divided by the alpha: 0 where nothing is drawn)."""
+        order). depth: also the splats' expected camera depth (h, w) (the renderer's, weighted by
+        its alpha, area-averaged as the colours are, divided by the averaged alpha: 0 where
+        nothing is drawn)."""
         from avatarkit.render import render
 
         import cv2
@@ -279,17 +280,19 @@ class PoseRefiner:
         w2c[:3, :3] = _C
         big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height, w2c @ np.asarray(change, np.float64))
         r = render(moved, big, (0.0, 0.0, 0.0))
-        rgb, alpha, z = r.rgb, r.alpha, r.depth
+        # the renderer's depth is already divided by its alpha: weight it back by the alpha
+        # before the area average, so a pixel's depth is the average over what its sub-pixels drew
+        rgb, alpha, za = r.rgb, r.alpha, r.depth * r.alpha
         if k > 1:
             size = (cam.width, cam.height)
             rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
             alpha = cv2.resize(alpha, size, interpolation=cv2.INTER_AREA)
-            z = cv2.resize(z, size, interpolation=cv2.INTER_AREA) if depth else z
+            za = cv2.resize(za, size, interpolation=cv2.INTER_AREA) if depth else za
         a = np.clip(alpha, 0.0, 1.0)[..., None]
         comp = np.clip(rgb + (1.0 - a) * frame_small, 0.0, 1.0).astype(np.float32)
         if not depth:
             return comp, alpha
-        return comp, alpha, np.where(alpha > 1e-3, z / np.maximum(alpha, 1e-3), 0.0)
+        return comp, alpha, np.where(alpha > 1e-3, za / np.maximum(alpha, 1e-3), 0.0)
 
     def box(self, vertices: np.ndarray, rotation, translation, margin: int) -> tuple[int, int, int, int]:
         """(x0, y0, x1, y1): the small camera's pixels holding the face-and-scalp mesh at the
