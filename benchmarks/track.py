@@ -49,6 +49,7 @@ VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 
 
 from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
+from avatarkit.track.tracker import REFINE_SETTINGS  # noqa: E402
 
 
 def mixed_clip(T: int, fps: float):
@@ -170,7 +171,7 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 # Settings fields); with "jaw": `refine="photometric"`, without: "photometric-pose". Session 14 also ran: the pose from the
 # render's depth (render_depth=True), the jaw in 3 passes from the mesh's points, the jaw from the
 # render's depth in 4 passes (docs/tracking.md)
-_JAW = dict(jaw=True, render_depth=True, iterations=3)        # tracker.REFINE_SETTINGS["photometric"]
+_JAW = REFINE_SETTINGS["photometric"]
 REFINE_RUNS = (("tracker", 0, {}),
                ("refined every 1, the pose (photometric-pose, session 13's photometric)", 1, {}),
                ("refined every 1, with the jaw, 4 passes from the mesh's points", 1, dict(jaw=True)),

@@ -138,3 +138,17 @@ def test_a_refined_track_says_its_landmark_error_is_against_landmarks_it_no_long
     np.testing.assert_allclose(pose.jaw, plain.jaw, atol=1e-6)
     assert np.abs(jaw.jaw[:, 0] - plain.jaw[:, 0]).max() > 1e-3
     np.testing.assert_allclose(jaw.jaw[:, 1:], plain.jaw[:, 1:], atol=1e-6)
+
+
+def test_the_refine_choices_are_the_trackers():
+    """The CLI lists its --refine choices without importing the tracker (start-up time); they
+    must stay `tracker.REFINE_SETTINGS`' names."""
+    import click
+
+    from avatarkit.cli.evaluate_cmd import evaluate_cmd
+    from avatarkit.cli.track_cmd import track_cmd
+    from avatarkit.track.tracker import REFINE_SETTINGS
+
+    for cmd in (track_cmd, evaluate_cmd):
+        (opt,) = [p for p in cmd.params if p.name == "refine"]
+        assert isinstance(opt.type, click.Choice) and list(opt.type.choices) == list(REFINE_SETTINGS)

@@ -8,6 +8,7 @@ shear or non-uniform scale is a FormatError), so what comes back is metres, +Y u
 """
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -149,31 +150,30 @@ def load_usd(path: str | os.PathLike, prim_path: str | None = None, time: float 
     """
     path = Path(path)
     stage = open_usd_stage(path)
-    try:
-        prims = find_splat_prims(stage)
-        if prim_path is not None:
-            sdf_path = check_prim_path(prim_path)
-            prim = stage.GetPrimAtPath(sdf_path)
-            if not prim or not prim.IsA(UsdVol.ParticleField3DGaussianSplat):
-                have = ", ".join(str(p.GetPath()) for p in prims) or "none"
-                raise InputError(f"no ParticleField3DGaussianSplat prim at {prim_path} "
-                                 f"(splat prims in this file: {have})")
-        elif not prims:
-            raise FormatError("has no ParticleField3DGaussianSplat prim")
-        elif len(prims) > 1:
-            have = ", ".join(str(p.GetPath()) for p in prims)
-            raise InputError(f"has {len(prims)} splat prims ({have}); choose one with a prim path")
-        else:
-            prim = prims[0]
-        gs = read_splat_prim(prim, time)
-        if world and len(gs):
-            gs = to_metres_y_up(stage, prim, gs, time)
-        return gs
-    except AvatarKitError as e:
-        raise e.with_path(path) from None
-    except Tf.ErrorException as e:
-        # a damaged crate file opens, and fails only when a value is read (found by the fuzz tests)
-        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
+    # a damaged crate file opens, and fails only when a value is read (found by the fuzz tests)
+    with usd_errors(path):
+        try:
+            prims = find_splat_prims(stage)
+            if prim_path is not None:
+                sdf_path = check_prim_path(prim_path)
+                prim = stage.GetPrimAtPath(sdf_path)
+                if not prim or not prim.IsA(UsdVol.ParticleField3DGaussianSplat):
+                    have = ", ".join(str(p.GetPath()) for p in prims) or "none"
+                    raise InputError(f"no ParticleField3DGaussianSplat prim at {prim_path} "
+                                     f"(splat prims in this file: {have})")
+            elif not prims:
+                raise FormatError("has no ParticleField3DGaussianSplat prim")
+            elif len(prims) > 1:
+                have = ", ".join(str(p.GetPath()) for p in prims)
+                raise InputError(f"has {len(prims)} splat prims ({have}); choose one with a prim path")
+            else:
+                prim = prims[0]
+            gs = read_splat_prim(prim, time)
+            if world and len(gs):
+                gs = to_metres_y_up(stage, prim, gs, time)
+            return gs
+        except AvatarKitError as e:
+            raise e.with_path(path) from None
 
 
 def open_usd_stage(path: str | os.PathLike) -> Usd.Stage:
@@ -185,19 +185,26 @@ def open_usd_stage(path: str | os.PathLike) -> Usd.Stage:
     if not path.is_file():
         raise InputError("file not found", path)
     probe_usd_file(path)  # a damaged crate can crash USD's reader: learn that in a child process
-    try:
-        with native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
-            held = Sdf.Layer.Find(str(path))
-            if held is not None:
-                # USD's layer registry hands back a layer still alive as it was first read: a file
-                # rewritten since reads stale, and one cut shorter crashes reading the old mapping
-                held.Reload(force=True)
-            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Tf.ErrorException as e:
-        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
+    with usd_errors(path), native_stderr_as_warnings(str(path)):  # missing references: warnings, not stray lines
+        held = Sdf.Layer.Find(str(path))
+        if held is not None:
+            # USD's layer registry hands back a layer still alive as it was first read: a file
+            # rewritten since reads stale, and one cut shorter crashes reading the old mapping
+            held.Reload(force=True)
+        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     if stage is None:
         raise FormatError("not a readable USD file", path)
     return stage
+
+
+@contextlib.contextmanager
+def usd_errors(path: Path):
+    """OpenUSD's own errors (`Tf.ErrorException`) inside the block become a FormatError naming
+    `path`: "not a readable USD file (USD's last line)"."""
+    try:
+        yield
+    except Tf.ErrorException as e:
+        raise FormatError(f"not a readable USD file ({last_line(e)})", path) from None
 
 
 def to_metres_y_up(stage: Usd.Stage, prim: Usd.Prim, gs: GaussianSet, time: float | None) -> GaussianSet:
@@ -218,4 +225,4 @@ def to_metres_y_up(stage: Usd.Stage, prim: Usd.Prim, gs: GaussianSet, time: floa
     return gs.transform(rotation=r, translation=t, scale=s)
 
 
-__all__ = ["find_splat_prims", "load_usd", "open_usd_stage", "read_splat_prim", "to_metres_y_up"]
+__all__ = ["find_splat_prims", "load_usd", "open_usd_stage", "read_splat_prim", "to_metres_y_up", "usd_errors"]

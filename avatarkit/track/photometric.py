@@ -276,9 +276,8 @@ class PoseRefiner:
         cam = self.camera if camera is None else camera
         k = max(1, int(self.settings.supersample))
         big = cam.with_size(cam.width * k, cam.height * k)
-        w2c = np.eye(4)
-        w2c[:3, :3] = _C
-        big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height, w2c @ np.asarray(change, np.float64))
+        big = Camera(big.fx, big.fy, big.cx, big.cy, big.width, big.height,
+                     big.world_to_camera @ np.asarray(change, np.float64))
         r = render(moved, big, (0.0, 0.0, 0.0))
         # the renderer's depth is already divided by its alpha: weight it back by the alpha
         # before the area average, so a pixel's depth is the average over what its sub-pixels drew
@@ -438,17 +437,14 @@ class PoseRefiner:
         draws, at the cost of the ~1/6 of the Gaussians that move (a test compares them)."""
         from avatarkit.gaussians.gaussian_set import GaussianSet
         from avatarkit.rig.binding_kernel import binding_to_world
-        from avatarkit.rotations import matrix_to_quat, quat_multiply
+        from avatarkit.track.subject_calibration import _turned
 
         ids, binding = self._jaw_part()
         v = self.model.forward(self._params(jaw, expr, eyes)[1])[0][0]
         m, q, sc = binding_to_world(binding, np.ascontiguousarray(v, np.float32))
-        R = a0[:3, :3]
+        part = _turned(GaussianSet.from_checked(m, q, sc, moved.opacities[ids], moved.sh[ids]), None, a0)
         means, quats, scales = moved.means.copy(), moved.quats.copy(), moved.scales.copy()
-        means[ids] = (np.asarray(m, np.float64) @ R.T + a0[:3, 3]).astype(np.float32)
-        turn = np.repeat(matrix_to_quat(R)[None], len(ids), 0)
-        quats[ids] = quat_multiply(turn, np.asarray(q, np.float64)).astype(np.float32)
-        scales[ids] = sc
+        means[ids], quats[ids], scales[ids] = part.means, part.quats, sc
         return GaussianSet.from_checked(means, quats, scales, moved.opacities, moved.sh), v.astype(np.float64)
 
     # -- the slow obvious reference ------------------------------------------------------------
