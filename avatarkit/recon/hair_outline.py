@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon.hair_hull import _shrunk
 from avatarkit.recon.hair_strands import unit_vectors
 from avatarkit.recon.multiview import ALPHA_MIN, View, silhouette_outside, soft_person
 
@@ -59,12 +60,6 @@ MAX_PUSH = 0.012
 #: a view moves a Gaussian outward by less than this many pixels per millimetre of push: the
 #: normal points along the ray, the view cannot tell its height
 MIN_PX_PER_MM = 0.1
-
-
-def _shrunk(camera):
-    from avatarkit.recon.hair_hull import _shrunk as shrunk
-
-    return shrunk(camera)
 
 
 def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
@@ -135,7 +130,6 @@ def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
             break
     # the other side of the disagreement: the centre's own pixel not the person's (the
     # avatar beyond the silhouette there)
-    beyond = np.zeros(n, bool)
     beyond[idx] = ~person[yi[idx], xi[idx]]
     # both edges are read to the pixel (the render's alpha and the person mask, each at 0.5)
     gap = np.maximum(gap - GAP_MARGIN, 0.0)
@@ -201,20 +195,14 @@ def fit_outline(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf,
     push = np.where(measured[:, None], best, 0.0)
     norm = np.linalg.norm(push, axis=1)
     push *= (np.minimum(norm, MAX_PUSH) / np.maximum(norm, 1e-12))[:, None]
-    # the visual hull: a pushed centre must stay inside every keyframe's person mask
-    for _ in range(3):
-        moved = np.linalg.norm(push, axis=1) > 0
-        if not moved.any():
-            break
-        out = silhouette_outside(means[moved] + push[moved], labelled) > 0
-        if not out.any():
-            break
-        push[np.flatnonzero(moved)[out]] *= 0.5
-    else:
-        moved = np.linalg.norm(push, axis=1) > 0
-        if moved.any():
-            out = silhouette_outside(means[moved] + push[moved], labelled) > 0
-            push[np.flatnonzero(moved)[out]] = 0.0
+    # the visual hull: a pushed centre must stay inside every keyframe's person mask; the push
+    # is halved up to three times until it does, else dropped (all four tried in one test)
+    moved = np.flatnonzero(np.linalg.norm(push, axis=1) > 0)
+    if len(moved):
+        s = 0.5 ** np.arange(4)
+        trial = means[moved][None] + s[:, None, None] * push[moved][None]          # (4, M, 3)
+        out = (silhouette_outside(trial.reshape(-1, 3), labelled) > 0).reshape(4, -1)
+        push[moved] *= np.where(out.all(0), 0.0, s[np.argmax(~out, 0)])[:, None]
     size = np.linalg.norm(push, axis=1)
     pushed = size > 1e-4
     info["pushed"] = int(pushed.sum())

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from avatarkit.cage.mesh import face_areas
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.rotations import matrix_to_quat
 
@@ -153,11 +154,6 @@ def opening_sign(model, shape: np.ndarray) -> float:
         return 1.0
     dy = posed_rest(model, shape, 0.1)[front, 1] - rest[front, 1]
     return 1.0 if dy.mean() < 0 else -1.0
-
-
-def face_areas(v: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    t = v[faces]
-    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
 
 
 def stretching_faces(model, shape: np.ndarray) -> np.ndarray:

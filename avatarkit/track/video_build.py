@@ -272,20 +272,17 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             views.info["registered"] = figures
             source["registered"] = figures
             if refine:
-                refined = refine_keyframes(draft, views, len(views.keyframes) if REFINE_TURNED else len(kf),
-                                           everywhere=OUTLINE_POSES == "registered-all")
-                views.info["refined"] = refined
-                if SKIP_AT_BOUND:
-                    views.info["untrusted_poses"] = [f["frame"] for f in refined if f["at_bound"]]
-                if SECOND_ROUND:
-                    # a second draft whose outline the registered poses fitted, and every pose
-                    # registered again against it at `SECOND_ROUND` pixels
-                    draft = build_avatar(png, first, None, views=views)
-                    refined = refine_keyframes(draft, views, len(views.keyframes) if REFINE_TURNED else len(kf),
-                                               everywhere=OUTLINE_POSES == "registered-all", size=SECOND_ROUND)
+                tracked = len(views.keyframes) if REFINE_TURNED else len(kf)
+                # a second round (SECOND_ROUND): a draft whose outline the first round's poses
+                # fitted, and every pose registered again against it at that many pixels
+                for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
+                    if size is not None:
+                        draft = build_avatar(png, first, None, views=views)
+                    refined = refine_keyframes(draft, views, tracked, everywhere=OUTLINE_POSES == "registered-all",
+                                               size=size)
+                    views.info["refined"] = refined
                     if SKIP_AT_BOUND:
                         views.info["untrusted_poses"] = [f["frame"] for f in refined if f["at_bound"]]
-                    views.info["refined"] = refined
                 source["refined"] = refined
             timings["register"] = time.perf_counter() - t0
             if progress is not None:
