@@ -127,3 +127,21 @@ def test_build_with_the_open_mouth_round_trips(tmp_path, monkeypatch):
     assert len(loaded.bald) == 6000 + avatar.provenance["build"]["coverage"]["bald_added"] \
         + info["teeth"] + info["cavity"]
     np.testing.assert_array_equal(loaded.bald.extras["binding"], avatar.bald.extras["binding"])
+
+
+def test_mouth_sized_by_this_heads_joints(head):
+    """The teeth's arch is sized by the eyes' spacing of the head given, not the mean head's: a
+    head 1.2x larger has a 1.2x wider mouth unit (the joints are a linear regression of it)."""
+    model, shape, rest, _, _, _ = head
+    geo = mouth.mouth_geometry(model, rest)
+    big = mouth.mouth_geometry(model, 1.2 * rest)
+    assert big.u == pytest.approx(1.2 * geo.u, rel=1e-6)
+    np.testing.assert_allclose(big.centre[:2], 1.2 * geo.centre[:2], rtol=1e-6, atol=1e-9)
+
+
+def test_one_jaw_probe_gives_what_posing_each_time_did(head):
+    model, shape, rest, _, _, _ = head
+    probe = mouth.jaw_probe(model, shape)
+    np.testing.assert_array_equal(probe.rest, mouth.posed_rest(model, shape, 0.0))
+    np.testing.assert_array_equal(probe.opened, mouth.posed_rest(model, shape, probe.sign * mouth.PROBE_JAW))
+    np.testing.assert_array_equal(mouth.stretching_faces(model, shape), mouth.stretching_faces(model, shape, probe))

@@ -116,7 +116,10 @@ def mouth_geometry(model, vertices: np.ndarray) -> MouthGeometry | None:
     lips = model.region_mask("lips")
     if inner.sum() < 3 or lips.sum() < 3:
         return None
-    joints = model.rest_joints()[0].astype(np.float64)
+    from avatarkit.head.lbs import _regress
+
+    # the joints of this head (its shape), not the mean head's: the eyes' spacing sizes the teeth
+    joints = np.asarray(_regress(model.J_regressor, v[None]), np.float64)[0]
     u = float(np.linalg.norm(joints[3] - joints[4])) or 0.064
     mid_x = 0.5 * (joints[3, 0] + joints[4, 0])
     near = inner & (np.abs(v[:, 0] - mid_x) < 0.15 * u)
@@ -143,48 +146,60 @@ def posed_rest(model, shape: np.ndarray, jaw: float) -> np.ndarray:
     return v[0].astype(np.float64)
 
 
-def opening_sign(model, shape: np.ndarray) -> float:
-    """+1 or -1: the sign of a jaw x rotation that moves the jaw's front vertices down."""
-    from avatarkit.face.fit import JAW_JOINT
+@dataclass(frozen=True)
+class JawProbe:
+    """The rest head and the head with its jaw opened PROBE_JAW, posed once for the tests below
+    (each used to pose the model again: 8 forwards for one open mouth)."""
 
-    rest = posed_rest(model, shape, 0.0)
-    w = model.weights[:, JAW_JOINT]
-    front = w > 0.5
-    if not front.any():
-        return 1.0
-    dy = posed_rest(model, shape, 0.1)[front, 1] - rest[front, 1]
-    return 1.0 if dy.mean() < 0 else -1.0
+    sign: float            # +1 / -1: the jaw x rotation that moves the jaw's front down
+    rest: np.ndarray       # (V, 3) float64
+    opened: np.ndarray     # (V, 3) float64, jaw opened by sign * PROBE_JAW
+    jaw_transform: np.ndarray   # (4, 4) the jaw joint's rest-to-opened transform
 
 
-def stretching_faces(model, shape: np.ndarray) -> np.ndarray:
-    """(F,) bool: faces whose area grows by more than STRETCH when the jaw opens PROBE_JAW."""
-    sign = opening_sign(model, shape)
-    faces = np.asarray(model.faces)
-    a0 = face_areas(posed_rest(model, shape, 0.0), faces)
-    a1 = face_areas(posed_rest(model, shape, sign * PROBE_JAW), faces)
-    return a1 > STRETCH * np.maximum(a0, 1e-12)
-
-
-def rigid_faces(model, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(F,) bool twice: the faces that stay put with the skull / move rigidly with the jaw when
-    it opens PROBE_JAW (every vertex within RIGID_TOL of that), pose correctives included: a
-    jaw weight of 0 is not enough where the model's posedirs move the upper lip."""
+def jaw_probe(model, shape: np.ndarray) -> JawProbe:
     from avatarkit.face.fit import JAW_JOINT
     from avatarkit.head.model import HeadParams
 
-    sign = opening_sign(model, shape)
     rest = posed_rest(model, shape, 0.0)
+    front = model.weights[:, JAW_JOINT] > 0.5
+    sign = 1.0
+    if front.any():
+        dy = posed_rest(model, shape, 0.1)[front, 1] - rest[front, 1]
+        sign = 1.0 if dy.mean() < 0 else -1.0
     v, T = model.forward(HeadParams(jaw=np.array([sign * PROBE_JAW, 0.0, 0.0]),
                                     shape=np.asarray(shape, np.float32)))
-    v = v[0].astype(np.float64)
-    t = T[0, JAW_JOINT].astype(np.float64)
+    return JawProbe(sign, rest, v[0].astype(np.float64), T[0, JAW_JOINT].astype(np.float64))
+
+
+def opening_sign(model, shape: np.ndarray) -> float:
+    """+1 or -1: the sign of a jaw x rotation that moves the jaw's front vertices down."""
+    return jaw_probe(model, shape).sign
+
+
+def stretching_faces(model, shape: np.ndarray, probe: JawProbe | None = None) -> np.ndarray:
+    """(F,) bool: faces whose area grows by more than STRETCH when the jaw opens PROBE_JAW."""
+    probe = probe or jaw_probe(model, shape)
+    faces = np.asarray(model.faces)
+    a0 = face_areas(probe.rest, faces)
+    a1 = face_areas(probe.opened, faces)
+    return a1 > STRETCH * np.maximum(a0, 1e-12)
+
+
+def rigid_faces(model, shape: np.ndarray, probe: JawProbe | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) bool twice: the faces that stay put with the skull / move rigidly with the jaw when
+    it opens PROBE_JAW (every vertex within RIGID_TOL of that), pose correctives included: a
+    jaw weight of 0 is not enough where the model's posedirs move the upper lip."""
+    probe = probe or jaw_probe(model, shape)
+    rest, v, t = probe.rest, probe.opened, probe.jaw_transform
     still = np.linalg.norm(v - rest, axis=1) < RIGID_TOL
     with_jaw = np.linalg.norm(v - (rest @ t[:3, :3].T + t[:3, 3]), axis=1) < RIGID_TOL
     f = np.asarray(model.faces)
     return still[f].all(axis=1), with_jaw[f].all(axis=1)
 
 
-def part_lips(model, vertices: np.ndarray, shape: np.ndarray, gaussians: GaussianSet) -> tuple[np.ndarray, int]:
+def part_lips(model, vertices: np.ndarray, shape: np.ndarray, gaussians: GaussianSet,
+              probe: JawProbe | None = None, degenerate: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """New host faces (N,) for `gaussians` (with a `binding` extra on `model`'s faces): those on
     faces that stretch with the jaw go to the nearest non-stretching face on their side of the
     mouth -> (binding, how many moved)."""
@@ -201,12 +216,14 @@ def part_lips(model, vertices: np.ndarray, shape: np.ndarray, gaussians: Gaussia
         if region in model.regions:
             mouth |= model.region_mask(region)
     # only the lips' and mouth's: the cheeks' stretching faces keep their skin over the corners
-    stretch = stretching_faces(model, shape) & (mouth[faces].sum(axis=1) >= 2)
+    stretch = stretching_faces(model, shape, probe) & (mouth[faces].sum(axis=1) >= 2)
     moving = np.flatnonzero(stretch[ids])
     if len(moving) == 0:
         return ids, 0
     w = np.asarray(model.weights[:, JAW_JOINT], np.float64)[faces].mean(axis=1)    # (F,)
-    bad = stretch | degenerate_faces(np.asarray(vertices, np.float64), faces)
+    if degenerate is None:
+        degenerate = degenerate_faces(np.asarray(vertices, np.float64), faces)
+    bad = stretch | degenerate
     lower = w[ids[moving]] >= 0.5
     for side, sel in ((True, lower), (False, ~lower)):
         if not sel.any():
@@ -302,7 +319,8 @@ def _mouth_sdf(v: np.ndarray, faces: np.ndarray, geo: MouthGeometry):
 
 
 def teeth_and_cavity(model, vertices: np.ndarray, shape: np.ndarray, sdf=None,
-                     teeth_rgb=None) -> tuple[GaussianSet, np.ndarray, dict]:
+                     teeth_rgb=None, probe: JawProbe | None = None,
+                     degenerate: np.ndarray | None = None) -> tuple[GaussianSet, np.ndarray, dict]:
     """The teeth and cavity Gaussians at rest (module docstring) -> (GaussianSet, host faces (P,)
     int64, info); an empty set when the model has no mouth regions or jaw weights.
 
@@ -318,8 +336,8 @@ def teeth_and_cavity(model, vertices: np.ndarray, shape: np.ndarray, sdf=None,
     if geo is None or model.weights.shape[1] <= JAW_JOINT:
         return (*empty, {"teeth": 0, "cavity": 0, "why": "no mouth regions"})
     faces = np.asarray(model.faces)
-    bad = degenerate_faces(v, faces)
-    still, with_jaw = rigid_faces(model, shape)
+    bad = degenerate_faces(v, faces) if degenerate is None else degenerate
+    still, with_jaw = rigid_faces(model, shape, probe)
     upper_faces, lower_faces = ~bad & still, ~bad & with_jaw
     if not upper_faces.any() or not lower_faces.any():
         return (*empty, {"teeth": 0, "cavity": 0, "why": "no faces rigid with the skull and the jaw"})
@@ -383,9 +401,15 @@ def open_mouth(model, vertices: np.ndarray, shape: np.ndarray, bald: GaussianSet
     """`bald` (with a `binding` extra) with its lips parted (`part_lips`) and the teeth and cavity
     appended (`teeth_and_cavity`) -> (GaussianSet, info). Other extras of `bald` are kept; the
     new Gaussians get zeros in them (`part`: PART_TEETH / PART_MOUTH)."""
-    ids, moved = part_lips(model, vertices, shape, bald)
+    from avatarkit.face.fit import JAW_JOINT
+    from avatarkit.rig.frames import degenerate_faces
+
+    # a model without a jaw joint has nothing to part (and cannot be posed by HeadParams)
+    probe = jaw_probe(model, shape) if model.weights.shape[1] > JAW_JOINT else None
+    degenerate = degenerate_faces(np.asarray(vertices, np.float64), np.asarray(model.faces))
+    ids, moved = part_lips(model, vertices, shape, bald, probe, degenerate)
     bald = bald.replace(extras={**bald.extras, "binding": ids.astype(bald.extras["binding"].dtype)})
-    extra, extra_ids, info = teeth_and_cavity(model, vertices, shape, sdf, teeth_rgb)
+    extra, extra_ids, info = teeth_and_cavity(model, vertices, shape, sdf, teeth_rgb, probe, degenerate)
     info["lips_rebound"] = moved
     if len(extra) == 0:
         return bald, info
@@ -403,5 +427,5 @@ def open_mouth(model, vertices: np.ndarray, shape: np.ndarray, bald: GaussianSet
     return out.replace(extras=extras), info
 
 
-__all__ = ["INNER_LIPS", "MouthGeometry", "inner_lips", "mouth_geometry", "open_mouth", "part_lips",
+__all__ = ["INNER_LIPS", "JawProbe", "MouthGeometry", "inner_lips", "jaw_probe", "mouth_geometry", "open_mouth", "part_lips",
            "photo_teeth_colour", "rigid_faces", "stretching_faces", "teeth_and_cavity"]
