@@ -380,3 +380,21 @@ def test_pose_solve_fast_path_takes_the_references_steps(with_jaw):
         assert np.allclose(fast[0], slow[0], rtol=1e-9, atol=1e-12)
         assert np.allclose(fast[1], slow[1]) and np.isclose(fast[2], slow[2]) and np.isclose(fast[3], slow[3])
     assert np.degrees(np.linalg.norm(fast[0][:3] - truth[:3])) < 0.2
+
+
+def test_front_faces_draw_the_head_as_all_its_faces_do(scene):
+    """`Settings.front_faces` rasterises only the faces turned to the camera: the same points,
+    face weight and jaw derivative as the whole mesh's raster on (nearly) every pixel, from the
+    front and turned, with about half the faces."""
+    refiner = scene["refiner"]
+    front = ph.PoseRefiner(refiner.avatar, FOCAL, (SIZE, SIZE), ph.Settings(size=SIZE, front_faces=True))
+    jaw, expr, eyes = scene["nonrigid"]
+    _, verts = refiner.posed(jaw, expr, eyes)
+    D = refiner.jaw_derivative(jaw, expr, eyes)
+    for rot in (scene["rot"], np.zeros(3), Rotation.from_euler("YXZ", [-50, 10, 0], degrees=True).as_rotvec()):
+        X, w, dX = refiner.points(verts, rot, scene["tr"], derivative=D, weight=refiner.jaw_weight)
+        Xf, wf, dXf = front.points(verts, rot, scene["tr"], derivative=D, weight=refiner.jaw_weight)
+        on = w > 0.5
+        assert on.sum() > 500
+        same = (np.abs(w - wf) < 1e-9) & np.all(np.abs(X - Xf) < 1e-9, axis=-1) & np.all(np.abs(dX - dXf) < 1e-9, axis=-1)
+        assert same[on].mean() > 0.99 and same.mean() > 0.99, (same[on].mean(), same.mean())
