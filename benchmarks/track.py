@@ -168,15 +168,17 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 
 
 # `refine_columns`' runs: (label, refine every k-th frame (0: the tracker alone), photometric.
-# Settings fields); with "jaw": `refine="photometric"`, without: "photometric-pose". Session 14 also ran: the pose from the
-# render's depth (render_depth=True), the jaw in 3 passes from the mesh's points, the jaw from the
-# render's depth in 4 passes (docs/tracking.md)
+# Settings fields); with "jaw": `refine="photometric"`, without: "photometric-pose". Session 14 also ran: the pose alone
+# (photometric-pose), the pose from the render's depth, the jaw in 3 or 4 passes from the mesh's points, the
+# jaw from the render's depth in 4 passes; session 15: cold and warm starts, 1-3 passes, every 1-6th
+# frame, size 160 (docs/tracking.md)
 _JAW = REFINE_SETTINGS["photometric"]
 REFINE_RUNS = (("tracker", 0, {}),
-               ("refined every 1, the pose (photometric-pose, session 13's photometric)", 1, {}),
-               ("refined every 1, with the jaw, 4 passes from the mesh's points", 1, dict(jaw=True)),
                ("refined every 1, photometric (the jaw, the render's depth, 3 passes)", 1, _JAW),
-               ("refined every 3, photometric", 3, _JAW))
+               ("refined every 3, photometric", 3, _JAW),
+               ("refined every 3, photometric in 1 pass", 3, dict(_JAW, iterations=1)),
+               ("refined every 4, photometric in 2 passes", 4, dict(_JAW, iterations=2)),
+               ("refined every 6, photometric in 2 passes", 6, dict(_JAW, iterations=2)))
 
 
 def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
@@ -214,6 +216,13 @@ def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) ->
             t0 = time.perf_counter()
             r = track_frames(frames_in, model, shape, (size, size), 30.0, options, meshes=meshes, refiner=refiner)
             t_track = time.perf_counter() - t0
+            if meshes is None:
+                # the fits alone (the face mesh's points reused), so each refined run's speed can
+                # be given with the face mesh's time added: a video tracked from scratch
+                t0 = time.perf_counter()
+                track_frames(frames_in, model, shape, (size, size), 30.0, TrackOptions(), meshes=r.meshes)
+                fits = time.perf_counter() - t0
+                mesh_seconds = max(t_track - fits - (r.refinement["seconds"] if r.refinement else 0.0), 0.0)
             meshes = r.meshes
             rot = [angle_deg(a, b) for a, b in zip(head_rotation(r.clip.rotation, r.clip.neck), truth)]
             jaw = np.abs(r.clip.jaw[:, 0] - clip.jaw[:, 0])
@@ -233,7 +242,9 @@ def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) ->
                   f"{np.percentile(rot, 90):.2f}; before the smoother {np.median(raw):.2f}), jaw {np.median(jaw):.3f} rad (p90 "
                   f"{np.percentile(jaw, 90):.3f}; before the smoother {np.median(raw_jaw):.3f}), root wander median "
                   f"{np.median(trn):.1f} mm, landmark error {np.nanmedian(r.landmark_error):.2f} px; track "
-                  f"{t_track:.1f} s ({frames / t_track:.2f} frames/s{', face mesh included' if k == 0 else ''}){extra}",
+                  f"{t_track:.1f} s ({frames / t_track:.2f} frames/s{', face mesh included' if k == 0 else ''}; "
+                  f"{frames / (t_track + (0.0 if k == 0 else mesh_seconds)):.2f} frames/s with the face mesh's "
+                  f"{mesh_seconds:.1f} s){extra}",
                   flush=True)
     for label, v in rows.items():
         v = np.array(v)

@@ -321,10 +321,80 @@ def test_rejawed_draws_what_posing_and_turning_every_gaussian_does(scene):
     slow_person, slow_verts = refiner.posed(other, expr, eyes)
     slow = _turned(slow_person, refiner.axis, a0)
     assert np.allclose(verts, slow_verts, atol=1e-7)
-    for name in ("means", "quats", "scales"):
-        assert np.abs(getattr(fast, name) - getattr(slow, name)).max() < 2e-6, name
+    _same_gaussians(fast, slow)
     ids, _ = refiner._jaw_part()
     still = np.ones(len(moved), bool)
     still[ids] = False
     assert 0 < len(ids) < len(refiner.avatar.bald)
     assert np.array_equal(moved.means[still], slow.means[still])
+
+
+def _same_gaussians(a, b):
+    """The same Gaussians to float32 rounding (a quaternion's sign is no part of its turn)."""
+    from avatarkit.rotations import quat_to_matrix
+
+    for name in ("means", "scales"):
+        assert np.abs(getattr(a, name) - getattr(b, name)).max() < 2e-6, name
+    # a small triangle's frame from float32 corners rounded otherwise: ~1e-6 of a turn
+    turn = np.abs(quat_to_matrix(a.quats.astype(np.float64)) - quat_to_matrix(b.quats.astype(np.float64))).max()
+    assert turn < 1e-5, "quats"
+    assert np.array_equal(a.opacities, b.opacities) and np.array_equal(a.sh, b.sh)
+
+
+def test_placed_draws_what_posing_and_turning_every_gaussian_does(scene):
+    """The fast path binds the head's Gaussians to the turned mesh and turns only the hair
+    (`placed`): the same Gaussians, to float32 rounding, as posing the avatar at zero root pose and
+    turning all of it (`posed`, `_turned`: the obvious way), the hair by its shortest arcs; and
+    the same head vertices."""
+    from avatarkit.track.subject_calibration import _turned
+
+    refiner = scene["refiner"]
+    jaw, expr, eyes = scene["nonrigid"]
+    r0, t0 = scene["start"]
+    for a0 in (ph.pose_matrix(r0, t0), ph.pose_matrix(np.asarray(r0) + np.array([0.2, -0.5, 0.1]), t0)):
+        fast, verts = refiner.placed(jaw, expr, eyes, a0)
+        person, slow_verts = refiner.posed(jaw, expr, eyes)
+        assert np.array_equal(verts, slow_verts)
+        _same_gaussians(fast, _turned(person, refiner.axis, a0))
+
+
+@pytest.mark.parametrize("with_jaw", [False, True])
+def test_pose_solve_fast_path_takes_the_references_steps(with_jaw):
+    """`solve_pose_delta` (its Jacobian rows written out) gives what the obvious
+    `solve_pose_delta_reference` gives, step for step: noisy correspondences with outliers, the
+    ridge and, with the jaw, a second moving part and its prior."""
+    rng = np.random.default_rng(3)
+    cam = ph.view_camera(FOCAL, (SIZE, SIZE), None)
+    P = rng.normal(scale=0.06, size=(600, 3)) + np.array([0.01, -0.02, -0.5])
+    D = rng.normal(scale=0.02, size=(600, 3)) * (rng.random(600) < 0.3)[:, None]
+    truth = np.array([0.04, -0.02, 0.03, 0.005, 0.002, -0.004, 0.05])
+    E = Rotation.from_rotvec(truth[:3]).as_matrix()
+    c = P.mean(0)
+    target, _ = ph.project((P + truth[6] * D - c) @ E.T + c + truth[3:6], cam)
+    target += rng.normal(scale=0.4, size=target.shape)
+    target[:30] += 12.0
+    kw = dict(extra=D[:, :, None], prior=np.array([600 / 0.3 ** 2]), prior_target=np.array([0.02])) if with_jaw else {}
+    for iterations in (1, 4):
+        fast = ph.solve_pose_delta(P, target, cam, 1.0, iterations, 1e-3, **kw)
+        slow = ph.solve_pose_delta_reference(P, target, cam, 1.0, iterations, 1e-3, **kw)
+        assert np.allclose(fast[0], slow[0], rtol=1e-9, atol=1e-12)
+        assert np.allclose(fast[1], slow[1]) and np.isclose(fast[2], slow[2]) and np.isclose(fast[3], slow[3])
+    assert np.degrees(np.linalg.norm(fast[0][:3] - truth[:3])) < 0.2
+
+
+def test_front_faces_draw_the_head_as_all_its_faces_do(scene):
+    """`Settings.front_faces` rasterises only the faces turned to the camera: the same points,
+    face weight and jaw derivative as the whole mesh's raster on (nearly) every pixel, from the
+    front and turned, with about half the faces."""
+    refiner = scene["refiner"]
+    front = ph.PoseRefiner(refiner.avatar, FOCAL, (SIZE, SIZE), ph.Settings(size=SIZE, front_faces=True))
+    jaw, expr, eyes = scene["nonrigid"]
+    _, verts = refiner.posed(jaw, expr, eyes)
+    D = refiner.jaw_derivative(jaw, expr, eyes)
+    for rot in (scene["rot"], np.zeros(3), Rotation.from_euler("YXZ", [-50, 10, 0], degrees=True).as_rotvec()):
+        X, w, dX = refiner.points(verts, rot, scene["tr"], derivative=D, weight=refiner.jaw_weight)
+        Xf, wf, dXf = front.points(verts, rot, scene["tr"], derivative=D, weight=refiner.jaw_weight)
+        on = w > 0.5
+        assert on.sum() > 500
+        same = (np.abs(w - wf) < 1e-9) & np.all(np.abs(X - Xf) < 1e-9, axis=-1) & np.all(np.abs(dX - dXf) < 1e-9, axis=-1)
+        assert same[on].mean() > 0.99 and same.mean() > 0.99, (same[on].mean(), same.mean())

@@ -29,7 +29,12 @@ the ~80k Gaussians. Optionally (`Settings.crop_margin`, off) only the head's box
 (the projected face-and-scalp mesh at the pass's pose plus a margin) is rendered, rasterised and
 flowed, through a `Camera` of that size whose principal point is shifted by the box's corner
 (`crop_camera`: the same pixels as the whole frame's render). `render` (the avatar turned by the
-pose) stays as the obvious version; a test compares the two.
+pose) stays as the obvious version; a test compares the two. Since session 15 the frame's
+Gaussians are made at the starting pose directly (`placed`: the head's bound to the turned mesh,
+only the hair turned), the Gauss-Newton's Jacobian rows are written out
+(`solve_pose_delta_reference` is the obvious one), and `Settings.front_faces` (off) rasterises only
+the mesh's faces turned to the camera: together 1.4-1.5x (1.7x with front faces) a refined frame,
+docs/tracking.md "Session 15".
 
 The jaw (`Settings.jaw`, session 14): the jaw's opening (the FLAME jaw pose's first axis) is
 a seventh unknown of the same Gauss-Newton. Each 3D point carries its derivative by the opening
@@ -98,7 +103,10 @@ class Settings:
     only when the opening changes less than this (radians).
     render_depth: each pixel's 3D point from the render's own depth (the splats' expected
     depth) instead of the head mesh's raster (which still gives the face weight and the jaw's
-    derivative): module docstring, "Why a pass recovered only ~2/3"."""
+    derivative): module docstring, "Why a pass recovered only ~2/3".
+    front_faces: rasterise only the head mesh's faces that face the camera (a closed head's
+    others lie behind them; the raster takes ~0.7x the time; where a lip's inside was the
+    nearest face, the next one behind it is drawn)."""
 
     size: int = 224
     supersample: int = 2
@@ -116,6 +124,7 @@ class Settings:
     jaw_sigma: float = 0.3
     render_depth: bool = False
     jaw_tolerance: float = 2e-3
+    front_faces: bool = False
 
 
 # the first round's settings (every pass turns the Gaussians and renders the whole frame; the
@@ -237,6 +246,37 @@ class PoseRefiner:
             self._key = key
         return self._posed
 
+    def placed(self, jaw, expr, eyes, a0: np.ndarray, binding=None):
+        """(what `_turned(posed(jaw, expr, eyes)[0], axis, a0)` draws: the avatar at this jaw
+        (3,), expression (E,) and eyes (6,) turned and shifted by a0 (4, 4); the head vertices
+        (V, 3) float64 at zero root pose), made without turning the head's Gaussians: they are
+        bound to the head mesh turned by a0 (a triangle's frame turns with it), so only the hair
+        is turned (session 15: a turn of all ~80k, validated, cost 2-4x binding them; a test
+        compares the two). binding: the head's Gaussians' (a subset's, `rejawed`); then only
+        those, (means, quats, scales) and the vertices."""
+        from avatarkit.gaussians.gaussian_set import GaussianSet
+        from avatarkit.rig.binding_kernel import binding_to_world
+        from avatarkit.track.subject_calibration import _turned
+
+        v = self.model.forward(self._params(jaw, expr, eyes)[1])[0][0].astype(np.float64)
+        # bound to the turned mesh about the head's origin, then shifted: float32 vertices half
+        # a metre off would round the small triangles' frames ~10x more than these
+        vt = np.ascontiguousarray(v @ a0[:3, :3].T, np.float32)
+        m, q, sc = binding_to_world(self.avatar.binding if binding is None else binding, vt)
+        m = (m + a0[:3, 3]).astype(np.float32)
+        if binding is not None:
+            return (m, q, sc), v
+        bald = self.avatar.bald
+        if self.hair is None:
+            return GaussianSet.from_checked(m, q, sc, bald.opacities, bald.sh), v
+        hair = _turned(self.hair, self.axis, a0)
+        k = max(bald.sh.shape[1], hair.sh.shape[1])
+        sh = np.zeros((len(bald) + len(hair), k, 3), np.float32)
+        sh[:len(bald), :bald.sh.shape[1]], sh[len(bald):, :hair.sh.shape[1]] = bald.sh, hair.sh
+        return GaussianSet.from_checked(np.concatenate([m, hair.means]), np.concatenate([q, hair.quats]),
+                                        np.concatenate([sc, hair.scales]),
+                                        np.concatenate([bald.opacities, hair.opacities]), sh), v
+
     def jaw_derivative(self, jaw, expr, eyes, step: float = 0.01) -> np.ndarray:
         """(V, 3) the head vertices' derivative (zero root pose) by the jaw's opening (its first
         axis), a central difference of `step` radians (the model is float32: a smaller step is
@@ -327,7 +367,12 @@ class PoseRefiner:
         v = vertices @ a[:3, :3].T + a[:3, 3]
         wv = self.vertex_weight if weight is None else weight
         cols = [v, wv[:, None]] + ([] if derivative is None else [derivative @ a[:3, :3].T])
-        ras = rasterise(v, self.model.faces, np.concatenate(cols, 1), self.camera if camera is None else camera)
+        faces = self.model.faces
+        if self.settings.front_faces:
+            # the camera is at the origin: a face faces it when its normal points back at it
+            n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+            faces = faces[np.einsum("ij,ij->i", n, v[faces].mean(axis=1)) < 0]
+        ras = rasterise(v, faces, np.concatenate(cols, 1), self.camera if camera is None else camera)
         w = np.where(ras.covered, ras.attributes[..., 3], 0.0)
         if derivative is None:
             return ras.attributes[..., :3], w
@@ -353,16 +398,16 @@ class PoseRefiner:
         answer) starting from the
         landmark fit's rotation (3,), translation (3,), with its jaw (3,), expr (E,), eyes (6,)
         (with `Settings.jaw`, the jaw's opening too, pulled toward the fit's)."""
-        from avatarkit.track.subject_calibration import _turned
-
         s = self.settings
         target = self.small(rgb)
         jaw0 = np.asarray(jaw, np.float64).reshape(3)
-        jaw_now = jaw0.copy()
-        person, verts = self.posed(jaw_now, expr, eyes)
         rot, tr = np.asarray(rotation, np.float64), np.asarray(translation, np.float64)
+        jaw_now = jaw0.copy()
         a0 = pose_matrix(rot, tr)
-        moved = _turned(person, self.axis, a0) if s.move_camera else None     # once per frame
+        if s.move_camera:
+            moved, verts = self.placed(jaw_now, expr, eyes, a0)                  # once per frame
+        else:
+            person, verts = self.posed(jaw_now, expr, eyes)
         jaw_drawn = jaw_now.copy()                                                # the jaw `moved` has
         first = None
         n, res, renders = 0, float("nan"), 0
@@ -436,16 +481,12 @@ class PoseRefiner:
         vertices (V, 3) at it, zero root pose): what `_turned(posed(jaw, ...)[0], axis, a0)`
         draws, at the cost of the ~1/6 of the Gaussians that move (a test compares them)."""
         from avatarkit.gaussians.gaussian_set import GaussianSet
-        from avatarkit.rig.binding_kernel import binding_to_world
-        from avatarkit.track.subject_calibration import _turned
 
         ids, binding = self._jaw_part()
-        v = self.model.forward(self._params(jaw, expr, eyes)[1])[0][0]
-        m, q, sc = binding_to_world(binding, np.ascontiguousarray(v, np.float32))
-        part = _turned(GaussianSet.from_checked(m, q, sc, moved.opacities[ids], moved.sh[ids]), None, a0)
+        (m, q, sc), v = self.placed(jaw, expr, eyes, a0, binding)
         means, quats, scales = moved.means.copy(), moved.quats.copy(), moved.scales.copy()
-        means[ids], quats[ids], scales[ids] = part.means, part.quats, sc
-        return GaussianSet.from_checked(means, quats, scales, moved.opacities, moved.sh), v.astype(np.float64)
+        means[ids], quats[ids], scales[ids] = m, q, sc
+        return GaussianSet.from_checked(means, quats, scales, moved.opacities, moved.sh), v
 
     # -- the slow obvious reference ------------------------------------------------------------
     def refine_reference(self, rgb: np.ndarray, rotation, translation, jaw, expr, eyes,
@@ -553,6 +594,90 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
     extra: (N, 3, K) the points' derivatives (view frame) by K more parameters a (the jaw's
     opening): the points moved are E (P + extra a - c) + c + d, and delta is (6 + K,), a last;
     prior: (K,) weights (px^2 per unit^2) of a quadratic pull of a toward prior_target (K,)
+    (zeros where None).
+
+    The same steps as `solve_pose_delta_reference` (a test compares them), with each Jacobian
+    row written out (session 15: ~1.5x faster at ~10k points): the projection's rows in the view
+    frame are (fx / z, 0, fx x / z^2) and (0, -fy / z, fy y / z^2) (camera x = X, y = -Y, z =
+    -Z), and a row j's turn columns, -j [E (P - c)]x, are the cross product E (P - c) x j."""
+    P = np.asarray(points, np.float64)
+    q = np.asarray(targets, np.float64)
+    N = len(P)
+    D = np.zeros((N, 3, 0)) if extra is None else np.asarray(extra, np.float64).reshape(N, 3, -1)
+    K = D.shape[2]
+    pw = np.zeros(K) if prior is None else np.asarray(prior, np.float64).reshape(K)
+    pt = np.zeros(K) if prior_target is None else np.asarray(prior_target, np.float64).reshape(K)
+    c = P.mean(axis=0)
+    Pc = P - c
+    delta = np.zeros(6 + K)
+    fx, fy, cx, cy = float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)
+    Dt = np.ascontiguousarray(D.transpose(0, 2, 1))                  # (N, K, 3)
+
+    def moved(d):
+        E = axis_angle_to_matrix(d[:3]).astype(np.float64)
+        local = Pc + ((d[6:] @ Dt) if K else 0.0)                          # (N, 3) before the turn
+        return E, local @ E.T
+
+    def residual(turned, d):
+        X = turned + c + d[3:6]
+        z = -X[:, 2]
+        u = fx * X[:, 0] / z + cx
+        v = -fy * X[:, 1] / z + cy
+        return X, z, np.stack([u - q[:, 0], v - q[:, 1]], 1)
+
+    before = None
+    A = np.empty((N, 2, 6 + K))
+    for _ in range(max(1, iterations)):
+        E, turned = moved(delta)
+        X, z, r = residual(turned, delta)
+        dist = np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)
+        if before is None:
+            before = float(np.median(dist))
+        w = np.where(dist <= huber, 1.0, huber / np.maximum(dist, 1e-12))
+        iz = 1.0 / z
+        ju = np.zeros((N, 3))
+        ju[:, 0], ju[:, 2] = fx * iz, fx * X[:, 0] * iz * iz
+        jv = np.zeros((N, 3))
+        jv[:, 1], jv[:, 2] = -fy * iz, -fy * X[:, 1] * iz * iz
+        tx, ty, tz = turned[:, 0], turned[:, 1], turned[:, 2]
+        ED = (Dt.reshape(-1, 3) @ E.T).reshape(N, K, 3) if K else None     # E D, (N, K, 3)
+        for row, j in ((0, ju), (1, jv)):
+            A[:, row, 0] = ty * j[:, 2] - tz * j[:, 1]
+            A[:, row, 1] = tz * j[:, 0] - tx * j[:, 2]
+            A[:, row, 2] = tx * j[:, 1] - ty * j[:, 0]
+            A[:, row, 3:6] = j
+            if K:
+                A[:, row, 6:] = (ED * j[:, None, :]).sum(axis=2)                # j . E D
+        A2 = A.reshape(-1, 6 + K)
+        w2 = np.repeat(w, 2)
+        H = A2.T @ (w2[:, None] * A2)
+        g = A2.T @ (w2 * r.reshape(-1))
+        H += ridge * np.trace(H) / (6.0 + K) * np.eye(6 + K)
+        H[6:, 6:] += np.diag(pw)
+        g[6:] += pw * (delta[6:] - pt)
+        step = -np.linalg.solve(H, g)
+        # compose: the turn's increment is applied after E (left), the rest adds
+        delta[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
+        delta[3:] = delta[3:] + step[3:]
+    E, turned = moved(delta)
+    _, _, r = residual(turned, delta)
+    return delta, c, before, float(np.median(np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)))
+
+
+def solve_pose_delta_reference(points: np.ndarray, targets: np.ndarray, camera: Camera, huber: float = 1.0,
+                     iterations: int = 4, ridge: float = 1e-3, extra: np.ndarray | None = None,
+                     prior: np.ndarray | None = None, prior_target: np.ndarray | None = None):
+    """`solve_pose_delta` the obvious way (batched 2x3 Jacobians, cross-product matrices, one
+    product each): the reference a test holds the fast one to.
+
+    The rigid change delta (6,) (turn about the points' centroid, then shift: `apply_delta`)
+    that moves view-frame points (N, 3) to project onto targets (N, 2) px, by iteratively
+    reweighted Gauss-Newton with Huber weights (threshold `huber` px). Returns (delta, centre
+    (3,), median residual before, after).
+
+    extra: (N, 3, K) the points' derivatives (view frame) by K more parameters a (the jaw's
+    opening): the points moved are E (P + extra a - c) + c + d, and delta is (6 + K,), a last;
+    prior: (K,) weights (px^2 per unit^2) of a quadratic pull of a toward prior_target (K,)
     (zeros where None)."""
     P = np.asarray(points, np.float64)
     q = np.asarray(targets, np.float64)
@@ -601,4 +726,4 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
 
 
 __all__ = ["PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
-           "solve_pose_delta", "unproject", "view_camera"]
+           "solve_pose_delta", "solve_pose_delta_reference", "unproject", "view_camera"]
