@@ -86,6 +86,24 @@ def test_everywhere_replaces_the_pose_itself(scene):
     assert abs(math.degrees(params_from_pose(keys[1].pose)[0]) - 40.0) < 2.0
 
 
+def test_everywhere_for_some_frames_replaces_only_their_poses(scene):
+    """"registered-edge": the frames named (the tracking's edge) take the registered pose for every
+    stage, the other turned keyframes for the outline alone."""
+    from avatarkit.track.video_build import refine_keyframes
+
+    draft, camera, ref_pose, frame = scene
+    turned, image = frame(40.0)
+    left, left_image = frame(-35.0)
+    short_left = _short(left, 5.0)
+    keys = [Keyframe(frame(0.0)[1], ref_pose, 1.0, 0), Keyframe(image, _short(turned, 6.0), 1.0, 7),
+            Keyframe(left_image, short_left.copy(), 1.0, 8)]
+    refine_keyframes(draft, VideoViews(np.zeros(10), keys), tracked=3, everywhere=frozenset({7, 99}))
+    assert keys[1].outline_pose is None
+    assert abs(math.degrees(params_from_pose(keys[1].pose)[0]) - 40.0) < 2.0
+    np.testing.assert_array_equal(keys[2].pose, short_left)
+    assert abs(math.degrees(params_from_pose(keys[2].outline_pose)[0]) + 35.0) < 2.0
+
+
 def _outline_scene(size=64):
     """A fit whose rest head is a 6 cm ball in front of the yaw axis (a turn moves its
     silhouette), three keyframes as `VideoViews.register` makes them (the reference; one turned
