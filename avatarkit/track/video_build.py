@@ -73,18 +73,19 @@ FIRST_BUILD_COUNTS = (8000, 4000)
 #: the tracked keyframes' poses the hair's outline stage (`recon.hair_outline`) measures their
 #: silhouettes with: "tracked" (the joint fit's), "registered" (each keyframe turned at least
 #: `REFINE_MIN_YAW` registered against the draft build, `refine_keyframes`, for that stage only),
-#: "registered-edge" (as "registered", and the keyframes at the tracking's edge take their
-#: registered pose for every stage) or "registered-all" (the registered pose for every stage). The
-#: joint fit reads a fast turn's end a few degrees short without losing the face (the 32-frame whip
-#: clip: 4-9 degrees), and the outline stage takes the silhouette's disagreement for hair. The
-#: tracking's edge frames are read 5-10 degrees off (the eased clip's sample avatar: +39.0 / -43.3
-#: for a true +48.8 / -33.8; registered +49.3 / -35.3), and their colours, hair votes and silhouette
-#: bound came from those poses: "registered-edge" (session 15) gains +0.21 / +0.28 at +45 and
-#: +0.16 / +0.32 at +90 on the sample avatar (seeds 0 / 1), the mesh subject -0.01..+0.11, the
-#: held-out bob +0.03..+0.29; the whip has no edge frame, so nothing changes there.
-#: "registered-all" gains more on the eased clip (sample avatar +0.42 / +0.46 at +90) but the whip's
-#: sample avatar lost 0.68 dB at +90 at seed 1 (its hair's labels: docs/video-build.md, "Every
-#: stage at the registered pose")
+#: "registered-edge" (as "registered", and the keyframes at the tracking's edge and the frames
+#: registered at the turns' ends take their registered pose for every stage) or "registered-all"
+#: (the registered pose for every stage). The joint fit reads a fast turn's end a few degrees short
+#: without losing the face (the 32-frame whip clip: 4-9 degrees), and the outline stage takes the
+#: silhouette's disagreement for hair. The tracking's edge frames are read 5-10 degrees off (the
+#: eased clip's sample avatar: +39.0 / -43.3 for a true +48.8 / -33.8; registered +49.3 / -35.3),
+#: and their colours, hair votes and silhouette bound came from those poses. "registered-edge"
+#: (session 15), against "registered": the eased clip's sample avatar +0.18..+0.46 dB at +90 and
+#: +0.12..+0.22 at -90 (three seeds), fronts +0.04..+0.06; the mesh subject -0.14..+0.15 and the
+#: held-out bob -0.14..+0.72 (two seeds); the whip -0.01..+0.20. "registered-all" also moves the
+#: whip's keyframes turned 30-40 degrees: its sample avatar lost 0.68 dB at +90 at seed 1 (its
+#: hair's labels flipped; docs/video-build.md, "Every stage sees the tracking's edge at its
+#: registered pose")
 OUTLINE_POSES = "registered-edge"
 #: keyframes turned less than this (radians, the joint fit's yaw from the reference's) keep the
 #: joint fit's pose: nearer the front the landmarks read the yaw as well as the draft does (eased
@@ -282,8 +283,12 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             source["registered"] = figures
             if refine:
                 tracked = len(views.keyframes) if REFINE_TURNED else len(kf)
+                # "registered-edge": the frames at the tracking's edge (the landmarks read them 5-10
+                # degrees off) and those registered at the turns' ends (`register_turned`'s coarser
+                # search against the first draft) take the pose found for every stage
                 everywhere = (True if OUTLINE_POSES == "registered-all" else
-                              frozenset(edge) if OUTLINE_POSES == "registered-edge" else False)
+                              frozenset(edge) | {k.frame for k in added} if OUTLINE_POSES == "registered-edge"
+                              else False)
                 # a second round (SECOND_ROUND): a draft whose outline the first round's poses
                 # fitted, and every pose registered again against it at that many pixels
                 for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
