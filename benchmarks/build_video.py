@@ -6,8 +6,10 @@ Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip
 [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
 `recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
 two session-12 options, both off by default; `AVATARKIT_OPEN_MOUTH=0|1` the teeth and parted lips
-(`recon.mouth`, session 14, off) and `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline fitted to
-the keyframes' silhouettes (`recon.hair_outline`, session 14, off)
+(`recon.mouth`, session 14, off), `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline fitted to
+the keyframes' silhouettes (`recon.hair_outline`, session 14, on) and
+`AVATARKIT_OUTLINE_POSES=tracked|registered|registered-all` which stages use the turned keyframes'
+poses registered against the draft build (`track.video_build.OUTLINE_POSES`)
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -85,9 +87,12 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     # teeth, cavity and parted lips (`recon.mouth`, off by default)
     if os.environ.get("AVATARKIT_OPEN_MOUTH") in ("0", "1"):
         pipeline.OPEN_MOUTH = os.environ["AVATARKIT_OPEN_MOUTH"] == "1"
-    # the hair's outline fitted to the keyframes' silhouettes (`recon.hair_outline`, off by default)
+    # the hair's outline fitted to the keyframes' silhouettes (`recon.hair_outline`, on by default)
     if os.environ.get("AVATARKIT_HAIR_OUTLINE") in ("0", "1"):
         pipeline.FIT_HAIR_OUTLINE = os.environ["AVATARKIT_HAIR_OUTLINE"] == "1"
+    # the turned keyframes' registered poses: for the outline alone, or for every stage
+    if os.environ.get("AVATARKIT_OUTLINE_POSES") in ("tracked", "registered", "registered-all"):
+        video_build.OUTLINE_POSES = os.environ["AVATARKIT_OUTLINE_POSES"]
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
     t0 = time.perf_counter()

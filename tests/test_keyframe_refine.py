@@ -4,6 +4,7 @@ stage measures with), on a known case: the avatar itself rendered at known poses
 handed over with their yaw read short."""
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -85,31 +86,108 @@ def test_everywhere_replaces_the_pose_itself(scene):
     assert abs(math.degrees(params_from_pose(keys[1].pose)[0]) - 40.0) < 2.0
 
 
-def test_outline_views_take_the_outline_pose_camera_and_keep_the_rest():
+def test_everywhere_for_some_frames_replaces_only_their_poses(scene):
+    """"registered-edge": the frames named (the tracking's edge) take the registered pose for every
+    stage, the other turned keyframes for the outline alone."""
+    from avatarkit.track.video_build import refine_keyframes
+
+    draft, camera, ref_pose, frame = scene
+    turned, image = frame(40.0)
+    left, left_image = frame(-35.0)
+    short_left = _short(left, 5.0)
+    keys = [Keyframe(frame(0.0)[1], ref_pose, 1.0, 0), Keyframe(image, _short(turned, 6.0), 1.0, 7),
+            Keyframe(left_image, short_left.copy(), 1.0, 8)]
+    refine_keyframes(draft, VideoViews(np.zeros(10), keys), tracked=3, everywhere=frozenset({7, 99}))
+    assert keys[1].outline_pose is None
+    assert abs(math.degrees(params_from_pose(keys[1].pose)[0]) - 40.0) < 2.0
+    np.testing.assert_array_equal(keys[2].pose, short_left)
+    assert abs(math.degrees(params_from_pose(keys[2].outline_pose)[0]) + 35.0) < 2.0
+
+
+def _outline_scene(size=64):
+    """A fit whose rest head is a 6 cm ball in front of the yaw axis (a turn moves its
+    silhouette), three keyframes as `VideoViews.register` makes them (the reference; one turned
+    keyframe with an outline pose 0.1 rad further turned and 15 mm aside; one without), and the
+    views with their heads."""
+    from avatarkit.head.template import icosphere
+    from avatarkit.recon.multiview import head_silhouette
     from avatarkit.synthetic.head_video import head_video_camera
 
-    camera = head_video_camera(64, distance=0.5)
+    camera = head_video_camera(size, distance=0.5)
     rot, tra = np.array([0.02, -0.01, 0.0]), np.array([0.0, -0.05, -0.5])
-    fit = SimpleNamespace(camera=camera, rotation=rot, translation=tra)
+    v, f = icosphere(2)
+    fit = SimpleNamespace(camera=camera, rotation=rot, translation=tra,
+                          rest_vertices=0.06 * v + np.array([0.0, 0.05, 0.08]), model=SimpleNamespace(faces=f))
     ref_pose = pose_from_params([0.01, 0.0, 0.0, 0.0, -0.05, -0.5])
     a = pose_from_params([0.5, 0.0, 0.0, 0.0, -0.05, -0.5])
-    b = pose_from_params([0.6, 0.02, 0.0, 0.001, -0.05, -0.5])
-    image = np.zeros((64, 64, 3), np.uint8)
+    b = pose_from_params([0.6, 0.02, 0.0, 0.015, -0.05, -0.5])
+    image = np.zeros((size, size, 3), np.uint8)
     keys = [Keyframe(image, ref_pose, 1.0, 0), Keyframe(image, a, 1.0, 1, outline_pose=b), Keyframe(image, a, 1.0, 2)]
-    vv = VideoViews(np.zeros(10), keys)
     cams = keyframe_cameras(camera, pose_matrix(rot, tra), ref_pose, [k.pose for k in keys])
-    views = [View(image, camera, None, 1.0, 0, True)] + [View(image, c, None, 1.0, k.frame) for k, c in
-                                                           zip(keys[1:], cams[1:])]
+    views = [View(image, camera, None, 1.0, 0, True, head=head_silhouette(fit.rest_vertices, f, camera))]
+    views += [View(image, c, None, 1.0, k.frame, head=head_silhouette(fit.rest_vertices, f, c))
+              for k, c in zip(keys[1:], cams[1:])]
+    return fit, VideoViews(np.zeros(10), keys), views, b
+
+
+def test_outline_views_take_the_outline_pose_camera_and_keep_the_rest():
+    from avatarkit.recon.multiview import head_silhouette
+
+    fit, vv, views, b = _outline_scene()
+    keys = vv.keyframes
     out = vv.outline_views(fit, views)
     assert out[0] is views[0] and out[2] is views[2]
-    want = keyframe_cameras(camera, pose_matrix(rot, tra), ref_pose, [b])[0]
+    want = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), keys[0].pose, [b])[0]
     np.testing.assert_allclose(out[1].camera.world_to_camera, want.world_to_camera, atol=1e-12)
     assert not np.allclose(out[1].camera.world_to_camera, views[1].camera.world_to_camera, atol=1e-3)
-    assert out[1].frame == 1 and out[1].image is image
-    # the outline pose equal to the pose: the camera `register` made
-    keys[1].outline_pose = a.copy()
-    np.testing.assert_allclose(vv.outline_views(fit, views)[1].camera.world_to_camera,
-                               views[1].camera.world_to_camera, atol=1e-12)
+    assert out[1].frame == 1 and out[1].image is keys[1].image
+    # the head the hull check joins to the person mask is seen by the registered camera, not the
+    # joint fit's (the two differ by a few pixels' rim here)
+    np.testing.assert_array_equal(out[1].head, head_silhouette(fit.rest_vertices, fit.model.faces, want))
+    assert (out[1].head != views[1].head).sum() >= 20
+    # the outline pose equal to the pose: the camera and head `register` made
+    keys[1].outline_pose = keys[1].pose.copy()
+    same = vv.outline_views(fit, views)[1]
+    np.testing.assert_allclose(same.camera.world_to_camera, views[1].camera.world_to_camera, atol=1e-12)
+    np.testing.assert_array_equal(same.head, views[1].head)
+
+
+def test_the_hull_check_holds_hair_by_the_registered_head():
+    """`silhouette_outside` on the outline views: with an empty person mask only the head holds
+    points, and it is the head at the registered pose: a point on the ball's centre as the
+    registered camera sees it is inside; one the joint fit's head covered but the registered one
+    does not is outside."""
+    from avatarkit.recon.multiview import silhouette_outside
+    from avatarkit.recon.segment import BACKGROUND
+
+    from avatarkit.recon.multiview import SILHOUETTE_MARGIN
+
+    size = 256
+    fit, vv, views, b = _outline_scene(size)
+    views = [dataclasses.replace(v, labels=np.full(v.image.shape[:2], BACKGROUND, np.int32)) for v in views]
+    out = vv.outline_views(fit, views)
+    reg, tracked = out[1], views[1]
+    centre = fit.rest_vertices.mean(axis=0)
+    # points on the rays through the pixels only one of the two heads covers, at the ball's depth
+    only_tracked = tracked.head & ~reg.head
+    only_reg = reg.head & ~tracked.head
+    assert only_tracked.sum() >= 20 and only_reg.sum() >= 20
+
+    def on_rays(mask, cam):
+        ys, xs = np.nonzero(mask)
+        # well inside the band: the head is eroded by the margin before it is joined, and the
+        # mask then dilated by it
+        r = int(round(SILHOUETTE_MARGIN * size)) + 2
+        keep = [i for i in range(len(xs)) if mask[max(ys[i] - r, 0):ys[i] + r + 1, max(xs[i] - r, 0):xs[i] + r + 1].all()]
+        assert keep
+        i = keep[len(keep) // 2]
+        depth = cam.world_to_camera[:3] @ np.append(centre, 1.0)
+        ray = np.array([(xs[i] + 0.5 - cam.cx) / cam.fx, (ys[i] + 0.5 - cam.cy) / cam.fy, 1.0]) * depth[2]
+        return np.linalg.inv(cam.world_to_camera) @ np.append(ray, 1.0)
+
+    p_reg = on_rays(only_reg, reg.camera)[:3]
+    p_tracked = on_rays(only_tracked, reg.camera)[:3]
+    assert silhouette_outside(np.stack([p_reg, p_tracked]), [reg]).tolist() == [0, 1]
 
 
 def test_without_a_draft_the_turned_keyframes_are_not_trusted_by_the_outline():

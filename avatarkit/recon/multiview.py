@@ -573,18 +573,23 @@ class VideoViews:
 
     def outline_views(self, fit, views: list[View]) -> list[View]:
         """`views` (as `register` made them, in the keyframes' order) with the camera of each
-        keyframe that has an `outline_pose` made from it instead (labels and image unchanged: they
-        are the frame's)."""
+        keyframe that has an `outline_pose` made from it instead, and the fitted head seen by that
+        camera (`head_silhouette`: `silhouette_outside` joins it to the person mask, so a head
+        left at the joint fit's pose would hold hair the registered silhouette leaves out, or
+        the other way round); labels and image unchanged: they are the frame's."""
         import dataclasses
 
-        ref = self.keyframes[0]
-        out = []
-        for k, v in zip(self.keyframes, views):
-            if k.outline_pose is not None and not v.reference:
-                cam = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), ref.pose,
-                                       [k.outline_pose])[0]
-                v = dataclasses.replace(v, camera=cam)
-            out.append(v)
+        which = [i for i, (k, v) in enumerate(zip(self.keyframes, views))
+                 if k.outline_pose is not None and not v.reference]
+        out = list(views)
+        if not which:
+            return out
+        cams = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), self.keyframes[0].pose,
+                                [self.keyframes[i].outline_pose for i in which])
+        for i, cam in zip(which, cams):
+            v = views[i]
+            head = None if v.head is None else head_silhouette(fit.rest_vertices, fit.model.faces, cam)
+            out[i] = dataclasses.replace(v, camera=cam, head=head)
         return out
 
     def keep_view_colours(self, bald, hair):

@@ -72,11 +72,21 @@ REGISTER_MODE = "plain"
 FIRST_BUILD_COUNTS = (8000, 4000)
 #: the tracked keyframes' poses the hair's outline stage (`recon.hair_outline`) measures their
 #: silhouettes with: "tracked" (the joint fit's), "registered" (each keyframe turned at least
-#: `REFINE_MIN_YAW` registered against the draft build, `refine_keyframes`, for that stage only)
-#: or "registered-all" (the registered pose for every stage). The joint fit reads a fast turn's
-#: end a few degrees short without losing the face (the 32-frame whip clip: 4-9 degrees), and
-#: the outline stage takes the silhouette's disagreement for hair (docs/video-build.md)
-OUTLINE_POSES = "registered"
+#: `REFINE_MIN_YAW` registered against the draft build, `refine_keyframes`, for that stage only),
+#: "registered-edge" (as "registered", and the keyframes at the tracking's edge and the frames
+#: registered at the turns' ends take their registered pose for every stage) or "registered-all"
+#: (the registered pose for every stage). The joint fit reads a fast turn's end a few degrees short
+#: without losing the face (the 32-frame whip clip: 4-9 degrees), and the outline stage takes the
+#: silhouette's disagreement for hair. The tracking's edge frames are read 5-10 degrees off (the
+#: eased clip's sample avatar: +39.0 / -43.3 for a true +48.8 / -33.8; registered +49.3 / -35.3),
+#: and their colours, hair votes and silhouette bound came from those poses. "registered-edge"
+#: (session 15), against "registered": the eased clip's sample avatar +0.18..+0.46 dB at +90 and
+#: +0.12..+0.22 at -90 (three seeds), fronts +0.04..+0.06; the mesh subject -0.14..+0.15 and the
+#: held-out bob -0.14..+0.72 (two seeds); the whip -0.01..+0.20. "registered-all" also moves the
+#: whip's keyframes turned 30-40 degrees: its sample avatar lost 0.68 dB at +90 at seed 1 (its
+#: hair's labels flipped; docs/video-build.md, "Every stage sees the tracking's edge at its
+#: registered pose")
+OUTLINE_POSES = "registered-edge"
 #: keyframes turned less than this (radians, the joint fit's yaw from the reference's) keep the
 #: joint fit's pose: nearer the front the landmarks read the yaw as well as the draft does (eased
 #: clip: the -17-degree keyframe's fit exact, registered 2 degrees off; whip: the +15-degree one's
@@ -273,13 +283,18 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             source["registered"] = figures
             if refine:
                 tracked = len(views.keyframes) if REFINE_TURNED else len(kf)
+                # "registered-edge": the frames at the tracking's edge (the landmarks read them 5-10
+                # degrees off) and those registered at the turns' ends (`register_turned`'s coarser
+                # search against the first draft) take the pose found for every stage
+                everywhere = (True if OUTLINE_POSES == "registered-all" else
+                              frozenset(edge) | {k.frame for k in added} if OUTLINE_POSES == "registered-edge"
+                              else False)
                 # a second round (SECOND_ROUND): a draft whose outline the first round's poses
                 # fitted, and every pose registered again against it at that many pixels
                 for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
                     if size is not None:
                         draft = build_avatar(png, first, None, views=views)
-                    refined = refine_keyframes(draft, views, tracked, everywhere=OUTLINE_POSES == "registered-all",
-                                               size=size)
+                    refined = refine_keyframes(draft, views, tracked, everywhere=everywhere, size=size)
                     views.info["refined"] = refined
                     if SKIP_AT_BOUND:
                         views.info["untrusted_poses"] = [f["frame"] for f in refined if f["at_bound"]]
@@ -367,13 +382,15 @@ def unregistered_turned(views) -> list[int]:
             if k.outline_pose is None and abs(params_from_pose(k.pose)[0] - ref) >= REFINE_MIN_YAW]
 
 
-def refine_keyframes(draft, views, tracked: int, everywhere: bool = False, size: int | None = None) -> list[dict]:
+def refine_keyframes(draft, views, tracked: int, everywhere: bool | frozenset = False,
+                     size: int | None = None) -> list[dict]:
     """Register (`register.register_frame`) each tracked keyframe but the reference (the first
     `tracked` of views.keyframes) turned at least `REFINE_MIN_YAW` against `draft`, starting from
-    its joint-fit pose, the yaw searched from `REFINE_BEFORE` short of it to `REFINE_BEYOND`
-    beyond. The pose found goes to the keyframe's `outline_pose` (everywhere: its `pose`, for
-    every stage). Returns per keyframe refined {frame, yaw_deg (the joint fit's), registered_deg,
-    error, renders}, the yaws relative to the reference keyframe's."""
+    its pose (the joint fit's, or a previous round's), the yaw searched from `REFINE_BEFORE` short
+    of it to `REFINE_BEYOND` beyond. The pose found goes to the keyframe's `outline_pose`
+    (everywhere: True, or a set of video frames holding the keyframe's: its `pose`, for every
+    stage). Returns per keyframe refined {frame, yaw_deg (its pose's), registered_deg, error,
+    renders, at_bound}, the yaws relative to the reference keyframe's."""
     from avatarkit.render.camera import Camera
     from avatarkit.track.register import REFINE_STEPS, head_rows, params_from_pose, pose_camera, register_frame
 
@@ -399,7 +416,7 @@ def refine_keyframes(draft, views, tracked: int, everywhere: bool = False, size:
         # searched, and neither pose is to be trusted (the whip clip's keyframe at a true 38
         # degrees went to the near end, 29)
         bounded = min(abs(found - near), abs(found - far)) < BOUND_TOLERANCE
-        if everywhere:
+        if everywhere is True or (everywhere is not False and k.frame in everywhere):
             k.pose = reg.pose
         else:
             k.outline_pose = reg.pose
