@@ -4,6 +4,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
 from avatarkit.render import render
@@ -222,3 +223,27 @@ def test_registered_frames_fuse_every_gaussian_for_more_rounds(monkeypatch):
     assert fc.stage_settings("photometric") == fc.StageSettings(True, False, fc.REGISTERED_ITERATIONS)
     monkeypatch.setattr(fc, "FUSE_ALL", True)
     assert fc.stage_settings(None) == fc.StageSettings(True, False, fc.ITERATIONS)
+
+
+@pytest.mark.parametrize("refine", [None, "photometric"])
+def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, refine):
+    """`fuse_frame_colours(refine=)` tracks the video with that refinement, every
+    REFINE_EVERY-th frame (none: the landmark fit's poses, every frame a fit)."""
+    from contextlib import contextmanager
+
+    import avatarkit.track.video as video
+    from avatarkit.track import frame_colours as fc
+
+    seen = {}
+
+    @contextmanager
+    def fake(avatar, path, meshes=None, options=None):
+        seen["options"] = options
+        raise KeyboardInterrupt   # stop before any work
+        yield
+
+    monkeypatch.setattr(video, "tracked_with_built_avatar", fake)
+    with pytest.raises(KeyboardInterrupt):
+        fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None), 0, refine=refine)
+    assert seen["options"].refine == refine
+    assert seen["options"].refine_every == (fc.REFINE_EVERY if refine else 1)
