@@ -32,7 +32,8 @@ from avatarkit.cli.options import cli_warnings, quiet_option
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
 @click.option("--refine", type=click.Choice(["photometric", "photometric-pose"]), default=None,
               help="Track with each frame's head pose and jaw opening refined against the frame by "
-              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only.")
+              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only. "
+              "A video build's frame-colours stage registers its frames by it too (docs/video-build.md).")
 @click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --refine: refine every k-th frame, interpolate the change between.")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,

@@ -482,3 +482,29 @@ def test_refined_tracking_redraws_the_synthetic_video_closer(synthetic, tmp_path
     assert doc["settings"]["refine"] == "photometric, every 1 frame(s)" and doc["settings"]["refinement"]["frames"] == 12
     assert scores["refined"]["psnr"] > scores["landmarks"]["psnr"] + 1.0, scores
     assert scores["refined"]["ssim"] > scores["landmarks"]["ssim"], scores
+
+
+@pytest.mark.parametrize("flag, expected", [([], None), (["--refine", "photometric"], "photometric")])
+def test_refined_evaluation_registers_the_video_builds_colour_frames_too(tmp_path, monkeypatch, flag, expected):
+    """`evaluate --refine` (no --avatar, no --build-frame: the video build) hands its refinement
+    to the build's frame_colours stage (`build_video_avatar(colour_refine=)`); without it the
+    stage keeps `frame_colours.REFINE`."""
+    from types import SimpleNamespace
+
+    import avatarkit.track.video_build as video_build
+    from avatarkit.export.video import write_video
+
+    seen = {}
+
+    def fake(video, options, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt   # stop before anything is written
+
+    monkeypatch.setattr(video_build, "build_tracking", lambda *a, **k: SimpleNamespace(frame_index=np.arange(4)))
+    monkeypatch.setattr(video_build, "build_video_avatar", fake)
+    write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
+    try:
+        main(["evaluate", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "r"), "-q", *flag])
+    except KeyboardInterrupt:
+        pass
+    assert seen["colour_refine"] == expected and not (tmp_path / "r").exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
 from avatarkit.render import render
@@ -130,7 +131,7 @@ def test_colour_frames_keep_to_the_reference_view():
     assert len(colour_frames(result, None, 41)) == 41
 
 
-def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
+def test_fusion_selection_takes_the_bald_gaussians_on_the_regions_and_the_hair_if_asked():
     faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
     regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}
 
@@ -151,6 +152,11 @@ def test_fusion_selection_takes_the_bald_gaussians_on_the_regions():
     # regions None (`FUSE_ALL`): every bald Gaussian, still no hair
     sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), None)
     np.testing.assert_array_equal(sel, [True, True, True, True, False, False])
+    # hair (`FUSE_HAIR`): every hair Gaussian as well, whatever the regions
+    sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), ("neck",), hair=True)
+    np.testing.assert_array_equal(sel, [True, False, False, True, True, True])
+    sel = fusion_selection(SimpleNamespace(head_model=model, bald=bald, hair=hair), None, hair=True)
+    assert sel.all()
 
 
 def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
@@ -200,3 +206,44 @@ def test_shared_weights_give_the_same_refine_and_outline():
     np.testing.assert_array_equal(a.updated, b.updated)
     np.testing.assert_array_equal(outline_selection([plain]), outline_selection([shared]))
     assert shared.shows.any() and not shared.shows.all()
+
+
+def test_registered_frames_fuse_every_gaussian_for_more_rounds(monkeypatch):
+    """With the landmark fit's poses the stage fuses REGIONS' bald Gaussians for ITERATIONS
+    rounds; with frames registered by the refinement every bald Gaussian and the hair for
+    REGISTERED_ITERATIONS; FUSE_ALL / FUSE_HAIR, where set, hold either way."""
+    from avatarkit.track import frame_colours as fc
+
+    monkeypatch.setattr(fc, "FUSE_ALL", None)
+    monkeypatch.setattr(fc, "FUSE_HAIR", None)
+    assert fc.stage_settings(None) == fc.StageSettings(False, False, fc.ITERATIONS)
+    assert fc.stage_settings("photometric") == fc.StageSettings(True, True, fc.REGISTERED_ITERATIONS)
+    assert fc.REGISTERED_ITERATIONS > fc.ITERATIONS
+    monkeypatch.setattr(fc, "FUSE_HAIR", False)
+    assert fc.stage_settings("photometric") == fc.StageSettings(True, False, fc.REGISTERED_ITERATIONS)
+    monkeypatch.setattr(fc, "FUSE_ALL", True)
+    assert fc.stage_settings(None) == fc.StageSettings(True, False, fc.ITERATIONS)
+
+
+@pytest.mark.parametrize("refine", [None, "photometric"])
+def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, refine):
+    """`fuse_frame_colours(refine=)` tracks the video with that refinement, every
+    REFINE_EVERY-th frame (none: the landmark fit's poses, every frame a fit)."""
+    from contextlib import contextmanager
+
+    import avatarkit.track.video as video
+    from avatarkit.track import frame_colours as fc
+
+    seen = {}
+
+    @contextmanager
+    def fake(avatar, path, meshes=None, options=None):
+        seen["options"] = options
+        raise KeyboardInterrupt   # stop before any work
+        yield
+
+    monkeypatch.setattr(video, "tracked_with_built_avatar", fake)
+    with pytest.raises(KeyboardInterrupt):
+        fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None), 0, refine=refine)
+    assert seen["options"].refine == refine
+    assert seen["options"].refine_every == (fc.REFINE_EVERY if refine else 1)

@@ -212,7 +212,11 @@ def _build_video(video: str, report: Path, options: EvalOptions,
     target = report / "avatar"
     index = np.asarray(tracking.frame_index, np.int64)
     span = (int(index[0]), int(index[min(len(index) - 1, int(math.ceil(options.colour_share * len(index))))]))
-    avatar = build_video_avatar(video, build_options, tracking=tracking, colour_span=span)
+    # with the refinement evaluated, the build's frame_colours stage registers its frames by it
+    # too (an avatar whose colours were fused on the landmark fit's poses lost its lead over the
+    # single-frame build when scored with refined poses: docs/video-build.md, session 13)
+    avatar = build_video_avatar(video, build_options, tracking=tracking, colour_span=span,
+                                colour_refine=options.refine)
     save_avatar(avatar, target)
     timings["build"] = time.perf_counter() - t0
     src = avatar.provenance["source_video"]

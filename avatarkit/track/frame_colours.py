@@ -28,6 +28,14 @@ video - render inside the frame's render mask eroded by `MASK_ERODE` px, average
 Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
 Gaussian shows in). The other Gaussians keep the portrait build's colours. The video build runs
 it only when it has one keyframe (a head that does not turn: `track.video_build`).
+
+With the stage's tracking refined by rendering the avatar (`REFINE`, or `fuse_frame_colours(
+refine=)`, which `avatarkit evaluate --refine` passes; every `REFINE_EVERY`-th frame), the frames
+are registered to about half a pixel, and the blur that kept the selection to the regions above is gone: the stage then fuses
+every bald Gaussian and the hair (`stage_settings`) for `REGISTERED_ITERATIONS` rounds.
+Measured on the shared clips, each build tracked with the refinement (`evaluate --refine
+photometric --compare-single`, session 15, docs/video-build.md): the video build leads the
+single-frame build by +0.89 dB (grey) / +1.18 dB (glasses) on the held-out frames.
 """
 from __future__ import annotations
 
@@ -44,13 +52,26 @@ from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 REGIONS = ("neck", "lips", "mouth_interior")
 OUTLINE = True
 #: the tracking that poses the fused frames refines each frame's head pose against it by
-#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Off:
-#: docs/video-build.md, session 13
+#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Off while
+#: the refinement is off in `track` and `evaluate` (`avatarkit evaluate --refine` turns it on for
+#: the video build it evaluates): docs/video-build.md, sessions 13 and 15
 REFINE: str | None = None
+#: the stage's refined tracking refines every k-th frame, the others get the change
+#: interpolated (`TrackOptions.refine_every`): a third of the cost, and on the shared clips it
+#: registered the colour frames no worse (session 15: the 24 frames' PSNR with the built avatar
+#: +0.06 / +0.33 dB mean over refining every frame; the video build's lead +0.87 -> +0.89 /
+#: +1.08 -> +1.18 dB)
+REFINE_EVERY = 3
 #: every bald Gaussian's colour is fused (`fusion_selection(regions=None)`), not only REGIONS'
-#: and the outline's. Off: with the stage posed by the refined tracking (REFINE) it gains on both
-#: shared clips when they are evaluated with the refinement (docs/video-build.md, session 13)
-FUSE_ALL = False
+#: and the outline's; None: when the frames are registered (the stage's refine is set). With
+#: the landmark fit's poses the frames are a pixel or two apart and fusing every Gaussian
+#: blurred the face (+0.03 dB, session 9); with the registered frames it gains on both shared
+#: clips (session 13), but an avatar fused so is worse when the tracking that drives it is not
+#: refined (glasses -0.37 dB): docs/video-build.md
+FUSE_ALL: bool | None = None
+#: the hair's Gaussians are fused too (`fusion_selection(hair=True)`); None: when the frames
+#: are registered (session 15: +0.03 / +0.01 dB on the shared clips over FUSE_ALL alone)
+FUSE_HAIR: bool | None = None
 #: at most this many frames are fused
 FRAMES = 24
 #: only frames whose head pose is within this of the reference keyframe's (radians of yaw and
@@ -62,6 +83,9 @@ MAX_TURN = math.radians(8.0)
 #: rounds of the multi-frame refine (the first does most; more rounds sharpen toward single
 #: frames' noise)
 ITERATIONS = 2
+#: the rounds when the frames are registered (the stage's refine set): a third round gains
+#: 0.04-0.05 dB on both shared clips there (session 15)
+REGISTERED_ITERATIONS = 6
 #: the render's person mask is eroded by this many pixels before the residual is taken: the
 #: outline's pixels mix the wall in the video and the background in the render
 MASK_ERODE = 2
@@ -192,20 +216,41 @@ def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAM
     return rows[np.unique(np.round(np.linspace(0, len(rows) - 1, count)).astype(np.int64))]
 
 
-def fusion_selection(avatar, regions=REGIONS) -> np.ndarray:
+@dataclass
+class StageSettings:
+    """What the stage fuses and how often it refines: fuse_all (every bald Gaussian, not only
+    REGIONS'), hair (the hair's Gaussians too), iterations (rounds of `refine_colours_frames`)."""
+
+    fuse_all: bool
+    hair: bool
+    iterations: int
+
+
+def stage_settings(refine: str | None) -> StageSettings:
+    """The stage's settings for frames posed by a tracking refined by `refine` (None: the
+    landmark fit's poses): FUSE_ALL / FUSE_HAIR where set, else on exactly when the frames are
+    registered; REGISTERED_ITERATIONS rounds then, ITERATIONS otherwise."""
+    registered = refine is not None
+    return StageSettings(registered if FUSE_ALL is None else bool(FUSE_ALL),
+                         registered if FUSE_HAIR is None else bool(FUSE_HAIR),
+                         REGISTERED_ITERATIONS if registered else ITERATIONS)
+
+
+def fusion_selection(avatar, regions=REGIONS, hair: bool = False) -> np.ndarray:
     """(N_bald + N_hair,) bool: the bald Gaussians whose host triangle has at least two vertices
-    in one of the head model's `regions` (None: every bald Gaussian; the hair is never
-    selected)."""
+    in one of the head model's `regions` (None: every bald Gaussian), and with `hair` every hair
+    Gaussian (`FUSE_HAIR`)."""
+    nb = len(avatar.bald)
+    sel = np.zeros(nb + len(avatar.hair), bool)
+    sel[nb:] = hair
     if regions is None:
-        sel = np.zeros(len(avatar.bald) + len(avatar.hair), bool)
-        sel[:len(avatar.bald)] = True
+        sel[:nb] = True
         return sel
     model = avatar.head_model
     faces = np.asarray(model.faces)[np.asarray(avatar.bald.extras["binding"], np.int64)]
-    sel = np.zeros(len(avatar.bald) + len(avatar.hair), bool)
     for name in regions:
         if name in model.regions:
-            sel[:len(avatar.bald)] |= model.region_mask(name)[faces].sum(axis=1) >= 2
+            sel[:nb] |= model.region_mask(name)[faces].sum(axis=1) >= 2
     return sel
 
 
@@ -275,10 +320,13 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
 
 
 def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
-                       span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE):
+                       span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE,
+                       refine: str | None = None):
     """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
-    the frame the avatar was built from; outline: the outline's Gaussians are fused too.
+    the frame the avatar was built from; outline: the outline's Gaussians are fused too;
+    refine: the refinement that registers the fused frames (`TrackOptions.refine`; None:
+    `REFINE`), which sets what is fused (`stage_settings`).
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
     one keyframe (`track.video_build`)."""
     from avatarkit.avatar import load_avatar
@@ -287,7 +335,10 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
     from avatarkit.track.tracker import TrackOptions
 
-    with tracked_with_built_avatar(avatar, video, tracking.meshes, TrackOptions(refine=REFINE)) as (folder, result):
+    refine = REFINE if refine is None else refine
+    settings = stage_settings(refine)
+    options = TrackOptions(refine=refine, refine_every=REFINE_EVERY if refine is not None else 1)
+    with tracked_with_built_avatar(avatar, video, tracking.meshes, options) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
         # are fitted where the neck will be
@@ -295,7 +346,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         saved = load_avatar(folder)
     ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
     rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)
-    select = fusion_selection(saved, None if FUSE_ALL else REGIONS)
+    select = fusion_selection(saved, None if settings.fuse_all else REGIONS, hair=settings.hair)
     if len(rows) == 0:
         return avatar, {"frames": [], "updated": 0}
     from avatarkit.track.keyframes import read_frames
@@ -304,17 +355,19 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     regions = int(select.sum())
     if outline:
         select = select | outline_selection(views)
-    fused = refine_colours_frames(views, select)
+    fused = refine_colours_frames(views, select, iterations=settings.iterations)
     nb = len(avatar.bald)
     rgb = np.where(fused.updated[:, None], fused.rgb, np.concatenate([avatar.bald.colors, avatar.hair.colors]))
     avatar.bald = avatar.bald.with_colors(rgb[:nb])
     if len(avatar.hair):
         avatar.hair = avatar.hair.with_colors(rgb[nb:])
     info = {**fused.info, "frames": [int(f) for f in np.asarray(result.frame_index)[rows]],
-            "regions": list(REGIONS), "in_regions": regions, "outline": bool(outline)}
+            "regions": None if settings.fuse_all else list(REGIONS), "hair": settings.hair, "in_regions": regions,
+            "outline": bool(outline), "refine": refine, "iterations": settings.iterations}
     return avatar, info
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "FUSE_ALL", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REGIONS", "colour_frames", "frame_shows", "fuse_frame_colours",
-           "fusion_selection", "outline_band", "outline_selection", "posed_frames", "refine_colours_frames"]
+           "FUSE_ALL", "FUSE_HAIR", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
+           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "frame_shows", "fuse_frame_colours",
+           "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]

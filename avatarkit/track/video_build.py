@@ -195,7 +195,8 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
                        tracking=None, colour_span: tuple[int, int] | None = None,
-                       register: bool | None = None, jaw_corrective: bool | None = None):
+                       register: bool | None = None, jaw_corrective: bool | None = None,
+                       colour_refine: str | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
@@ -208,7 +209,9 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     None: `REGISTER_TURNED`; `avatarkit build --no-register` passes False). jaw_corrective:
     learn the subject's jaw corrective (`track.jaw_corrective`; None: `JAW_CORRECTIVE`;
     `--no-jaw-corrective` passes False), from the frames in colour_span too; the provenance's
-    `source_video.jaw_corrective` says what it learned."""
+    `source_video.jaw_corrective` says what it learned. colour_refine: the refinement that
+    registers the frame_colours stage's frames (`frame_colours.fuse_frame_colours(refine=)`;
+    None: `frame_colours.REFINE`; `avatarkit evaluate --refine` passes its own)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
@@ -331,7 +334,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if progress is not None:
             progress("frame_colours", last, last, None)
         t0 = time.perf_counter()
-        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span)
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, refine=colour_refine)
         timings["frame_colours"] = time.perf_counter() - t0
         if progress is not None:
             progress("frame_colours", last, last, timings["frame_colours"])
