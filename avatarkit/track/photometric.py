@@ -665,8 +665,8 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
 
 
 def solve_pose_delta_reference(points: np.ndarray, targets: np.ndarray, camera: Camera, huber: float = 1.0,
-                     iterations: int = 4, ridge: float = 1e-3, extra: np.ndarray | None = None,
-                     prior: np.ndarray | None = None, prior_target: np.ndarray | None = None):
+                               iterations: int = 4, ridge: float = 1e-3, extra: np.ndarray | None = None,
+                               prior: np.ndarray | None = None, prior_target: np.ndarray | None = None):
     """`solve_pose_delta` the obvious way (batched 2x3 Jacobians, cross-product matrices, one
     product each): the reference a test holds the fast one to.
 
