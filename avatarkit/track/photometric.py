@@ -583,6 +583,28 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return S
 
 
+def _gauss_newton_step(A: np.ndarray, r: np.ndarray, w: np.ndarray, delta: np.ndarray, E: np.ndarray,
+                       ridge: float, pw: np.ndarray, pt: np.ndarray) -> np.ndarray:
+    """One reweighted Gauss-Newton step of `solve_pose_delta` (and its reference, which differ
+    only in how they build the Jacobian A (N, 2, 6 + K)): residuals r (N, 2), Huber weights w
+    (N,), the change so far delta (6 + K,) whose turn is E (3, 3), a ridge relative to the
+    normal matrix's trace, and the K extra parameters' prior weights pw / targets pt -> the new
+    delta. The turn's increment is composed after E (left); the rest adds."""
+    K = A.shape[2] - 6
+    A2 = A.reshape(-1, 6 + K)
+    w2 = np.repeat(w, 2)
+    H = A2.T @ (w2[:, None] * A2)
+    g = A2.T @ (w2 * r.reshape(-1))
+    H += ridge * np.trace(H) / (6.0 + K) * np.eye(6 + K)
+    H[6:, 6:] += np.diag(pw)
+    g[6:] += pw * (delta[6:] - pt)
+    step = -np.linalg.solve(H, g)
+    out = delta.copy()
+    out[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
+    out[3:] = delta[3:] + step[3:]
+    return out
+
+
 def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, huber: float = 1.0,
                      iterations: int = 4, ridge: float = 1e-3, extra: np.ndarray | None = None,
                      prior: np.ndarray | None = None, prior_target: np.ndarray | None = None):
@@ -648,17 +670,7 @@ def solve_pose_delta(points: np.ndarray, targets: np.ndarray, camera: Camera, hu
             A[:, row, 3:6] = j
             if K:
                 A[:, row, 6:] = (ED * j[:, None, :]).sum(axis=2)                # j . E D
-        A2 = A.reshape(-1, 6 + K)
-        w2 = np.repeat(w, 2)
-        H = A2.T @ (w2[:, None] * A2)
-        g = A2.T @ (w2 * r.reshape(-1))
-        H += ridge * np.trace(H) / (6.0 + K) * np.eye(6 + K)
-        H[6:, 6:] += np.diag(pw)
-        g[6:] += pw * (delta[6:] - pt)
-        step = -np.linalg.solve(H, g)
-        # compose: the turn's increment is applied after E (left), the rest adds
-        delta[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
-        delta[3:] = delta[3:] + step[3:]
+        delta = _gauss_newton_step(A, r, w, delta, E, ridge, pw, pt)
     E, turned = moved(delta)
     _, _, r = residual(turned, delta)
     return delta, c, before, float(np.median(np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)))
@@ -709,17 +721,7 @@ def solve_pose_delta_reference(points: np.ndarray, targets: np.ndarray, camera: 
         if K:
             cols.append(J @ (E[None] @ D))
         A = np.concatenate(cols, axis=2)                              # (N, 2, 6 + K)
-        A2 = A.reshape(-1, 6 + K)
-        w2 = np.repeat(w, 2)
-        H = A2.T @ (w2[:, None] * A2)
-        g = A2.T @ (w2 * r.reshape(-1))
-        H += ridge * np.trace(H) / (6.0 + K) * np.eye(6 + K)
-        H[6:, 6:] += np.diag(pw)
-        g[6:] += pw * (delta[6:] - pt)
-        step = -np.linalg.solve(H, g)
-        # compose: the turn's increment is applied after E (left), the rest adds
-        delta[:3] = matrix_to_axis_angle(axis_angle_to_matrix(step[:3]) @ E)
-        delta[3:] = delta[3:] + step[3:]
+        delta = _gauss_newton_step(A, r, w, delta, E, ridge, pw, pt)
     E, turned = moved(delta)
     uv, _ = project(turned + c + delta[3:6], camera)
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))

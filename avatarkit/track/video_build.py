@@ -289,9 +289,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                 # "registered-edge": the frames at the tracking's edge (the landmarks read them 5-10
                 # degrees off) and those registered at the turns' ends (`register_turned`'s coarser
                 # search against the first draft) take the pose found for every stage
-                everywhere = (True if OUTLINE_POSES == "registered-all" else
-                              frozenset(edge) | {k.frame for k in added} if OUTLINE_POSES == "registered-edge"
-                              else False)
+                everywhere = {"registered-all": True,
+                              "registered-edge": frozenset(edge) | {k.frame for k in added}}.get(OUTLINE_POSES, False)
                 # a second round (SECOND_ROUND): a draft whose outline the first round's poses
                 # fitted, and every pose registered again against it at that many pixels
                 for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
