@@ -267,11 +267,16 @@ class FrameTracker:
 
         targets = LandmarkTargets.from_mesh(mesh, self.embedding, self.size)
         fit = self._fit_targets(targets)
-        eyes = gaze.eyes_pose(np.asarray(mesh.iris_centers, np.float64), self.eye_centres,
-                              fit.rotation, fit.translation, self.focal,
-                              (self.size[0] / 2, self.size[1] / 2))
+        eyes = self.eyes(mesh, fit.rotation, fit.translation)
         scale = face_scale(self.eye_centres, fit.rotation, fit.translation, self.focal)
         return fit, eyes, confidence(float(mesh.presence), fit.median_error, scale)
+
+    def eyes(self, mesh, rotation, translation) -> np.ndarray:
+        """(6,) FLAME eyes_pose of `mesh`'s irises seen by the head at `rotation` (3,),
+        `translation` (3,) (`gaze.eyes_pose`: the gaze is relative to the head, so it depends
+        on the head's pose)."""
+        return gaze.eyes_pose(np.asarray(mesh.iris_centers, np.float64), self.eye_centres,
+                              rotation, translation, self.focal, (self.size[0] / 2, self.size[1] / 2))
 
     def calibrate(self, meshes: list) -> None:
         """Per-landmark calibration from a few frames' meshes: the identity's coefficients
@@ -339,7 +344,8 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     refiner: a `photometric.PoseRefiner` for these frames (their size and the tracker's focal):
     each frame's rigid pose is refined against the frame after the landmark fit (every
     `options.refine_every`-th frame with a face; the others get their neighbours' change,
-    interpolated), before the smoother. The first frames, whose fits wait for the landmark
+    interpolated), and every frame's eyes are read again from its irises at the refined pose
+    (`FrameTracker.eyes`), before the smoother. The first frames, whose fits wait for the landmark
     calibration, keep a small copy of the frame until then.
     """
     options = options or TrackOptions()
@@ -441,6 +447,10 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     raw = {k: np.asarray(v, np.float64).reshape(len(index), -1) for k, v in rows.items()}
     if refiner is not None:
         apply_refinement(raw, refined, found)
+        # the gaze was read from the irises relative to the landmark fit's head; the refined
+        # head is turned and shifted, so the same irises mean other eye rotations
+        for row in np.flatnonzero(found):
+            raw["eyes"][row] = ft.eyes(seen[row], raw["rotation"][row], raw["translation"][row])
     conf = np.asarray(conf, np.float64)
     landmarks = np.stack(marks)
     result = finish(raw, conf, found, np.asarray(index), landmarks, ft, fps, options, name)
