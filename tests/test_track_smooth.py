@@ -115,3 +115,15 @@ def test_smoothed_refinement_keeps_a_constant_change_and_composes_rotations():
         np.testing.assert_allclose(raw["translation"][t], dt, atol=1e-9)
         np.testing.assert_allclose(raw["jaw"][t], dj, atol=1e-9)
     np.testing.assert_allclose(raw["jaw"][4], 0.0)      # no face: left to the clip's smoother
+
+
+def test_a_named_refinement_setting_brings_its_own_spacing():
+    from avatarkit.track.photometric import Settings
+    from avatarkit.track.tracker import REFINE_EVERY, REFINE_SETTINGS, TrackOptions, refine_spacing
+
+    assert refine_spacing(TrackOptions(refine="photometric")) == 1
+    assert refine_spacing(TrackOptions(refine="photometric-fast")) == REFINE_EVERY["photometric-fast"] > 1
+    assert refine_spacing(TrackOptions(refine="photometric-fast", refine_every=2)) == 2
+    assert refine_spacing(TrackOptions(refine="photometric", refine_every=3)) == 3
+    for name in REFINE_SETTINGS:       # every setting is `photometric.Settings` fields (track_video builds one)
+        Settings(**REFINE_SETTINGS[name])
