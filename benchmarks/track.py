@@ -181,7 +181,7 @@ REFINE_RUNS = (("tracker", 0, {}),
                ("refined every 4, photometric in 2 passes", 4, dict(_JAW, iterations=2)),
                ("refined every 6, photometric in 2 passes", 6, dict(_JAW, iterations=2)),
                (f"photometric-fast (every {REFINE_EVERY['photometric-fast']}, "
-                f"{REFINE_SETTINGS['photometric-fast']['iterations']} passes)",
+                f"{REFINE_SETTINGS['photometric-fast']['iterations']} pass(es))",
                 REFINE_EVERY["photometric-fast"], REFINE_SETTINGS["photometric-fast"], "photometric-fast"))
 
 

@@ -41,11 +41,11 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
               help="With --avatar: refine each frame's head pose and jaw opening against the frame "
               "by rendering the avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md); "
-              "photometric-pose: the head pose only; photometric-fast: 1 pass on every 4th frame "
+              "photometric-pose: the head pose only; photometric-fast: 1 pass on every 5th frame "
               "(~15 frames/s on 2 cores, less accurate).")
 @click.option("--refine-every", type=click.IntRange(min=1), default=None,
               help="With --refine: refine every k-th frame, interpolate the change between "
-              "(default 1; photometric-fast: 4).")
+              "(default 1; photometric-fast: 5).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
               "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "

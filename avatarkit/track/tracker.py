@@ -61,13 +61,13 @@ CALIBRATION_ROUNDS = 2
 # (docs/tracking.md, session 14: better than the pose alone on the synthetic avatar video and both
 # real clips, and ~1.2x faster); "photometric-pose" is session 13's pose-only refinement (4 passes
 # from the head mesh's points), kept for comparison
-# "photometric-fast" (session 16): the same refinement in 1 pass on every 4th frame with a face
+# "photometric-fast" (session 16): the same refinement in 1 pass on every 5th frame with a face
 # (`REFINE_EVERY`), the speed setting (docs/tracking.md, session 16)
 REFINE_SETTINGS = {"photometric": dict(jaw=True, render_depth=True, iterations=3), "photometric-pose": {},
                    "photometric-fast": dict(jaw=True, render_depth=True, iterations=1)}
 REFINE_CHOICES = (None, *REFINE_SETTINGS)
 #: the refined frames' spacing of a setting when `TrackOptions.refine_every` is None (others: 1)
-REFINE_EVERY = {"photometric-fast": 4}
+REFINE_EVERY = {"photometric-fast": 5}
 
 
 @dataclass
