@@ -49,7 +49,7 @@ VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 
 
 from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
-from avatarkit.track.tracker import REFINE_SETTINGS  # noqa: E402
+from avatarkit.track.tracker import REFINE_EVERY, REFINE_SETTINGS  # noqa: E402
 
 
 def mixed_clip(T: int, fps: float):
@@ -171,14 +171,18 @@ def synthetic(frames: int, size: int, avatar_dir: str | None, flat: bool = True)
 # Settings fields); with "jaw": `refine="photometric"`, without: "photometric-pose". Session 14 also ran: the pose alone
 # (photometric-pose), the pose from the render's depth, the jaw in 3 or 4 passes from the mesh's points, the
 # jaw from the render's depth in 4 passes; session 15: cold and warm starts, 1-3 passes, every 1-6th
-# frame, size 160 (docs/tracking.md)
+# frame, size 160 (docs/tracking.md); session 16: the named speed setting `photometric-fast` (its
+# own spacing, `REFINE_EVERY`), given by name as a 4th field
 _JAW = REFINE_SETTINGS["photometric"]
 REFINE_RUNS = (("tracker", 0, {}),
                ("refined every 1, photometric (the jaw, the render's depth, 3 passes)", 1, _JAW),
                ("refined every 3, photometric", 3, _JAW),
                ("refined every 3, photometric in 1 pass", 3, dict(_JAW, iterations=1)),
                ("refined every 4, photometric in 2 passes", 4, dict(_JAW, iterations=2)),
-               ("refined every 6, photometric in 2 passes", 6, dict(_JAW, iterations=2)))
+               ("refined every 6, photometric in 2 passes", 6, dict(_JAW, iterations=2)),
+               (f"photometric-fast (every {REFINE_EVERY['photometric-fast']}, "
+                f"{REFINE_SETTINGS['photometric-fast']['iterations']} pass(es))",
+                REFINE_EVERY["photometric-fast"], REFINE_SETTINGS["photometric-fast"], "photometric-fast"))
 
 
 def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
@@ -209,9 +213,10 @@ def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) ->
     for view, frames_in, truth in (("as rendered", video, true_head),
                                    ("mirrored", mirrored, true_head * np.array([1.0, -1.0, -1.0]))):
         meshes = None
-        for label, k, settings in runs:
-            options = TrackOptions(refine=("photometric" if settings.get("jaw") else "photometric-pose") if k else None,
-                                   refine_every=max(k, 1))
+        for label, k, settings, *named in runs:
+            # a named setting brings its own spacing (`tracker.refine_spacing`): k is what it is
+            refine = named[0] if named else ("photometric" if settings.get("jaw") else "photometric-pose")
+            options = TrackOptions(refine=refine if k else None, refine_every=None if named else max(k, 1))
             refiner = PoseRefiner(avatar, camera.fx, (size, size), Settings(**settings)) if k else None
             t0 = time.perf_counter()
             r = track_frames(frames_in, model, shape, (size, size), 30.0, options, meshes=meshes, refiner=refiner)

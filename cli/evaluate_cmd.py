@@ -30,12 +30,14 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(["photometric", "photometric-pose"]), default=None,
+@click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
               help="Track with each frame's head pose and jaw opening refined against the frame by "
-              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only. "
+              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only; "
+              "photometric-fast: 1 pass on every 5th frame. "
               "A video build's frame-colours stage registers its frames by it too (docs/video-build.md).")
-@click.option("--refine-every", type=click.IntRange(min=1), default=1, show_default=True,
-              help="With --refine: refine every k-th frame, interpolate the change between.")
+@click.option("--refine-every", type=click.IntRange(min=1), default=None,
+              help="With --refine: refine every k-th frame, interpolate the change between "
+              "(default 1; photometric-fast: 5).")
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
               "body held at the build frame's pose; 'global' turns the whole model with the head.")
@@ -61,7 +63,7 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
                                "it does not go with --avatar or --build-frame")
     if subject_part != "full" and not subject_calibration:
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
-    if refine_every != 1 and refine is None:
+    if refine_every is not None and refine is None:
         raise click.UsageError("--refine-every goes with --refine")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,

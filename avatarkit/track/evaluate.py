@@ -72,7 +72,8 @@ class EvalOptions:
     subject_part is used (`TrackOptions.subject_part`); head_on:
     where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
     build frame's pose, or "global"); refine: track with the pose refined against each frame by
-    rendering the avatar evaluated (`TrackOptions.refine`), every `refine_every`-th frame."""
+    rendering the avatar evaluated (`TrackOptions.refine`), every `refine_every`-th frame (None:
+    the setting's own, `tracker.refine_spacing`)."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -88,7 +89,7 @@ class EvalOptions:
     subject_part: str = "full"
     head_on: str = DEFAULT_HEAD_ON
     refine: str | None = None
-    refine_every: int = 1
+    refine_every: int | None = None
 
 
 @dataclass
@@ -280,7 +281,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
         from avatarkit.track.video import track_video
 
         step = (lambda d, t: progress("tracking", d, t)) if progress else None
-        from avatarkit.track.tracker import TrackOptions
+        from avatarkit.track.tracker import TrackOptions, refine_spacing
 
         track_options = TrackOptions(subject_calibration=options.subject_calibration,
                                      subject_part=options.subject_part, refine=options.refine,
@@ -331,7 +332,7 @@ def evaluate(video: str | os.PathLike, report_dir: str | os.PathLike, *,
             "head_pose": ("tracked motion, the build frame posed as the build's fit" if posed
                           else "tracked pose as it is"),
             "head_on": describe(carried),
-            "refine": options.refine and f"{options.refine}, every {options.refine_every} frame(s)",
+            "refine": options.refine and f"{options.refine}, every {refine_spacing(track_options)} frame(s)",
             "refinement": result.refinement,
             "lpips": LPIPS_NOTE, "paper": PAPER,
             "tracked_landmark_error_px": _median(result.landmark_error),

@@ -61,8 +61,13 @@ CALIBRATION_ROUNDS = 2
 # (docs/tracking.md, session 14: better than the pose alone on the synthetic avatar video and both
 # real clips, and ~1.2x faster); "photometric-pose" is session 13's pose-only refinement (4 passes
 # from the head mesh's points), kept for comparison
-REFINE_SETTINGS = {"photometric": dict(jaw=True, render_depth=True, iterations=3), "photometric-pose": {}}
+# "photometric-fast" (session 16): the same refinement in 1 pass on every 5th frame with a face
+# (`REFINE_EVERY`), the speed setting (docs/tracking.md, session 16)
+REFINE_SETTINGS = {"photometric": dict(jaw=True, render_depth=True, iterations=3), "photometric-pose": {},
+                   "photometric-fast": dict(jaw=True, render_depth=True, iterations=1)}
 REFINE_CHOICES = (None, *REFINE_SETTINGS)
+#: the refined frames' spacing of a setting when `TrackOptions.refine_every` is None (others: 1)
+REFINE_EVERY = {"photometric-fast": 5}
 
 
 @dataclass
@@ -107,8 +112,12 @@ class TrackOptions:
     and the jaw's opening refined against the frame by rendering the avatar (`track.photometric`;
     the other two jaw axes, expression and eyes stay the landmark fit's; docs/tracking.md,
     sessions 13-14), before the smoother; "photometric-pose": the rigid pose only (session 13's);
-    None: the landmark fit's. refine_every: only every k-th frame with a face is refined, the
-    others get the change interpolated from their refined neighbours (`REFINE_SETTINGS`)."""
+    "photometric-fast": "photometric" in fewer passes on fewer frames (`REFINE_SETTINGS`,
+    `REFINE_EVERY`); None: the landmark fit's. refine_every: only every k-th frame with a face is
+    refined, the others get the change interpolated from their refined neighbours (None: the
+    setting's own, `refine_spacing`). refine_smoothing: lam (frames^4) of a Whittaker smoother
+    on the refinement's changes over the refined frames (`apply_refinement`); 0, the default:
+    linear interpolation between them (session 16: smoothing them lost, docs/tracking.md)."""
 
     face_index: int = 0
     smoothing: float = 4.0
@@ -126,7 +135,8 @@ class TrackOptions:
     subject_calibration: bool = False
     subject_part: str = "full"
     refine: str | None = None
-    refine_every: int = 1
+    refine_every: int | None = None
+    refine_smoothing: float = 0.0
 
 
 @dataclass(eq=False)
@@ -371,7 +381,7 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
 
     refined: dict = {}                # row -> (rotation change (3,), translation change (3,), jaw change (3,))
     waiting: dict = {}                # row -> the small frame, until the calibration refits it
-    every = max(1, int(options.refine_every))
+    every = refine_spacing(options)
     stats = {"frames": 0, "seconds": 0.0, "before": [], "after": [], "renders": []}
 
     def refine(row, small):
@@ -446,7 +456,7 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
         refine(row, small)
     raw = {k: np.asarray(v, np.float64).reshape(len(index), -1) for k, v in rows.items()}
     if refiner is not None:
-        apply_refinement(raw, refined, found)
+        apply_refinement(raw, refined, found, options.refine_smoothing)
         # the gaze was read from the irises relative to the landmark fit's head; the refined
         # head is turned and shifted, so the same irises mean other eye rotations
         for row in np.flatnonzero(found):
@@ -464,28 +474,59 @@ def track_frames(frames: Iterable, model, shape: np.ndarray, size: tuple[int, in
     return result
 
 
-def apply_refinement(raw: dict, refined: dict, found: np.ndarray) -> None:
+def refine_spacing(options: TrackOptions) -> int:
+    """Every how many frames with a face `options` refine: refine_every, or (None) the setting's
+    own (`REFINE_EVERY`, else 1)."""
+    if options.refine_every is not None:
+        return max(1, int(options.refine_every))
+    return REFINE_EVERY.get(options.refine, 1)
+
+
+def apply_refinement(raw: dict, refined: dict, found: np.ndarray, smoothing: float = 0.0) -> None:
     """Move raw["rotation"] / raw["translation"] (T, 3) (and raw["jaw"] (T, 3)) in place by the
     refinement's changes `refined` {row: (rotation change (3,) axis-angle, applied on the left;
-    translation change (3,)[; jaw change (3,), added])}; the rows with a face that were not
+    translation change (3,)[; jaw change (3,), added])}.
+
+    smoothing 0 (`TrackOptions.refine_smoothing`'s default): the rows with a face that were not
     refined get the changes interpolated linearly between their refined neighbours (held at the
-    ends)."""
+    ends), the refined rows their own. smoothing > 0: the changes through a Whittaker smoother
+    over the refined rows (`smoothed_changes`). Off because the changes are not noise about a
+    slow bias: they follow the motion (the jaw's with the opening), and smoothing them lost on
+    the synthetic avatar video and both real clips (docs/tracking.md, session 16)."""
     from avatarkit.rotations import matrix_to_axis_angle
 
     if not refined:
         return
     done = np.array(sorted(refined))
-    dr = np.stack([refined[k][0] for k in done])
-    dt = np.stack([refined[k][1] for k in done])
-    dj = np.stack([refined[k][2] if len(refined[k]) > 2 else np.zeros(3) for k in done])
+    d = np.concatenate([np.stack([refined[k][0] for k in done]), np.stack([refined[k][1] for k in done]),
+                        np.stack([refined[k][2] if len(refined[k]) > 2 else np.zeros(3) for k in done])], 1)  # (R, 9)
     rows = np.flatnonzero(found)
-    ir, it, ij = (np.stack([np.interp(rows, done, d[:, j]) for j in range(3)], 1) for d in (dr, dt, dj))
+    change = smoothed_changes(done, d, rows, smoothing)
+    ir, it, ij = change[:, :3], change[:, 3:6], change[:, 6:]
     for k, row in enumerate(rows):
         R = axis_angle_to_matrix(ir[k]).astype(np.float64) @ axis_angle_to_matrix(raw["rotation"][row]).astype(np.float64)
         raw["rotation"][row] = np.asarray(matrix_to_axis_angle(R), np.float64).reshape(3)
         raw["translation"][row] = raw["translation"][row] + it[k]
         if "jaw" in raw:
             raw["jaw"][row] = raw["jaw"][row] + ij[k]
+
+
+def smoothed_changes(done: np.ndarray, changes: np.ndarray, rows: np.ndarray, smoothing: float = 0.0) -> np.ndarray:
+    """The refinement's changes (R, C) at the refined rows `done` (R,) (increasing), read at
+    `rows` (N,): smoothing 0, linear interpolation; > 0, a weighted Whittaker smoother
+    (`smooth.whittaker`, lam = smoothing in frames^4) over the rows done[0]..done[-1], the
+    refined rows weight 1 and the others 0 (so it interpolates them: a spline-like curve where
+    interpolation draws straight lines); held at the ends either way. -> (N, C)."""
+    changes = np.asarray(changes, np.float64)
+    if smoothing > 0 and len(done) >= 3:
+        span = np.arange(done[0], done[-1] + 1)
+        x = np.zeros((len(span), changes.shape[1]))
+        w = np.zeros(len(span))
+        x[done - done[0]] = changes
+        w[done - done[0]] = 1.0
+        z = whittaker(x, w, smoothing)
+        return z[np.clip(rows, done[0], done[-1]) - done[0]]
+    return np.stack([np.interp(rows, done, changes[:, j]) for j in range(changes.shape[1])], 1)
 
 
 def finish(raw: dict, confidence: np.ndarray, found: np.ndarray, frame_index: np.ndarray,
