@@ -52,8 +52,12 @@ FRAME_COLOURS = True
 #: the open mouth (`recon.mouth`: parted lips, teeth and a cavity) on the video build's avatar
 #: where its frame_colours stage runs, just before it, so the stage colours the teeth and the
 #: cavity from the frames that show them (a Gaussian no frame shows keeps the build's guess);
-#: the single-frame build keeps `recon.pipeline.OPEN_MOUTH`. Off: measured on the shared clips
-#: (session 16, docs/video-build.md) it loses with the refinement on (grey -0.06 dB)
+#: the single-frame build keeps `recon.pipeline.OPEN_MOUTH`. Off: on the shared clips' held-out
+#: frames (session 16, docs/video-build.md) the video build with it scores grey -0.06 /
+#: glasses +0.02 dB with `evaluate --refine photometric` (grey: the avatar's own refined
+#: tracking reads the half-open jaw less open; on one tracking -0.006), -0.004 / -0.009 dB
+#: without; grey's mouth box +0.15 dB, its wide-open frames (jaw > 0.2 rad) -0.16: the
+#: template's lips part far less than the man's, so there is little opening to colour
 OPEN_MOUTH = False
 #: learn the subject's jaw corrective from the tracked frames (`track.jaw_corrective`;
 #: `jaw_corrective=True` / `avatarkit build VIDEO --jaw-corrective` turns it on). Off: held out
