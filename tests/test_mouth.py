@@ -205,3 +205,30 @@ def test_open_avatar_mouth_is_open_mouth_on_the_avatars_bald_set(head):
     np.testing.assert_array_equal(avatar.bald.extras["binding"], expected.extras["binding"])
     assert set(avatar.bald.extras) == {"binding"}
     np.testing.assert_array_equal(avatar.binding.face_ids, avatar.bald.extras["binding"])
+
+
+def test_the_video_build_opens_the_mouth_once(head, monkeypatch):
+    """`video_build._open_mouth` (OPEN_MOUTH's call site): it opens a built avatar's mouth, with
+    the teeth's guess from the reference frame when that shows teeth, and leaves an avatar the
+    portrait build opened already (`pipeline.OPEN_MOUTH`) as it is."""
+    from types import SimpleNamespace
+
+    from avatarkit.avatar import Avatar
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+    from avatarkit.recon import pipeline
+    from avatarkit.track import video_build
+
+    model, shape, rest, bald, opened, info = head
+    make = lambda: Avatar(model, bald.replace(extras={"binding": bald.extras["binding"].astype(np.int32)}),
+                          GaussianSet.empty(), None, None, shape)
+    image = np.full((100, 100, 3), (230, 225, 210), np.uint8)          # all teeth
+    mesh = SimpleNamespace(points=np.array([[20, 20], [80, 20], [80, 80], [20, 80]] * 120, float)[:478] + 0.5)
+    result = SimpleNamespace(frame_index=np.array([3, 7, 9]), meshes=[None, mesh, None])
+    avatar, got = video_build._open_mouth(make(), result, image, 7)
+    assert len(avatar.bald) == len(opened) and got["teeth_from_photo"]
+    assert got["teeth_rgb"] == pytest.approx([230 / 255, 225 / 255, 210 / 255], abs=0.01)
+    avatar, got = video_build._open_mouth(make(), SimpleNamespace(frame_index=np.array([7]), meshes=None), image, 7)
+    assert len(avatar.bald) == len(opened) and not got["teeth_from_photo"]
+    monkeypatch.setattr(pipeline, "OPEN_MOUTH", True)
+    avatar, got = video_build._open_mouth(make(), result, image, 7)
+    assert len(avatar.bald) == len(bald) and got == {"by": "recon.pipeline"}
