@@ -145,3 +145,90 @@ def test_one_jaw_probe_gives_what_posing_each_time_did(head):
     np.testing.assert_array_equal(probe.rest, mouth.posed_rest(model, shape, 0.0))
     np.testing.assert_array_equal(probe.opened, mouth.posed_rest(model, shape, probe.sign * mouth.PROBE_JAW))
     np.testing.assert_array_equal(mouth.stretching_faces(model, shape), mouth.stretching_faces(model, shape, probe))
+
+
+def test_the_frame_colours_stage_colours_the_teeth_a_frame_shows_and_keeps_the_guess_elsewhere(head):
+    """The video build's stage (`track.frame_colours`) on the open mouth: two frames of a person
+    whose teeth are white where the build guessed ivory, one with the jaw open 0.3 rad, one
+    closed. The teeth the open frame shows are fused toward white; the teeth no frame shows
+    (the closed frame hides them; the lower row hides behind the lower lip) keep the guess
+    to the bit, and so does every Gaussian outside the selection."""
+    from avatarkit.track.frame_colours import FrameView, frame_shows, refine_colours_frames
+
+    model, shape, rest, bald, opened, info = head
+    teeth = np.zeros(len(opened), bool)
+    teeth[len(bald):len(bald) + info["teeth"]] = True     # open_mouth appends the teeth first
+    white = np.array([0.95, 0.95, 0.92], np.float32)
+    truth = opened.with_colors(np.where(teeth[:, None], white, opened.colors))
+    views = []
+    for jaw in (0.3, 0.0):
+        shown, cam = _view(model, rest, _posed(model, shape, rest, truth, jaw))
+        guess = _posed(model, shape, rest, opened, jaw)
+        image = (shown * 255).round().astype(np.uint8)
+        views.append(FrameView(guess, cam, image, np.ones(image.shape[:2], bool)))
+    shows = [frame_shows(v) & teeth for v in views]
+    # closed, a few teeth weigh over a twentieth of a pixel through the lips' crease (measured
+    # 31 against the open frame's 180)
+    assert shows[0].sum() > 50 and shows[1].sum() < 0.25 * shows[0].sum()
+    fused = refine_colours_frames(views, teeth, iterations=4, background=np.ones(3))
+    seen, unseen = shows[0], teeth & ~(shows[0] | shows[1])
+    assert unseen.sum() > 50                                # the lower row, the arch's ends
+    # a pixel's weight or more: not behind a lip (measured: 29 teeth, 0.42 -> 0.07 off; every tooth
+    # the open frame shows 0.44 -> 0.26)
+    clear = frame_shows(views[0], 1.0) & teeth
+    err = lambda rgb, sel: np.abs(rgb[sel] - white).mean()
+    assert err(fused.rgb, clear) < 0.3 * err(opened.colors, clear)
+    assert err(fused.rgb, seen) < 0.8 * err(opened.colors, seen)
+    np.testing.assert_array_equal(fused.rgb[unseen], opened.colors[unseen])
+    np.testing.assert_array_equal(fused.rgb[~teeth], opened.colors[~teeth])
+    np.testing.assert_array_equal(fused.updated, shows[0] | shows[1])
+
+
+def test_open_avatar_mouth_is_open_mouth_on_the_avatars_bald_set(head):
+    """The video build's way in (`track.video_build.OPEN_MOUTH`): on a built avatar it gives
+    what `open_mouth` gives its bald set on its own rest head, bindings included, and the
+    avatar's cached binding follows."""
+    from avatarkit.avatar import Avatar
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    model, shape, rest, bald, opened, info = head
+    avatar = Avatar(model, bald.replace(extras={"binding": bald.extras["binding"].astype(np.int32)}),
+                    GaussianSet.empty(), None, None, shape)
+    assert len(avatar.binding.face_ids) == len(bald)
+    out, info = mouth.open_avatar_mouth(avatar, teeth_rgb=(0.9, 0.9, 0.9))
+    expected, _ = mouth.open_mouth(model, np.asarray(avatar.rest_head_vertices, np.float64), shape, bald,
+                                   teeth_rgb=(0.9, 0.9, 0.9))
+    assert out is avatar and info["teeth"] > 100 and info["teeth_from_photo"]
+    assert len(avatar.bald) == len(expected) == len(bald) + info["teeth"] + info["cavity"]
+    np.testing.assert_array_equal(avatar.bald.colors, expected.colors)
+    np.testing.assert_array_equal(avatar.bald.means, expected.means)
+    np.testing.assert_array_equal(avatar.bald.extras["binding"], expected.extras["binding"])
+    assert set(avatar.bald.extras) == {"binding"}
+    np.testing.assert_array_equal(avatar.binding.face_ids, avatar.bald.extras["binding"])
+
+
+def test_the_video_build_opens_the_mouth_once(head, monkeypatch):
+    """`video_build._open_mouth` (OPEN_MOUTH's call site): it opens a built avatar's mouth, with
+    the teeth's guess from the reference frame when that shows teeth, and leaves an avatar the
+    portrait build opened already (`pipeline.OPEN_MOUTH`) as it is."""
+    from types import SimpleNamespace
+
+    from avatarkit.avatar import Avatar
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+    from avatarkit.recon import pipeline
+    from avatarkit.track import video_build
+
+    model, shape, rest, bald, opened, info = head
+    make = lambda: Avatar(model, bald.replace(extras={"binding": bald.extras["binding"].astype(np.int32)}),
+                          GaussianSet.empty(), None, None, shape)
+    image = np.full((100, 100, 3), (230, 225, 210), np.uint8)          # all teeth
+    mesh = SimpleNamespace(points=np.array([[20, 20], [80, 20], [80, 80], [20, 80]] * 120, float)[:478] + 0.5)
+    result = SimpleNamespace(frame_index=np.array([3, 7, 9]), meshes=[None, mesh, None])
+    avatar, got = video_build._open_mouth(make(), result, image, 7)
+    assert len(avatar.bald) == len(opened) and got["teeth_from_photo"]
+    assert got["teeth_rgb"] == pytest.approx([230 / 255, 225 / 255, 210 / 255], abs=0.01)
+    avatar, got = video_build._open_mouth(make(), SimpleNamespace(frame_index=np.array([7]), meshes=None), image, 7)
+    assert len(avatar.bald) == len(opened) and not got["teeth_from_photo"]
+    monkeypatch.setattr(pipeline, "OPEN_MOUTH", True)
+    avatar, got = video_build._open_mouth(make(), result, image, 7)
+    assert len(avatar.bald) == len(bald) and got == {"by": "recon.pipeline"}

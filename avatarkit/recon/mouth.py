@@ -427,5 +427,19 @@ def open_mouth(model, vertices: np.ndarray, shape: np.ndarray, bald: GaussianSet
     return out.replace(extras=extras), info
 
 
-__all__ = ["INNER_LIPS", "JawProbe", "MouthGeometry", "inner_lips", "jaw_probe", "mouth_geometry", "open_mouth", "part_lips",
+def open_avatar_mouth(avatar, teeth_rgb=None):
+    """`open_mouth` on a built `Avatar` (its bald set bound to its own head model, the rest head
+    of its identity), in place -> (avatar, info). What `pipeline.OPEN_MOUTH` does at the end of
+    the colours stage, for a build that decides later: the video build, before its frame-colours
+    stage colours the teeth and cavity from the frames that show them (`track.video_build.OPEN_MOUTH`).
+    An avatar folder keeps only the bald set's `binding` extra, so that is all it keeps here."""
+    rest = np.asarray(avatar.rest_head_vertices, np.float64)
+    bald, info = open_mouth(avatar.head_model, rest, avatar.shape, avatar.bald, teeth_rgb=teeth_rgb)
+    avatar.bald = bald.replace(extras={"binding": bald.extras["binding"].astype(avatar.bald.extras["binding"].dtype)})
+    # the cached binding was of the set before
+    avatar.__dict__.pop("binding", None)
+    return avatar, info
+
+
+__all__ = ["INNER_LIPS", "JawProbe", "MouthGeometry", "inner_lips", "jaw_probe", "mouth_geometry", "open_avatar_mouth", "open_mouth", "part_lips",
            "photo_teeth_colour", "rigid_faces", "stretching_faces", "teeth_and_cavity"]

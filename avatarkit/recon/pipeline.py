@@ -98,7 +98,8 @@ FACING_REFINE = False
 #: (`recon.coverage`), before the colour matching
 COVER_SILHOUETTE = True
 #: teeth and a mouth cavity behind the lips, and lips that part instead of stretching across the
-#: opening (`recon.mouth`; docs/building.md "The open mouth", session 14)
+#: opening (`recon.mouth`; docs/building.md "The open mouth", session 14). The video build can
+#: open it just before its frame-colours stage instead (`track.video_build.OPEN_MOUTH`)
 OPEN_MOUTH = False
 #: label images for the 3D segmentation are at most this large (pixels)
 LABEL_SIDE = 512

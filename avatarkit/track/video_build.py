@@ -49,6 +49,16 @@ from avatarkit.track.neck import clip_head_rotation
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
+#: the open mouth (`recon.mouth`: parted lips, teeth and a cavity) on the video build's avatar
+#: where its frame_colours stage runs, just before it, so the stage colours the teeth and the
+#: cavity from the frames that show them (a Gaussian no frame shows keeps the build's guess);
+#: the single-frame build keeps `recon.pipeline.OPEN_MOUTH`. Off: on the shared clips' held-out
+#: frames (session 16, docs/video-build.md) the video build with it scores grey -0.06 /
+#: glasses +0.02 dB with `evaluate --refine photometric` (grey: the avatar's own refined
+#: tracking reads the half-open jaw less open; on one tracking -0.006), -0.004 / -0.009 dB
+#: without; grey's mouth box +0.15 dB, its wide-open frames (jaw > 0.2 rad) -0.16: the
+#: template's lips part far less than the man's, so there is little opening to colour
+OPEN_MOUTH = False
 #: learn the subject's jaw corrective from the tracked frames (`track.jaw_corrective`;
 #: `jaw_corrective=True` / `avatarkit build VIDEO --jaw-corrective` turns it on). Off: held out
 #: on the shared clips (`evaluate --compare-single`, session 12) the guarded corrective gains
@@ -333,6 +343,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         if progress is not None:
             progress("frame_colours", last, last, None)
         t0 = time.perf_counter()
+        if OPEN_MOUTH:
+            avatar, source["open_mouth"] = _open_mouth(avatar, result, images[ref_frame], ref_frame)
         avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, refine=colour_refine)
         timings["frame_colours"] = time.perf_counter() - t0
         if progress is not None:
@@ -350,6 +362,21 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     build["timings_s"] = {**{k: round(v, 3) for k, v in timings.items()}, **build["timings_s"]}
     build["total_s"] = round(sum(build["timings_s"].values()), 3)
     return avatar
+
+
+def _open_mouth(avatar, result, image: np.ndarray, ref_frame: int):
+    """The open mouth on the built avatar before the frame_colours stage (`OPEN_MOUTH`), its
+    teeth's guess from the reference frame when it shows teeth -> (avatar, info). Nothing when
+    the portrait build opened it already (`recon.pipeline.OPEN_MOUTH`)."""
+    from avatarkit.recon import pipeline
+    from avatarkit.recon.mouth import inner_lips, open_avatar_mouth, photo_teeth_colour
+
+    if pipeline.OPEN_MOUTH:
+        return avatar, {"by": "recon.pipeline"}
+    row = np.flatnonzero(np.asarray(result.frame_index) == ref_frame)
+    meshes = result.meshes or []
+    mesh = meshes[int(row[0])] if len(row) and int(row[0]) < len(meshes) else None
+    return open_avatar_mouth(avatar, photo_teeth_colour(image, inner_lips(mesh)))
 
 
 def turned_guess(result, edge: int, reference: int, reference_pose) -> np.ndarray:
@@ -462,7 +489,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OUTLINE_POSES", "REFINE_BEFORE",
+__all__ = ["BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
            "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
