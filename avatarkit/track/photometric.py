@@ -778,5 +778,5 @@ def solve_pose_delta_reference(points: np.ndarray, targets: np.ndarray, camera: 
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
 
 
-__all__ = ["CHEAP_PASS", "PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
-           "solve_pose_delta", "solve_pose_delta_reference", "unproject", "view_camera"]
+__all__ = ["CHEAP_PASS", "PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow",
+           "pose_matrix", "project", "solve_pose_delta", "solve_pose_delta_reference", "unproject", "view_camera"]
