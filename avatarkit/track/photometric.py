@@ -35,8 +35,8 @@ only the hair turned), the Gauss-Newton's Jacobian rows are written out
 (`solve_pose_delta_reference` is the obvious one), and `Settings.front_faces` (off) rasterises only
 the mesh's faces turned to the camera: together 1.4-1.5x (1.7x with front faces) a refined frame,
 docs/tracking.md "Session 15". Session 16's cheaper pass (`CHEAP_PASS`: the solve on every 2nd
-pixel's row and column, the head mesh rasterised once per frame and warped to each pass's
-pose): docs/tracking.md "Session 16: a cheaper pass".
+pixel's row and column, the head mesh rasterised once per frame at half the size and warped to
+each pass's pose): docs/tracking.md "Session 16: a cheaper pass".
 
 The jaw (`Settings.jaw`, session 14): the jaw's opening (the FLAME jaw pose's first axis) is
 a seventh unknown of the same Gauss-Newton. Each 3D point carries its derivative by the opening
@@ -116,7 +116,9 @@ class Settings:
     face weight, the jaw's derivative) once per frame, at the first pass's pose, and each later
     pass reads it where its pixels' points (from its render's depth) were at that pose
     (`warped`; read where it was drawn instead, the jaw's derivative and the mouth's edge sit
-    a first pass's change (~3 px) off: -0.14 dB on the grey clip)."""
+    a first pass's change (~3 px) off: -0.14 dB on the grey clip); raster_scale: with
+    `render_depth`, the head mesh is rasterised at this fraction of `size` and resized back
+    (`scaled_points`)."""
 
     size: int = 224
     supersample: int = 2
@@ -137,10 +139,11 @@ class Settings:
     front_faces: bool = False
     stride: int = 1
     raster_once: bool = False
+    raster_scale: float = 1.0
 
 
 # session 16's cheaper pass (docs/tracking.md "Session 16: a cheaper pass")
-CHEAP_PASS = dict(stride=2, raster_once=True)
+CHEAP_PASS = dict(stride=2, raster_once=True, raster_scale=0.5)
 
 # the first round's settings (every pass turns the Gaussians and renders the whole frame; the
 # passes stop only at 0.011 deg / 0.02 mm): the speed baseline of docs/tracking.md
@@ -393,6 +396,17 @@ class PoseRefiner:
             return ras.attributes[..., :3], w
         return ras.attributes[..., :3], w, ras.attributes[..., 4:7]
 
+    def scaled_points(self, vertices: np.ndarray, rotation, translation, camera: Camera, scale: float,
+                      derivative: np.ndarray | None = None, weight: np.ndarray | None = None):
+        """`points` rasterised at `scale` times `camera`'s size and resized back to it
+        (bilinear; `Settings.raster_scale`: the weight's and the derivative's edges blur by
+        about a pixel; the points too, so only where the render's depth replaces them)."""
+        import cv2
+
+        small = camera.with_size(max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale))))
+        out = self.points(vertices, rotation, translation, small, derivative, weight)
+        return tuple(cv2.resize(a, (camera.width, camera.height), interpolation=cv2.INTER_LINEAR) for a in out)
+
     def warped(self, raster, drawn: np.ndarray, now: np.ndarray, X: np.ndarray, camera: Camera):
         """(face weight (h, w), the jaw's derivative (h, w, 3) or None) of `points`' answer
         `raster` drawn at pose `drawn` (4, 4), moved to pose `now` (4, 4): each pixel's point X
@@ -471,8 +485,12 @@ class PoseRefiner:
             comp, alpha = image[:2]
             renders += 1
             if raster is None or not reuse:
-                if s.jaw:
-                    raster = self.points(verts, rot, tr, cam, self.jaw_derivative(jaw_now, expr, eyes), self.jaw_weight)
+                derivative = self.jaw_derivative(jaw_now, expr, eyes) if s.jaw else None
+                if s.render_depth and s.raster_scale != 1.0:
+                    raster = self.scaled_points(verts, rot, tr, cam, s.raster_scale, derivative,
+                                                self.jaw_weight if s.jaw else None)
+                elif s.jaw:
+                    raster = self.points(verts, rot, tr, cam, derivative, self.jaw_weight)
                 else:
                     raster = self.points(verts, rot, tr, cam)
                 raster_pose = pose_matrix(rot, tr)
