@@ -34,7 +34,9 @@ Gaussians are made at the starting pose directly (`placed`: the head's bound to 
 only the hair turned), the Gauss-Newton's Jacobian rows are written out
 (`solve_pose_delta_reference` is the obvious one), and `Settings.front_faces` (off) rasterises only
 the mesh's faces turned to the camera: together 1.4-1.5x (1.7x with front faces) a refined frame,
-docs/tracking.md "Session 15".
+docs/tracking.md "Session 15". Session 16's cheaper pass (`CHEAP_PASS`: the solve on every 2nd
+pixel's row and column, the head mesh rasterised once per frame at half the size and warped to
+each pass's pose): docs/tracking.md "Session 16: a cheaper pass".
 
 The jaw (`Settings.jaw`, session 14): the jaw's opening (the FLAME jaw pose's first axis) is
 a seventh unknown of the same Gauss-Newton. Each 3D point carries its derivative by the opening
@@ -106,7 +108,17 @@ class Settings:
     derivative): module docstring, "Why a pass recovered only ~2/3".
     front_faces: rasterise only the head mesh's faces that face the camera (a closed head's
     others lie behind them; the raster takes ~0.7x the time; where a lip's inside was the
-    nearest face, the next one behind it is drawn)."""
+    nearest face, the next one behind it is drawn).
+    Session 16's cheaper-pass settings (docs/tracking.md "Session 16: a cheaper pass"):
+    stride: the Gauss-Newton uses the kept pixels on every stride-th row and column only (the
+    flow is smooth at `size`; the jaw's prior scales with the points used, so it weighs the
+    same against them); raster_once: with `render_depth`, the head mesh is rasterised (the
+    face weight, the jaw's derivative) once per frame, at the first pass's pose, and each later
+    pass reads it where its pixels' points (from its render's depth) were at that pose
+    (`warped`; read where it was drawn instead, the jaw's derivative and the mouth's edge sit
+    a first pass's change (~3 px) off: -0.14 dB on the grey clip); raster_scale: with
+    `render_depth`, the head mesh is rasterised at this fraction of `size` and resized back
+    (`scaled_points`)."""
 
     size: int = 224
     supersample: int = 2
@@ -125,7 +137,13 @@ class Settings:
     render_depth: bool = False
     jaw_tolerance: float = 2e-3
     front_faces: bool = False
+    stride: int = 1
+    raster_once: bool = False
+    raster_scale: float = 1.0
 
+
+# session 16's cheaper pass (docs/tracking.md "Session 16: a cheaper pass")
+CHEAP_PASS = dict(stride=2, raster_once=True, raster_scale=0.5)
 
 # the first round's settings (every pass turns the Gaussians and renders the whole frame; the
 # passes stop only at 0.011 deg / 0.02 mm): the speed baseline of docs/tracking.md
@@ -378,6 +396,40 @@ class PoseRefiner:
             return ras.attributes[..., :3], w
         return ras.attributes[..., :3], w, ras.attributes[..., 4:7]
 
+    def scaled_points(self, vertices: np.ndarray, rotation, translation, camera: Camera, scale: float,
+                      derivative: np.ndarray | None = None, weight: np.ndarray | None = None):
+        """`points` rasterised at `scale` times `camera`'s size and resized back to it
+        (bilinear; `Settings.raster_scale`: the weight's and the derivative's edges blur by
+        about a pixel; the points too, so only where the render's depth replaces them)."""
+        import cv2
+
+        small = camera.with_size(max(1, int(round(camera.width * scale))), max(1, int(round(camera.height * scale))))
+        out = self.points(vertices, rotation, translation, small, derivative, weight)
+        return tuple(cv2.resize(a, (camera.width, camera.height), interpolation=cv2.INTER_LINEAR) for a in out)
+
+    def warped(self, raster, drawn: np.ndarray, now: np.ndarray, X: np.ndarray, camera: Camera):
+        """(face weight (h, w), the jaw's derivative (h, w, 3) or None) of `points`' answer
+        `raster` drawn at pose `drawn` (4, 4), moved to pose `now` (4, 4): each pixel's point X
+        (h, w, 3) (view frame, at `now`; 0 where nothing is drawn) taken back to where it was at
+        `drawn` and the raster read there (bilinear), the derivative turned with the head
+        (`Settings.raster_once`)."""
+        import cv2
+
+        back = drawn @ np.linalg.inv(now)                               # now's view frame -> drawn's
+        h, w = X.shape[:2]
+        P = X.reshape(-1, 3) @ back[:3, :3].T + back[:3, 3]
+        z = np.where(-P[:, 2] > 1e-6, -P[:, 2], np.inf)                  # the camera looks down -Z
+        mx = (camera.fx * P[:, 0] / z + camera.cx - 0.5).reshape(h, w).astype(np.float32)
+        my = (-camera.fy * P[:, 1] / z + camera.cy - 0.5).reshape(h, w).astype(np.float32)
+        weight = cv2.remap(raster[1].astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=0.0)
+        if len(raster) < 3:
+            return weight, None
+        turn = now[:3, :3] @ drawn[:3, :3].T
+        d = cv2.remap(raster[2].astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=(0.0, 0.0, 0.0))
+        return weight, d.astype(np.float64) @ turn.T
+
     def shrink(self, rgb: np.ndarray) -> np.ndarray:
         """The frame (H, W, 3) uint8 at the small camera's size (uint8; a frame already that
         size as it is): what `refine` needs of a frame, to keep while it waits."""
@@ -409,7 +461,10 @@ class PoseRefiner:
         else:
             person, verts = self.posed(jaw_now, expr, eyes)
         jaw_drawn = jaw_now.copy()                                                # the jaw `moved` has
-        first = None
+        # the head mesh's raster (the face weight, the jaw's derivative): each pass's, or with
+        # `raster_once` the first pass's (the points come from each pass's render depth)
+        first, raster, raster_pose = None, None, None
+        reuse = s.raster_once and s.render_depth and s.crop_margin is None
         n, res, renders = 0, float("nan"), 0
         for _ in range(s.iterations):
             if s.jaw and not np.array_equal(jaw_drawn, jaw_now):
@@ -429,17 +484,31 @@ class PoseRefiner:
                 image = self.render(person, rot, tr, tgt, cam, s.render_depth)
             comp, alpha = image[:2]
             renders += 1
-            if s.jaw:
-                X, w, dX = self.points(verts, rot, tr, cam, self.jaw_derivative(jaw_now, expr, eyes), self.jaw_weight)
-            else:
-                X, w = self.points(verts, rot, tr, cam)
+            if raster is None or not reuse:
+                derivative = self.jaw_derivative(jaw_now, expr, eyes) if s.jaw else None
+                if s.render_depth and s.raster_scale != 1.0:
+                    raster = self.scaled_points(verts, rot, tr, cam, s.raster_scale, derivative,
+                                                self.jaw_weight if s.jaw else None)
+                elif s.jaw:
+                    raster = self.points(verts, rot, tr, cam, derivative, self.jaw_weight)
+                else:
+                    raster = self.points(verts, rot, tr, cam)
+                raster_pose = pose_matrix(rot, tr)
+            X, w = raster[:2]
+            dX = raster[2] if s.jaw else None
             if s.render_depth:
                 # the surface the image shows is the splats', not the mesh's (a few mm off it,
                 # more at the hairline): its depth sets the parallax the turn is read from
                 X = unproject(image[2], cam)
+                if reuse and renders > 1:
+                    w, dX = self.warped(raster, raster_pose, pose_matrix(rot, tr), X, cam)
             keep = (w > 0.5) & (alpha > 0.5)
             flow, ok = consistent_flow(comp, tgt, s.fb_tolerance)
             keep &= ok
+            if s.stride > 1:
+                grid = np.zeros_like(keep)
+                grid[::s.stride, ::s.stride] = True
+                keep &= grid
             n = int(keep.sum())
             if n < s.min_points:
                 break
@@ -727,5 +796,5 @@ def solve_pose_delta_reference(points: np.ndarray, targets: np.ndarray, camera: 
     return delta, c, before, float(np.median(np.linalg.norm(uv - q, axis=1)))
 
 
-__all__ = ["PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow", "pose_matrix", "project",
-           "solve_pose_delta", "solve_pose_delta_reference", "unproject", "view_camera"]
+__all__ = ["CHEAP_PASS", "PoseRefiner", "Refinement", "SESSION13", "Settings", "apply_delta", "consistent_flow",
+           "pose_matrix", "project", "solve_pose_delta", "solve_pose_delta_reference", "unproject", "view_camera"]
