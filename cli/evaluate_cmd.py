@@ -33,7 +33,7 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
               help="Track with each frame's head pose and jaw opening refined against the frame by "
               "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only; "
-              "photometric-fast: 1 pass on every 5th frame. "
+              "photometric-fast: 2 cheaper passes on every 5th frame. "
               "A video build's frame-colours stage registers its frames by it too (docs/video-build.md).")
 @click.option("--refine-every", type=click.IntRange(min=1), default=None,
               help="With --refine: refine every k-th frame, interpolate the change between "

@@ -41,8 +41,8 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
               help="With --avatar: refine each frame's head pose and jaw opening against the frame "
               "by rendering the avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md); "
-              "photometric-pose: the head pose only; photometric-fast: 1 pass on every 5th frame "
-              "(16-19 frames/s from scratch on 2 cores in session 16; less accurate).")
+              "photometric-pose: the head pose only; photometric-fast: 2 cheaper passes on every 5th frame "
+              "(~17 frames/s from scratch on 2 cores in session 16; less accurate).")
 @click.option("--refine-every", type=click.IntRange(min=1), default=None,
               help="With --refine: refine every k-th frame, interpolate the change between "
               "(default 1; photometric-fast: 5).")
