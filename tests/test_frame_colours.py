@@ -131,6 +131,23 @@ def test_colour_frames_keep_to_the_reference_view():
     assert len(colour_frames(result, None, 41)) == 41
 
 
+def test_colour_frames_read_the_module_settings_when_called(monkeypatch):
+    """MAX_TURN and FRAMES set after import take effect (they were bound as defaults before)."""
+    from scipy.spatial.transform import Rotation
+
+    import avatarkit.track.frame_colours as fc
+
+    yaw = np.linspace(-0.5, 0.5, 41)
+    rot = Rotation.from_euler("YXZ", np.stack([yaw, np.zeros(41), np.zeros(41)], 1)).as_rotvec()
+    result = SimpleNamespace(found=np.ones(41, bool), confidence=np.ones(41), frame_index=np.arange(41),
+                             clip=SimpleNamespace(rotation=rot))
+    monkeypatch.setattr(fc, "MAX_TURN", 1.0)
+    monkeypatch.setattr(fc, "FRAMES", 41)
+    assert len(colour_frames(result, reference=20)) == 41
+    monkeypatch.setattr(fc, "FRAMES", 5)
+    assert len(colour_frames(result, reference=20)) == 5
+
+
 def test_fusion_selection_takes_the_bald_gaussians_on_the_regions_and_the_hair_if_asked():
     faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
     regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}

@@ -195,13 +195,17 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
                                        "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)})
 
 
-def colour_frames(result, span: tuple[int, int] | None = None, count: int = FRAMES,
-                  reference: int | None = None, max_turn: float = MAX_TURN) -> np.ndarray:
-    """(K,) rows of a TrackResult to fuse: up to `count` spread evenly over the eligible rows
-    (those a keyframe may be: `keyframes.eligible_frames`, and, given the reference row, a
-    head pose within `max_turn` of its yaw / pitch) whose video frame is within
-    span = [start, end) (None: all)."""
+def colour_frames(result, span: tuple[int, int] | None = None, count: int | None = None,
+                  reference: int | None = None, max_turn: float | None = None) -> np.ndarray:
+    """(K,) rows of a TrackResult to fuse: up to `count` (None: `FRAMES`) spread evenly over the
+    eligible rows (those a keyframe may be: `keyframes.eligible_frames`, and, given the
+    reference row, a head pose within `max_turn` (None: `MAX_TURN`) of its yaw / pitch) whose
+    video frame is within span = [start, end) (None: all). The module's constants are read at
+    the call, so setting them (a benchmark's switch) takes effect."""
     from avatarkit.track.keyframes import eligible_frames, yaw_pitch
+
+    count = FRAMES if count is None else count
+    max_turn = MAX_TURN if max_turn is None else max_turn
 
     frames = np.asarray(result.frame_index, np.int64)
     ok = eligible_frames(result)
