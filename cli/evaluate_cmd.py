@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import cli_warnings, quiet_option
+from avatarkit.cli.options import REFINE_NAMES, cli_warnings, quiet_option, refine_every_option
 
 
 @click.command("evaluate")
@@ -30,14 +30,12 @@ from avatarkit.cli.options import cli_warnings, quiet_option
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
+@click.option("--refine", type=click.Choice(REFINE_NAMES), default=None,
               help="Track with each frame's head pose and jaw opening refined against the frame by "
               "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only; "
               "photometric-fast: 2 cheaper passes on every 5th frame. "
               "A video build's frame-colours stage registers its frames by it too (docs/video-build.md).")
-@click.option("--refine-every", type=click.IntRange(min=1), default=None,
-              help="With --refine: refine every k-th frame, interpolate the change between "
-              "(default 1; photometric-fast: 5).")
+@refine_every_option
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
               "body held at the build frame's pose; 'global' turns the whole model with the head.")

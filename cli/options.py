@@ -25,6 +25,13 @@ class FiniteFloatRange(click.FloatRange):
 FINITE = FiniteFloatRange()
 
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+
+#: `--refine`'s choices: `track.tracker.REFINE_SETTINGS`' names, written out because the commands
+#: do not import the library to build their options (a test keeps the two equal)
+REFINE_NAMES = ("photometric", "photometric-pose", "photometric-fast")
+refine_every_option = click.option(
+    "--refine-every", type=click.IntRange(min=1), default=None,
+    help="With --refine: refine every k-th frame, interpolate the change between (default 1; photometric-fast: 5).")
 verbose_option = click.option("-v", "--verbose", count=True, help="More detail (repeatable).")
 
 

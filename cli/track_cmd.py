@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import FiniteFloatRange, _is_terminal, cli_warnings, quiet_option
+from avatarkit.cli.options import (REFINE_NAMES, FiniteFloatRange, _is_terminal, cli_warnings, quiet_option,
+                                   refine_every_option)
 
 _FILE = click.Path(dir_okay=False)
 
@@ -38,14 +39,12 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(["photometric", "photometric-pose", "photometric-fast"]), default=None,
+@click.option("--refine", type=click.Choice(REFINE_NAMES), default=None,
               help="With --avatar: refine each frame's head pose and jaw opening against the frame "
               "by rendering the avatar (render-and-compare; ~0.3-1 s a frame; docs/tracking.md); "
               "photometric-pose: the head pose only; photometric-fast: 2 cheaper passes on every 5th frame "
               "(~17 frames/s from scratch on 2 cores in session 16; less accurate).")
-@click.option("--refine-every", type=click.IntRange(min=1), default=None,
-              help="With --refine: refine every k-th frame, interpolate the change between "
-              "(default 1; photometric-fast: 5).")
+@refine_every_option
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the head's motion goes: 'neck' turns the head on the neck joint and keeps "
               "the body (the neck's base, the collar) at one pose: the avatar's build frame's with "
