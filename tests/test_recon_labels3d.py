@@ -1,13 +1,15 @@
 """3D hair segmentation: per-Gaussian label weights (fast vs reference, against the renderer's
 compositing), lifting K exact label images, boundary-aware reassignment of corrupted and
 unseen labels, the hair / bald split, label images and cameras, bad input."""
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy import ndimage
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians import GaussianSet
-from avatarkit.recon.hair_reassign import ReassignConfig, reassign_boundary
+from avatarkit.recon.hair_reassign import ReassignConfig, bald_layer, reassign_boundary
 from avatarkit.recon.label_lifting import (UNSEEN, LabelLift, accumulate_weights, accumulate_weights_reference,
                                            default_label_cameras, lift_labels, render_label_images)
 from avatarkit.recon.labels3d import split_hair
@@ -286,6 +288,100 @@ def test_surface_distance_keeps_the_boundary_fixes(head):
     assert len(hair) >= 0.95 * (truth == HAIR).sum()
     with pytest.raises(InputError, match="surface_distance"):
         reassign_boundary(gs, lift, cams[:1], bad, surface_distance=sd[:5])
+
+
+def _thin_hair_scene(seed=3, base=0.0020, side_step=0.0005):
+    """head_scene with a short-hair shell 2.00-2.05 mm over the sphere (the synthetic avatar's),
+    `side_step` higher on the +x side; and the labels a segmentation gives when it calls that side's
+    hair skin. Returns (set, true labels, segmentation's labels)."""
+    gs, truth = head_scene(n_skin=3000, n_hair=2000, seed=seed)
+    hair = truth == HAIR
+    d = gs.means[hair] / np.linalg.norm(gs.means[hair], axis=1, keepdims=True)
+    side = d[:, 0] > 0.2
+    height = np.random.default_rng(seed).uniform(base, base + 0.00005, hair.sum()) + side_step * side
+    means = gs.means.copy()
+    means[hair] = d * (0.1 + height[:, None])
+    wrong = truth.copy()
+    wrong[np.flatnonzero(hair)[side]] = SKIN
+    return gs.replace(means=means), truth, wrong
+
+
+def test_hair_labelled_skin_does_not_swallow_a_thin_hair_shell():
+    # The segmentation calls the hair on one side skin. Those members sit at the hair's height,
+    # so the skin members' 95th percentile of height is the hair's: a bald layer that thick held
+    # every hair member, and every unseen hair Gaussian went bald (the whip clip's flip, session
+    # 17). The layer stays under the hair now.
+    gs, truth, wrong = _thin_hair_scene()
+    cams = default_label_cameras((0, 0, 0), 0.12, 8, size=128)[:1]
+    images = render_label_images(gs, wrong, cams, 4)
+    lift = lift_labels(gs, cams, images)
+    sd = _sphere_distance(gs)
+    skin = lift.seen & (lift.labels == SKIN) & (lift.confidence >= 0.7)
+    assert np.quantile(np.abs(sd[skin]), 0.95) >= 0.0024  # the contaminated quantile: the hair's height
+    re = reassign_boundary(gs, lift, cams, images, surface_distance=sd)
+    unseen_hair = (truth == HAIR) & ~lift.seen
+    assert unseen_hair.sum() > 300
+    assert (re.labels[unseen_hair] == HAIR).mean() >= 0.95
+    assert (re.labels[truth == SKIN] == SKIN).mean() >= 0.97
+    assert bald_layer(sd, skin, lift.seen & (lift.labels == HAIR), ReassignConfig()) <= 0.00105
+
+
+def test_hair_inside_the_bald_layer_keeps_the_unseen_hair():
+    # A shell under min_layer (0.6 mm: hair flat on the scalp) lies wholly in the bald layer:
+    # the height cannot tell the classes apart, so it must not empty the hair class (which
+    # handed every unseen hair Gaussian to the bald class); colour and scale decide.
+    gs, truth, _ = _thin_hair_scene(base=0.0006, side_step=0.0)
+    cams = default_label_cameras((0, 0, 0), 0.12, 8, size=128)[:1]
+    images = render_label_images(gs, truth, cams, 4)
+    lift = lift_labels(gs, cams, images)
+    re = reassign_boundary(gs, lift, cams, images, surface_distance=_sphere_distance(gs))
+    unseen_hair = (truth == HAIR) & ~lift.seen
+    assert unseen_hair.sum() > 300
+    assert (re.labels[unseen_hair] == HAIR).mean() >= 0.95
+    assert (re.labels[truth == SKIN] == SKIN).mean() >= 0.97
+
+
+def test_a_stray_few_confident_members_do_not_stand_for_the_hair(head):
+    # The whip clip's keyframes saw its short hair only at edges: every hair member was a
+    # candidate but three scalp splats the labels called hair, and those three stood for the
+    # hair class, so the unseen hair went bald. Here every seen hair member is made ambiguous
+    # and three chin splats (a blue stain) confidently "hair": the seen members must join the
+    # reference.
+    gs, truth, cams, images = head
+    lift = lift_labels(gs, cams[:1], images[:1])
+    hair_seen = lift.seen & (lift.labels == HAIR)
+    sure_skin = (truth == SKIN) & ~reassign_boundary(gs, lift, cams[:1], images[:1]).candidates
+    chin = np.flatnonzero(sure_skin)[np.argsort(gs.means[sure_skin, 1])[:3]]
+    rgb = gs.colors.copy()
+    rgb[chin] = (0.1, 0.2, 0.9)
+    gs = gs.with_colors(rgb)
+    labels, confidence = lift.labels.copy(), lift.confidence.copy()
+    confidence[hair_seen] = 0.5
+    labels[chin], confidence[chin] = HAIR, 1.0
+    stray = dataclasses.replace(lift, labels=labels, confidence=confidence)
+    re = reassign_boundary(gs, stray, cams[:1], images[:1])
+    unseen_hair = (truth == HAIR) & ~lift.seen
+    assert unseen_hair.sum() > 300
+    assert (re.labels[unseen_hair] == HAIR).mean() >= 0.95
+    assert (re.labels[hair_seen] == HAIR).mean() >= 0.95
+    # with min_reference 0 and k 1 the three stand for the class, as before
+    old = reassign_boundary(gs, stray, cams[:1], images[:1], min_reference=0.0, k=1)
+    assert (old.labels[unseen_hair] == HAIR).mean() < 0.5
+
+
+def test_bald_layer_known_answers():
+    cfg = ReassignConfig()
+    sd = np.array([0.0, 0.0005, -0.0004, 0.003, 0.010, 0.012, 0.014])
+    skin = np.array([1, 1, 1, 1, 0, 0, 0], bool)
+    hair = ~skin
+    # the 95th percentile of the skin's |height| (3 mm, one member up in the hair) is under
+    # half the hair's median height (12 mm): it stands
+    assert bald_layer(sd, skin, hair, cfg) == pytest.approx(np.quantile([0, 0.0005, 0.0004, 0.003], 0.95))
+    # a hair 4 mm up caps it at 2 mm; never under min_layer
+    assert bald_layer(np.array([0.0, 0.003, 0.004]), np.array([1, 1, 0], bool), np.array([0, 0, 1], bool),
+                      cfg) == pytest.approx(0.002)
+    assert bald_layer(sd, skin, np.zeros(len(sd), bool), cfg) >= cfg.min_layer
+    assert bald_layer(np.zeros(3), np.ones(3, bool), np.zeros(3, bool), cfg) == cfg.min_layer
 
 
 def test_reassignment_with_one_class_known_cannot_invent_the_other(head):

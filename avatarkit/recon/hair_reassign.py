@@ -47,6 +47,8 @@ class ReassignConfig:
     occlusion_sigmas: float = 2.0    # plus this many of the Gaussian's largest standard deviation
     occluded_fraction: float = 0.5   # share of a Gaussian's weight from views that hide it
     min_confidence: float = 0.7      # below: ambiguous, reclassified as well
+    min_reference: float = 0.05      # a class with fewer confident members than this share of its
+                                     # seen, unoccluded ones (or fewer than k) takes those as well
     colour_weight: float = 1.0       # feature weights (each group standardised first)
     scale_weight: float = 0.5
     distance_weight: float = 2.0     # signed distance to the head surface, where it is given
@@ -58,7 +60,7 @@ class ReassignConfig:
         if isinstance(self.k, bool) or not isinstance(self.k, (int, np.integer)) or self.k < 1:
             raise InputError(f"reassignment k must be a positive integer, got {self.k!r}")
         for name in ("band", "near_hair", "depth_jump", "min_alpha", "boundary_fraction", "occlusion",
-                     "occlusion_sigmas", "occluded_fraction", "min_confidence",
+                     "occlusion_sigmas", "occluded_fraction", "min_confidence", "min_reference",
                      "colour_weight", "scale_weight", "distance_weight", "layer_quantile",
                      "min_layer"):
             v = getattr(self, name)
@@ -201,6 +203,30 @@ def _boundary_share(gaussians: GaussianSet, cameras, bands) -> tuple[np.ndarray,
     return inside, total
 
 
+def _reference_minimum(members: np.ndarray, cfg: ReassignConfig) -> float:
+    """The fewest confident members that stand for a class of `members` (N,) bool seen,
+    unoccluded members: `min_reference` of them, and at least one local neighbourhood (k)."""
+    return min(float(members.sum()), max(float(cfg.k), cfg.min_reference * float(members.sum())))
+
+
+def bald_layer(surface_distance: np.ndarray, on_skin: np.ndarray, hair_ref: np.ndarray,
+               cfg: ReassignConfig) -> float:
+    """The bald layer's thickness (metres): the `layer_quantile` of |surface_distance| (N,) over
+    the confident bald-label members `on_skin` (N,) bool, at least `min_layer`, and below half
+    the median height of the hair members `hair_ref` (N,) bool.
+
+    The cap is what keeps mislabelled hair from widening the layer: hair the label images call
+    skin sits at the hair's height, and once it is more than 1 - layer_quantile of the skin
+    members the quantile jumps to that height. A short-hair shell then lies wholly inside the
+    layer, and a few degrees of pose decided whether all unseen hair went bald (session 17)."""
+    layer = cfg.min_layer
+    if on_skin.any():
+        layer = max(layer, float(np.quantile(np.abs(surface_distance[on_skin]), cfg.layer_quantile)))
+    if hair_ref.any():
+        layer = min(layer, max(cfg.min_layer, 0.5 * float(np.median(surface_distance[hair_ref]))))
+    return layer
+
+
 def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Camera],
                       label_images: list[np.ndarray], depths: list[np.ndarray] | None = None,
                       config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
@@ -272,27 +298,34 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     hair_ref = ref & (lift.labels == cfg.hair_label)
     bald_ref = ref & (lift.labels != cfg.hair_label)
     # A class seen only near edges (thin hair seen in one view lies wholly in the band) has no
-    # confident member: its seen, unoccluded members stand in for the reference then.
+    # confident member, or a stray few that cannot stand for it (three scalp splats for 1,270
+    # seen hair members decided the whip clip's hair, session 17): its seen, unoccluded
+    # members join the reference then.
     member = lift.seen & ~occluded
     if cfg.background_label is not None:
         member &= lift.labels != cfg.background_label
-    if not hair_ref.any():
-        hair_ref = member & (lift.labels == cfg.hair_label)
-    if not bald_ref.any():
-        bald_ref = member & (lift.labels != cfg.hair_label)
+    hair_member = member & (lift.labels == cfg.hair_label)
+    bald_member = member & (lift.labels != cfg.hair_label)
+    if hair_ref.sum() < _reference_minimum(hair_member, cfg):
+        hair_ref = hair_ref | hair_member
+    if bald_ref.sum() < _reference_minimum(bald_member, cfg):
+        bald_ref = bald_ref | bald_member
     distance = None
     if surface_distance is not None:
         # Seen through the gaps of a hair volume, the scalp carries the hair's pixel labels
         # without being behind the rendered depth by much: a confident "hair" member that sits
         # in the bald layer is no reference, it is a candidate like the rest.
-        on_skin = bald_ref & (lift.labels == cfg.bald_label)
-        layer = cfg.min_layer
-        if on_skin.any():
-            layer = max(layer, float(np.quantile(np.abs(surface_distance[on_skin]), cfg.layer_quantile)))
+        layer = bald_layer(surface_distance, bald_ref & (lift.labels == cfg.bald_label), hair_ref, cfg)
         in_layer = hair_ref & (surface_distance <= layer)
+        if in_layer.all(where=hair_ref) and hair_ref.any():
+            # The hair lies wholly within the bald layer (a thin shell): height cannot tell
+            # them apart here, and dropping every hair member would hand all unseen hair to
+            # the bald class. Colour and scale decide alone.
+            in_layer[:] = False
+        else:
+            distance = (surface_distance, layer)
         hair_ref &= ~in_layer
         cand |= in_layer
-        distance = (surface_distance, layer)
 
     # where no hair is known, nothing can join it (and vice versa): candidates keep their
     # lifted labels, unseen ones take the one class there is
@@ -318,4 +351,4 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     return Reassignment(new.astype(np.int32), new != lift.labels, boundary, occluded, cand)
 
 
-__all__ = ["ReassignConfig", "Reassignment", "reassign_boundary"]
+__all__ = ["ReassignConfig", "Reassignment", "bald_layer", "reassign_boundary"]
