@@ -9,7 +9,10 @@ two session-12 options, both off by default; `AVATARKIT_OPEN_MOUTH=0|1` the teet
 (`recon.mouth`, session 14, off), `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline fitted to
 the keyframes' silhouettes (`recon.hair_outline`, session 14, on) and
 `AVATARKIT_OUTLINE_POSES=tracked|registered|registered-all` which stages use the turned keyframes'
-poses registered against the draft build (`track.video_build.OUTLINE_POSES`)
+poses registered against the draft build (`track.video_build.OUTLINE_POSES`);
+`AVATARKIT_COLOUR_REFINE=none|photometric-fast|photometric` the refinement that registers the
+frame-colours stage's frames in the timed build (`track.frame_colours.REFINE`, photometric-fast
+since session 17; the real clips' `evaluate` hands its own, `EvalOptions.refine`)
 
 Prints
   - synthetic: the sample avatar turning its head (`synthetic.turning_video`: `--clip eased`, the
@@ -233,6 +236,10 @@ def timing(video: str, counts: tuple[int, int], tmp: str) -> None:
           f"{counts[0]} + {counts[1]} Gaussians): wall {wall:.1f} s, CPU {cpu:.1f} s "
           "(target <= 120 s on 2 cores)")
     print("  stages (wall s): " + ", ".join(f"{k} {s:.1f}" for k, s in stages.items()))
+    fc = avatar.provenance["build"].get("frame_colours")
+    if fc is not None:
+        print(f"  the frame-colours stage: {len(fc['frames'])} frames, registered by {fc.get('refine')}, "
+              f"{fc.get('iterations')} rounds")
     fr = avatar.provenance["build"].get("facing_refine")
     if fr is not None:
         print(f"  of the colours stage, the facing refine over {fr['views']} keyframes: {fr['seconds']:.1f} s")
@@ -278,6 +285,12 @@ def main() -> None:
         print(f"the hair's outline fitted to the keyframes' silhouettes: {'on' if pipeline.FIT_HAIR_OUTLINE else 'off'}")
     if a.no_multiview_hair:
         print("multi-view hair directions and shell growth: off")
+    if os.environ.get("AVATARKIT_COLOUR_REFINE"):
+        from avatarkit.track import frame_colours
+
+        name = os.environ["AVATARKIT_COLOUR_REFINE"]
+        frame_colours.REFINE = None if name == "none" else name       # the timed build runs here
+        print(f"the frame-colours stage's frames registered by: {frame_colours.REFINE}")
     counts = (40_000, 40_000)
     with tempfile.TemporaryDirectory(prefix="bench-video-") as tmp:
         subjects = ("avatar", "mesh") if a.subject == "both" else (a.subject,)

@@ -30,11 +30,13 @@ from avatarkit.cli.options import REFINE_NAMES, cli_warnings, quiet_option, refi
 @click.option("--subject-part", type=click.Choice(["full", "rigid", "nonrigid"]), default="full",
               show_default=True, help="With --subject-calibration: what of the correction is used: all "
               "of it, only its turn and shift of the whole face (rigid), or the rest (docs/tracking.md).")
-@click.option("--refine", type=click.Choice(REFINE_NAMES), default=None,
+@click.option("--refine", type=click.Choice(("none", *REFINE_NAMES)), default="photometric-fast",
+              show_default=True,
               help="Track with each frame's head pose and jaw opening refined against the frame by "
-              "rendering the evaluated avatar (docs/tracking.md); photometric-pose: the head pose only; "
-              "photometric-fast: 2 cheaper passes on every 5th frame. "
-              "A video build's frame-colours stage registers its frames by it too (docs/video-build.md).")
+              "rendering the evaluated avatar (docs/tracking.md): photometric-fast, 2 cheaper passes on "
+              "every 5th frame; photometric, 3 passes on every frame (~5x the time); photometric-pose, "
+              "the head pose only; none, the landmark fit's pose. A video build's frame-colours stage "
+              "registers its frames by it too (none: as `avatarkit build` does; docs/video-build.md).")
 @refine_every_option
 @click.option("--head-on", type=click.Choice(["neck", "global"]), default="neck", show_default=True,
               help="Where the tracked head motion goes: 'neck' turns the head on the neck joint, the "
@@ -61,8 +63,9 @@ def evaluate_cmd(video, output, avatar, build_frame, compare_single, exclude, si
                                "it does not go with --avatar or --build-frame")
     if subject_part != "full" and not subject_calibration:
         raise click.UsageError("--subject-part chooses what of --subject-calibration is used: it needs it")
+    refine = None if refine == "none" else refine
     if refine_every is not None and refine is None:
-        raise click.UsageError("--refine-every goes with --refine")
+        raise click.UsageError("--refine-every goes with a refinement, not --refine none")
     options = EvalOptions(build_frame=build_frame, exclude=exclude, simulate_hair=simulate_hair,
                           side_by_side=side_by_side, compare_single=compare_single,
                           subject_calibration=subject_calibration, subject_part=subject_part, head_on=head_on,

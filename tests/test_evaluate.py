@@ -472,7 +472,7 @@ def test_refined_tracking_redraws_the_synthetic_video_closer(synthetic, tmp_path
     fit's pose does (the known motion's residual is tracking error, `test_evaluate_synthetic_
     video_end_to_end`)."""
     scores = {}
-    for label, extra in (("landmarks", []), ("refined", ["--refine", "photometric"])):
+    for label, extra in (("landmarks", ["--refine", "none"]), ("refined", ["--refine", "photometric"])):
         out = tmp_path / label
         code = main(["evaluate", str(synthetic / "head.mp4"), "-o", str(out), "--avatar", str(synthetic / "avatar"),
                      "--build-frame", "0", "--exclude", "2", "--no-side-by-side", "-q", *extra])
@@ -484,11 +484,12 @@ def test_refined_tracking_redraws_the_synthetic_video_closer(synthetic, tmp_path
     assert scores["refined"]["ssim"] > scores["landmarks"]["ssim"], scores
 
 
-@pytest.mark.parametrize("flag, expected", [([], None), (["--refine", "photometric"], "photometric")])
+@pytest.mark.parametrize("flag, expected", [([], "photometric-fast"), (["--refine", "photometric"], "photometric"),
+                                           (["--refine", "none"], None)])
 def test_refined_evaluation_registers_the_video_builds_colour_frames_too(tmp_path, monkeypatch, flag, expected):
-    """`evaluate --refine` (no --avatar, no --build-frame: the video build) hands its refinement
-    to the build's frame_colours stage (`build_video_avatar(colour_refine=)`); without it the
-    stage keeps `frame_colours.REFINE`."""
+    """`evaluate`'s refinement (default photometric-fast; no --avatar, no --build-frame: the video
+    build) is handed to the build's frame_colours stage (`build_video_avatar(colour_refine=)`);
+    with `--refine none` the stage keeps `frame_colours.REFINE`, as `avatarkit build` does."""
     from types import SimpleNamespace
 
     import avatarkit.track.video_build as video_build
@@ -508,3 +509,38 @@ def test_refined_evaluation_registers_the_video_builds_colour_frames_too(tmp_pat
     except KeyboardInterrupt:
         pass
     assert seen["colour_refine"] == expected and not (tmp_path / "r").exists()
+
+
+def test_both_builds_are_tracked_alike_with_evaluates_default_refinement(tmp_path, monkeypatch):
+    """`evaluate --compare-single` with no --refine: the video build and the single-frame build
+    are each tracked with their own avatar and the same options, the default refinement
+    (photometric-fast at its own spacing), and the report says so."""
+    from types import SimpleNamespace
+
+    import avatarkit.track.evaluate as ev
+    import avatarkit.track.video as video
+    from avatarkit.export.video import write_video
+    from avatarkit.track.evaluate import EvalOptions, evaluate
+    from avatarkit.track.tracker import REFINE_EVERY
+
+    assert EvalOptions().refine == "photometric-fast" and EvalOptions().refine_every is None
+    seen = []
+
+    def fake_track(path, avatar=None, progress=None, options=None, meshes=None, **kw):
+        seen.append((str(avatar), options, meshes))
+        return SimpleNamespace(clip=SimpleNamespace(fps=10.0), subject_calibration=None, refinement=None,
+                               landmark_error=np.zeros(2))
+
+    monkeypatch.setattr(video, "track_video", fake_track)
+    monkeypatch.setattr(ev, "_build_video", lambda v, staged, o, p, t: (staged / "avatar", 1, [1], [0], SimpleNamespace(meshes="M")))
+    monkeypatch.setattr(ev, "_build", lambda v, staged, f, o, p, t, name: (staged / name, f, None))
+    monkeypatch.setattr(ev, "align_to_build", lambda *a: {"eyes": True, "head_pose": True})
+    monkeypatch.setattr(ev, "place_head", lambda *a: "neck")
+    monkeypatch.setattr(ev, "describe", str)
+    monkeypatch.setattr(ev, "render_and_compare", lambda *a: ([], {}))
+    write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
+    report = evaluate(tmp_path / "v.mp4", tmp_path / "r", options=EvalOptions(compare_single=True))
+    (a, first, m1), (b, second, m2) = seen
+    assert a.endswith("avatar") and b.endswith("avatar_single_frame") and m1 == m2 == "M"
+    assert first == second and first.refine == "photometric-fast"
+    assert report.settings["refine"] == f"photometric-fast, every {REFINE_EVERY['photometric-fast']} frame(s)"

@@ -242,10 +242,25 @@ def test_registered_frames_fuse_every_gaussian_for_more_rounds(monkeypatch):
     assert fc.stage_settings(None) == fc.StageSettings(True, False, fc.ITERATIONS)
 
 
-@pytest.mark.parametrize("refine", [None, "photometric"])
-def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, refine):
-    """`fuse_frame_colours(refine=)` tracks the video with that refinement, every
-    REFINE_EVERY-th frame (none: the landmark fit's poses, every frame a fit)."""
+def test_plain_builds_register_the_stages_frames_with_photometric_fast():
+    """A plain `avatarkit build VIDEO` (no refine= handed down) registers the stage's frames with
+    photometric-fast (session 17), at its own spacing (every 5th frame, sparser than
+    REFINE_EVERY's 3), and so fuses every bald Gaussian and the hair for more rounds."""
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track.tracker import REFINE_EVERY
+
+    assert fc.REFINE == "photometric-fast" and fc.REFINE_EVERY == 3
+    assert fc.stage_spacing(fc.REFINE) == REFINE_EVERY["photometric-fast"] == 5
+    assert fc.stage_settings(fc.REFINE).fuse_all and fc.stage_settings(fc.REFINE).hair
+
+
+@pytest.mark.parametrize("stage, refine, expected, every", [
+    (None, None, None, 1), ("photometric-fast", None, "photometric-fast", 5), (None, "photometric", "photometric", 3),
+    (None, "photometric-fast", "photometric-fast", 5), ("photometric-fast", "photometric-pose", "photometric-pose", 3)])
+def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, stage, refine, expected, every):
+    """`fuse_frame_colours(refine=)` tracks the video with that refinement (None: the stage's
+    REFINE), every REFINE_EVERY-th frame or the setting's own sparser spacing (photometric-
+    fast's 5; none: the landmark fit's poses, every frame a fit)."""
     from contextlib import contextmanager
 
     import avatarkit.track.video as video
@@ -260,7 +275,8 @@ def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, refi
         yield
 
     monkeypatch.setattr(video, "tracked_with_built_avatar", fake)
+    monkeypatch.setattr(fc, "REFINE", stage)
     with pytest.raises(KeyboardInterrupt):
         fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None), 0, refine=refine)
-    assert seen["options"].refine == refine
-    assert seen["options"].refine_every == (fc.REFINE_EVERY if refine else 1)
+    assert seen["options"].refine == expected
+    assert seen["options"].refine_every == every == fc.stage_spacing(expected)

@@ -72,8 +72,9 @@ class EvalOptions:
     subject_part is used (`TrackOptions.subject_part`); head_on:
     where the tracked head motion goes (`track.neck.place_head`: "neck", the body held at the
     build frame's pose, or "global"); refine: track with the pose refined against each frame by
-    rendering the avatar evaluated (`TrackOptions.refine`), every `refine_every`-th frame (None:
-    the setting's own, `tracker.refine_spacing`)."""
+    rendering the avatar evaluated (`TrackOptions.refine`; None: the landmark fit's pose),
+    every `refine_every`-th frame (None: the setting's own,
+    `tracker.refine_spacing`)."""
 
     build_frame: int | None = None
     exclude: int = 5
@@ -88,7 +89,13 @@ class EvalOptions:
     subject_calibration: bool = False
     subject_part: str = "full"
     head_on: str = DEFAULT_HEAD_ON
-    refine: str | None = None
+    # the default drives the avatars with each frame's head pose and jaw refined by rendering the
+    # avatar, 2 cheaper passes on every 5th frame: the landmark fit's pose alone (`--refine none`)
+    # is ~4 degrees off on the synthetic videos (docs/tracking.md, session 16), so it scored the
+    # tracker's bias as much as the avatar; ~15 s more per tracked avatar on a 250-frame clip, and
+    # the video build's frame-colours stage registers its frames the same way
+    # (`frame_colours.REFINE`; docs/evaluation.md, session 17). cli/evaluate_cmd.py repeats it
+    refine: str | None = "photometric-fast"
     refine_every: int | None = None
 
 

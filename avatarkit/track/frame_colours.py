@@ -29,13 +29,15 @@ Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over
 Gaussian shows in). The other Gaussians keep the portrait build's colours. The video build runs
 it only when it has one keyframe (a head that does not turn: `track.video_build`).
 
-With the stage's tracking refined by rendering the avatar (`REFINE`, or `fuse_frame_colours(
-refine=)`, which `avatarkit evaluate --refine` passes; every `REFINE_EVERY`-th frame), the frames
-are registered to about half a pixel, and the blur that kept the selection to the regions above is gone: the stage then fuses
-every bald Gaussian and the hair (`stage_settings`) for `REGISTERED_ITERATIONS` rounds.
-Measured on the shared clips, each build tracked with the refinement (`evaluate --refine
-photometric --compare-single`, session 15, docs/video-build.md): the video build leads the
-single-frame build by +0.89 dB (grey) / +1.18 dB (glasses) on the held-out frames.
+With the stage's tracking refined by rendering the avatar (`REFINE`, photometric-fast since
+session 17, or `fuse_frame_colours(refine=)`, which `avatarkit evaluate` passes; every
+`stage_spacing`-th frame), the frames are registered to about half a pixel, and the blur that
+kept the selection to the regions above is gone: the stage then fuses every bald Gaussian and
+the hair (`stage_settings`) for `REGISTERED_ITERATIONS` rounds. Measured on the shared clips,
+each build tracked with itself as `evaluate --compare-single` now does by default (photometric-
+fast): the video build leads the single-frame build by +0.73 dB (grey) / +1.17 dB (glasses) on
+the held-out frames (+0.06 / +0.72 with the stage and the tracking unregistered, the defaults
+before); with `--refine photometric` +0.89 / +1.16 (docs/video-build.md, sessions 15-17).
 """
 from __future__ import annotations
 
@@ -51,16 +53,20 @@ from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
 REGIONS = ("neck", "lips", "mouth_interior")
 OUTLINE = True
-#: the tracking that poses the fused frames refines each frame's head pose against it by
-#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Off while
-#: the refinement is off in `track` and `evaluate` (`avatarkit evaluate --refine` turns it on for
-#: the video build it evaluates): docs/video-build.md, sessions 13 and 15
-REFINE: str | None = None
-#: the stage's refined tracking refines every k-th frame, the others get the change
-#: interpolated (`TrackOptions.refine_every`): a third of the cost, and on the shared clips it
-#: registered the colour frames no worse (session 15: the 24 frames' PSNR with the built avatar
-#: +0.06 / +0.33 dB mean over refining every frame; the video build's lead +0.87 -> +0.89 /
-#: +1.08 -> +1.18 dB)
+#: the tracking that poses the fused frames refines each frame's head pose and jaw against it by
+#: rendering the built avatar (`TrackOptions.refine`; None: the landmark fit's pose). Session 17:
+#: photometric-fast (2 cheaper passes on every 5th frame) registers the frames for ~12-15 s of
+#: a 250-frame clip (0.3x `photometric` every 3rd), and with `evaluate`'s tracking refined the
+#: same way (its default since) the registered stage leads the unregistered one by +0.60 (grey) /
+#: +1.70 dB (glasses); with the landmark fit's tracking it loses 0.19 dB on glasses
+#: (docs/video-build.md, sessions 13, 15 and 17)
+REFINE: str | None = "photometric-fast"
+#: the stage's refined tracking refines every k-th frame, at least every REFINE_EVERY-th (a
+#: setting's own sparser spacing holds: photometric-fast's 5, `stage_spacing`), the others get
+#: the change interpolated (`TrackOptions.refine_every`): a third of the cost, and on the
+#: shared clips it registered the colour frames no worse (session 15: the 24 frames' PSNR with
+#: the built avatar +0.06 / +0.33 dB mean over refining every frame; the video build's lead
+#: +0.87 -> +0.89 / +1.08 -> +1.18 dB)
 REFINE_EVERY = 3
 #: every bald Gaussian's colour is fused (`fusion_selection(regions=None)`), not only REGIONS'
 #: and the outline's; None: when the frames are registered (the stage's refine is set). With
@@ -230,6 +236,18 @@ class StageSettings:
     iterations: int
 
 
+def stage_spacing(refine: str | None) -> int:
+    """Every how many frames the stage's tracking refines with `refine`: REFINE_EVERY, or the
+    setting's own spacing where that is sparser (`tracker.refine_spacing`: photometric-fast's
+    5; session 17: against every 3rd, grey -0.04 / glasses +0.13 dB under evaluate's
+    photometric-fast tracking, 2/3 of the time); 1 with no refinement."""
+    from avatarkit.track.tracker import TrackOptions, refine_spacing
+
+    if refine is None:
+        return 1
+    return max(int(REFINE_EVERY), refine_spacing(TrackOptions(refine=refine)))
+
+
 def stage_settings(refine: str | None) -> StageSettings:
     """The stage's settings for frames posed by a tracking refined by `refine` (None: the
     landmark fit's poses): FUSE_ALL / FUSE_HAIR where set, else on exactly when the frames are
@@ -330,7 +348,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
     the frame the avatar was built from; outline: the outline's Gaussians are fused too;
     refine: the refinement that registers the fused frames (`TrackOptions.refine`; None:
-    `REFINE`), which sets what is fused (`stage_settings`).
+    `REFINE`, photometric-fast; the landmark fit's poses with `REFINE = None`), which sets what
+    is fused (`stage_settings`) and how often the stage's tracking refines (`stage_spacing`).
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
     one keyframe (`track.video_build`)."""
     from avatarkit.avatar import load_avatar
@@ -341,7 +360,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
     refine = REFINE if refine is None else refine
     settings = stage_settings(refine)
-    options = TrackOptions(refine=refine, refine_every=REFINE_EVERY if refine is not None else 1)
+    options = TrackOptions(refine=refine, refine_every=stage_spacing(refine))
     with tracked_with_built_avatar(avatar, video, tracking.meshes, options) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
@@ -367,11 +386,12 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         avatar.hair = avatar.hair.with_colors(rgb[nb:])
     info = {**fused.info, "frames": [int(f) for f in np.asarray(result.frame_index)[rows]],
             "regions": None if settings.fuse_all else list(REGIONS), "hair": settings.hair, "in_regions": regions,
-            "outline": bool(outline), "refine": refine, "iterations": settings.iterations}
+            "outline": bool(outline), "refine": refine, "refine_every": options.refine_every,
+            "iterations": settings.iterations}
     return avatar, info
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
            "FUSE_ALL", "FUSE_HAIR", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
-           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "frame_shows", "fuse_frame_colours",
+           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_spacing", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]
