@@ -48,8 +48,11 @@ PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
 #: sampled this many times denser than the rest of the face, their discs sqrt of it smaller
 #: (1: as dense as the face). With the face's density a disc there is ~7 px wide at 480 px, as
 #: wide as the iris: the pupil, the iris, the white and the lash line blurred into one pale
-#: bluish patch (session 17, docs/video-build.md "The eyes in the video build")
-EYE_DENSITY = 4.0
+#: bluish patch. 4 sharpens them further and gains more where the tracking is registered (the
+#: refined tracking), but a pixel or two off (the landmark fit's poses) the sharper eyes cost
+#: grey's eye box 0.46 dB; 2 keeps most of the gain there and costs 0.04 (session 17,
+#: docs/video-build.md "The eyes in the video build")
+EYE_DENSITY = 2.0
 EYE_AREA_REACH = 0.018
 #: a lips face whose vertices' jaw weights differ by this much opens with the jaw (`_opening_faces`)
 OPENING_SPREAD = 0.5
