@@ -3,9 +3,9 @@ bald image where the camera sees them and by a screened harmonic fill elsewhere.
 
 `n_bald` flat discs sampled on the fitted head's triangles (area-weighted, the face and
 eyes `face_density` times denser than the back of the head), lying in their triangle's plane,
-sized so neighbours overlap; the eyes' surroundings (the eyeballs' fronts and the lids,
-`_eye_area_faces`) `EYE_DENSITY` times denser again, with smaller discs, added to the n (the
-other discs stay as they were: `sample_bald`). Colour: the bald image sampled (bilinear) at each disc's
+sized so neighbours overlap; with `EYE_DENSITY` above 1 (off), the eyes' surroundings (the
+eyeballs' fronts and the lids, `_eye_area_faces`) that many times denser again, with smaller
+discs, added to the n (the other discs stay as they were: `sample_bald`). Colour: the bald image sampled (bilinear) at each disc's
 projection where the disc is visible from the input camera (its depth within `DEPTH_TOL` of
 the renderer's depth map of the discs, facing the camera, and landing on skin in the bald
 image's labels; neck discs also on body pixels). Unseen discs get a screened harmonic fill
@@ -45,14 +45,15 @@ MOUTH_RGB = (0.32, 0.12, 0.12)
 PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
 #: the eyes' surroundings (`_eye_area_faces`: the faces in front of an eyeball's centre within
 #: EYE_AREA_REACH of it: the eyeballs' fronts, the lids, the lash lines, the corners) are
-#: sampled this many times denser than the rest of the face, their discs sqrt of it smaller
-#: (1: as dense as the face). With the face's density a disc there is ~7 px wide at 480 px, as
-#: wide as the iris: the pupil, the iris, the white and the lash line blurred into one pale
-#: bluish patch. 4 sharpens them further and gains more where the tracking is registered (the
-#: refined tracking), but a pixel or two off (the landmark fit's poses) the sharper eyes cost
-#: grey's eye box 0.46 dB; 2 keeps most of the gain there and costs 0.04 (session 17,
-#: docs/video-build.md "The eyes in the video build")
-EYE_DENSITY = 2.0
+#: sampled this many times denser than the rest of the face, their discs sqrt of it smaller,
+#: added to n (1: as dense as the face, off). At the face's density a disc there is ~7 px wide
+#: at 480 px, as wide as the iris: the pupil, the iris, the white and the lash line blur into
+#: one pale bluish patch. 2 or 4 sharpen the eyes and gain on both shared clips with the
+#: refined tracking (eye box +0.2-0.5 dB), but with the landmark fit's poses (a pixel or two
+#: off) the sharper eyes cost grey's eye box 0.04 dB (2) / 0.46 dB (4), and the synthetic
+#: turning video's profile gain moved +3.22 -> +3.17: off (session 17, docs/video-build.md
+#: "The eyes in the video build")
+EYE_DENSITY = 1.0
 EYE_AREA_REACH = 0.018
 #: a lips face whose vertices' jaw weights differ by this much opens with the jaw (`_opening_faces`)
 OPENING_SPREAD = 0.5
