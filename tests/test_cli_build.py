@@ -42,9 +42,11 @@ def test_small_build_through_the_cli(tmp_path, capsys):
         assert stage in err
     assert "wrote" in err and "s\n" in err
     manifest = json.loads((out_dir / "avatar.json").read_text())
-    # the built-in lifter's 3000, plus the Gaussians on the head pixels they left uncovered
+    # the built-in lifter's 3000 and the eyes' extra discs, plus the Gaussians on the head pixels
+    # they left uncovered
     cover = manifest["provenance"]["build"]["coverage"]
-    assert manifest["parts"]["bald"]["count"] == 3000 + cover["bald_added"]
+    extra = manifest["provenance"]["build"]["lift"]["bald_eye_extra"]
+    assert manifest["parts"]["bald"]["count"] == 3000 + extra + cover["bald_added"]
     assert manifest["provenance"]["hair_mode"] == "cage"
     assert manifest["provenance"]["source_image"].endswith("portrait.jpg")
     assert not (out_dir / "preview.png").exists()

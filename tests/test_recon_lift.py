@@ -68,7 +68,7 @@ def test_bald_lifting_reproduces_the_photo(view):
     rng = np.random.default_rng(0)
     bald, info = lift_bald(view.image, view.analysis, view.segmentation, _plain(view), view.truth,
                            20000, rng)
-    assert len(bald) == 20000 and {"binding", "part"} <= set(bald.extras)
+    assert len(bald) == 20000 + info["bald_eye_extra"] and {"binding", "part"} <= set(bald.extras)
     assert 0.3 < info["bald_seen_share"] < 0.7          # about the half that faces the camera
     again = render(bald.replace(extras={}), view.truth.camera, background=(0.47, 0.59, 0.73)).rgb
     mask = view.alpha > 0.5
@@ -102,7 +102,7 @@ def test_grazing_discs_take_the_fill_not_the_silhouettes_edge(view):
     # the same discs' visibility, as lift_bald computes it (same seed: same discs)
     means, quats, scales, ids, normals = sample_bald(fit, n, np.random.default_rng(0))
     np.testing.assert_allclose(bald.means, means, atol=1e-7)
-    geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
+    geo = GaussianSet.from_colors(means, quats, scales, np.full(len(means), 0.98), np.full((len(means), 3), 0.5))
     depth, _, dcam = depth_map(geo, fit.camera)
     seen, px, facing = seen_from(means, normals, fit.camera, depth, dcam)
     skin_part = bald.extras["part"] == 0
@@ -150,7 +150,7 @@ def test_discs_the_jaw_stretches_open_are_the_mouth_unless_the_photo_saw_them(vi
     bald, _ = lift_bald(view.image, view.analysis, view.segmentation, _plain(view), fit, n,
                         np.random.default_rng(0))
     means, quats, scales, ids, normals = sample_bald(fit, n, np.random.default_rng(0))
-    geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
+    geo = GaussianSet.from_colors(means, quats, scales, np.full(len(means), 0.98), np.full((len(means), 3), 0.5))
     depth, _, dcam = depth_map(geo, fit.camera)
     seen, _, _ = seen_from(means, normals, fit.camera, depth, dcam)
     on = opening[ids] & (bald.extras["part"] == PART_SKIN)
@@ -228,7 +228,7 @@ def test_builtin_lifter_is_a_lifter(view):
     assert isinstance(BuiltinLifter(n_bald=100, n_hair=0), Lifter)
     res = BuiltinLifter(n_bald=500, n_hair=0).lift(view.image, view.analysis, view.segmentation,
                                                    _plain(view), view.truth)
-    assert len(res.bald) == 500 and len(res.hair) == 0
+    assert len(res.bald) == 500 + res.info["bald_eye_extra"] and len(res.hair) == 0
     with pytest.raises(InputError):
         BuiltinLifter(n_bald=0)
 
@@ -395,9 +395,45 @@ def test_a_dim_photos_eyes_are_not_painted_bright_white(view):
     from avatarkit.recon.bald_discs import PART_EYE, SCLERA_RGB
 
     dim = (view.image.astype(np.float64) * 0.55).astype(np.uint8)
-    bald, _ = lift_bald(dim, view.analysis, view.segmentation, _plain(view), view.truth, 15000,
+    # the bald image darkened too (a build makes it from the photo): the seen discs take it, and
+    # with the eyes sampled finely some land on the undarkened image's brightest sclera pixels
+    bald, _ = lift_bald(dim, view.analysis, view.segmentation,
+                        SimpleNamespace(image=dim, labels=view.segmentation.labels), view.truth, 15000,
                         np.random.default_rng(0))
     eye = bald.extras["part"] == PART_EYE
     assert eye.sum() > 100
     brightest = bald.colors[eye].mean(axis=1).max()
     assert brightest < 0.9 * np.mean(SCLERA_RGB)
+
+
+def test_eyes_sampled_denser_leave_every_other_disc_as_it_was(view):
+    """eye_density 4: the discs off the eyes' surroundings (and the generator's stream after the
+    sampling) are exactly those of eye_density 1; the eyes' surroundings hold 4 times the discs
+    they get at 1 (by the area: round(4 n W_eye / W)), half as wide."""
+    from avatarkit.recon.bald_discs import _eye_area_faces, _face_weights, sample_bald
+
+    fit = view.truth
+    n = 20000
+    r1, r4 = np.random.default_rng(7), np.random.default_rng(7)
+    base = sample_bald(fit, n, r1, 3.0, eye_density=1.0)
+    dense = sample_bald(fit, n, r4, 3.0, eye_density=4.0)
+    assert r1.random() == r4.random()
+    eye = _eye_area_faces(fit.model, fit.rest_vertices)
+    assert 0 < eye.sum() < 0.25 * len(eye)           # the eyeballs' fronts are finely meshed
+    in_base, in_dense = eye[base[3]], eye[dense[3]]
+    off = np.flatnonzero(~in_base)
+    for a, b in zip(base, dense):
+        np.testing.assert_array_equal(np.asarray(a)[off], np.asarray(b)[off])
+    # the eyes' surroundings: weighted area share, as sample_bald weighs the faces
+    v = np.asarray(fit.rest_vertices, np.float64)
+    tri = v[fit.model.faces]
+    w = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    w *= np.where(_face_weights(fit.model), 3.0, 1.0)
+    expected = int(round(4 * n * w[eye].sum() / w.sum()))
+    assert in_dense.sum() == expected
+    assert len(dense[0]) == n - in_base.sum() + expected
+    assert abs(in_base.sum() - expected / 4) < 4 * np.sqrt(expected / 4)     # a binomial draw
+    ratio = np.median(dense[2][in_dense, 0]) / np.median(base[2][in_base, 0])
+    assert 0.45 < ratio < 0.55, ratio
+    # and at 1 nothing changes: no disc is added
+    assert len(base[0]) == n

@@ -70,6 +70,32 @@ def test_relative_eyes_compose_with_the_inverse_of_the_reference():
     np.testing.assert_allclose(relative_eyes(biased, biased[0]), turns, atol=1e-10)
 
 
+def test_relative_eyes_gain_scales_the_turn_from_the_reference(monkeypatch):
+    """A gain scales each eye's turn from the reference (its axis kept): gain 0 holds the eyes
+    at the reference's gaze; `eyes_from_build_frame` drives with `gaze.RELATIVE_GAIN`."""
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track import gaze
+    from avatarkit.track.build_pose import eyes_from_build_frame
+
+    rng = np.random.default_rng(5)
+    eyes = rng.normal(0, 0.3, (6, 6))
+    full = gaze.relative_eyes(eyes, eyes[2])
+    np.testing.assert_allclose(gaze.relative_eyes(eyes, eyes[2], 0.0), 0.0, atol=1e-12)
+    half = gaze.relative_eyes(eyes, eyes[2], 0.5)
+    for s in range(2):
+        a, b = full[:, 3 * s:3 * s + 3], half[:, 3 * s:3 * s + 3]
+        # a half turn about the same axis, applied twice, is the whole turn
+        twice = (Rotation.from_rotvec(b) * Rotation.from_rotvec(b)).as_rotvec()
+        np.testing.assert_allclose(twice, a, atol=1e-10)
+    monkeypatch.setattr(gaze, "RELATIVE_GAIN", 0.25)
+    result = SimpleNamespace(frame_index=np.arange(10, 16), clip=SimpleNamespace(eyes=eyes.astype(np.float32)))
+    assert eyes_from_build_frame(result, 12)
+    np.testing.assert_allclose(result.clip.eyes, 0.25 * full, atol=1e-6)
+
+
 def test_clip_relative_to_the_build_pose():
     """The build frame's view transform becomes the build's exactly; the motion between frames
     (R_s R_t^T, and where a head point goes relative to the build frame) is kept."""

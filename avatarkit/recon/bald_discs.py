@@ -3,7 +3,9 @@ bald image where the camera sees them and by a screened harmonic fill elsewhere.
 
 `n_bald` flat discs sampled on the fitted head's triangles (area-weighted, the face and
 eyes `face_density` times denser than the back of the head), lying in their triangle's plane,
-sized so neighbours overlap. Colour: the bald image sampled (bilinear) at each disc's
+sized so neighbours overlap; with `EYE_DENSITY` above 1 (off), the eyes' surroundings (the
+eyeballs' fronts and the lids, `_eye_area_faces`) that many times denser again, with smaller
+discs, added to the n (the other discs stay as they were: `sample_bald`). Colour: the bald image sampled (bilinear) at each disc's
 projection where the disc is visible from the input camera (its depth within `DEPTH_TOL` of
 the renderer's depth map of the discs, facing the camera, and landing on skin in the bald
 image's labels; neck discs also on body pixels). Unseen discs get a screened harmonic fill
@@ -41,6 +43,18 @@ SCLERA_RGB = (0.86, 0.83, 0.8)
 SCLERA_SAMPLES = 12
 MOUTH_RGB = (0.32, 0.12, 0.12)
 PART_SKIN, PART_EYE, PART_MOUTH = 0, 1, 2
+#: the eyes' surroundings (`_eye_area_faces`: the faces in front of an eyeball's centre within
+#: EYE_AREA_REACH of it: the eyeballs' fronts, the lids, the lash lines, the corners) are
+#: sampled this many times denser than the rest of the face, their discs sqrt of it smaller,
+#: added to n (1: as dense as the face, off). At the face's density a disc there is ~7 px wide
+#: at 480 px, as wide as the iris: the pupil, the iris, the white and the lash line blur into
+#: one pale bluish patch. 2 or 4 sharpen the eyes and gain on both shared clips with the
+#: refined tracking (eye box +0.2-0.5 dB), but with the landmark fit's poses (a pixel or two
+#: off) the sharper eyes cost grey's eye box 0.04 dB (2) / 0.46 dB (4), and the synthetic
+#: turning video's profile gain moved +3.22 -> +3.17: off (session 17, docs/video-build.md
+#: "The eyes in the video build")
+EYE_DENSITY = 1.0
+EYE_AREA_REACH = 0.018
 #: a lips face whose vertices' jaw weights differ by this much opens with the jaw (`_opening_faces`)
 OPENING_SPREAD = 0.5
 
@@ -128,10 +142,56 @@ def _face_weights(model) -> np.ndarray:
     return dense
 
 
-def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: float = 3.0):
-    """Discs on the rest head: (means (n, 3), quats (n, 4), scales (n, 3), face ids (n,) int32,
-    normals (n, 3)). Area-weighted, `face_density` times denser on the face."""
-    from avatarkit.rig.frames import degenerate_faces, triangle_frames
+def _eye_area_faces(model, vertices: np.ndarray, reach: float = EYE_AREA_REACH) -> np.ndarray:
+    """(F,) bool: the faces whose centroid lies within `reach` (metres) of an eyeball's centre
+    and in front of it (+Z, where the face looks) on the rest head `vertices` (V, 3): the
+    eyeballs' fronts, the lids, the lash lines, the corners (the eyeballs' backs are hidden)."""
+    v = np.asarray(vertices, np.float64)
+    faces = np.asarray(model.faces)
+    if model.weights.shape[1] < 5:
+        return np.zeros(len(faces), bool)
+    w = np.asarray(model.weights, np.float64)
+    centroid = v[faces].mean(axis=1)
+    out = np.zeros(len(faces), bool)
+    for j in (3, 4):
+        on = w[:, j] > 0.5
+        if not on.any():
+            continue
+        c = v[on].mean(axis=0)                     # the eyeball's centre: its vertices' mean
+        d = centroid - c
+        out |= (np.linalg.norm(d, axis=1) < reach) & (d[:, 2] > 0)
+    return out
+
+
+def _discs_on(v: np.ndarray, faces: np.ndarray, ids: np.ndarray, share: np.ndarray, rng: np.random.Generator):
+    """Discs on the faces `ids` (k,) of the mesh (v (V, 3), faces (F, 3)), each covering `share`
+    (k,) m^2 of the surface: (points (k, 3), quats (k, 4), scales (k, 3), normals (k, 3))."""
+    from avatarkit.rig.frames import triangle_frames
+
+    n = len(ids)
+    tri = v[faces]
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+    points = np.einsum("nk,nkc->nc", bary, tri[ids])
+    _, rot, _ = triangle_frames(v, faces[ids])                     # columns e0, n, b
+    radius = COVERAGE * np.sqrt(share / np.pi) * rng.uniform(0.85, 1.15, n)
+    scales = np.stack([radius, FLATNESS * radius, radius * rng.uniform(0.85, 1.15, n)], axis=1)
+    return points, matrix_to_quat(rot), scales, rot[:, :, 1]
+
+
+def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: float = 3.0,
+                eye_density: float | None = None):
+    """Discs on the rest head: (means (n', 3), quats (n', 4), scales (n', 3), face ids (n',) int32,
+    normals (n', 3)). Area-weighted, `face_density` times denser on the face.
+
+    eye_density (None: `EYE_DENSITY`) above 1: the eyes' surroundings (`_eye_area_faces`) are
+    sampled that many times denser again, with smaller discs, and n' = n plus the extra discs
+    there. The n discs are drawn first as without it, and those that land in the eyes'
+    surroundings are replaced in place (then the extra ones appended) by discs drawn from a
+    child of `rng` (`Generator.spawn`, which leaves `rng`'s stream as it was): every disc
+    elsewhere, and what the caller draws from `rng` next, are the same as with eye_density 1."""
+    from avatarkit.rig.frames import degenerate_faces
 
     model = fit.model
     v = np.asarray(fit.rest_vertices, np.float64)
@@ -144,16 +204,26 @@ def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: fl
     if not weight.sum() > 0:
         raise InputError("the head mesh has no area to put Gaussians on")
     ids = rng.choice(len(faces), size=n, p=weight / weight.sum()).astype(np.int32)
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    points = np.einsum("nk,nkc->nc", bary, tri[ids])
-    _, rot, _ = triangle_frames(v, faces[ids])                     # columns e0, n, b
     # each disc's share of the surface: total weighted area / n, divided by the local density
     share = weight.sum() / n / density[ids]
-    radius = COVERAGE * np.sqrt(share / np.pi) * rng.uniform(0.85, 1.15, n)
-    scales = np.stack([radius, FLATNESS * radius, radius * rng.uniform(0.85, 1.15, n)], axis=1)
-    return points, matrix_to_quat(rot), scales, ids, rot[:, :, 1]
+    points, quats, scales, normals = _discs_on(v, faces, ids, share, rng)
+    eye_density = EYE_DENSITY if eye_density is None else float(eye_density)
+    eye = _eye_area_faces(model, v) & (weight > 0)
+    if eye_density <= 1.0 or not eye.any():
+        return points, quats, scales, ids, normals
+    child = rng.spawn(1)[0]
+    k = max(1, int(round(eye_density * n * weight[eye].sum() / weight.sum())))
+    eye_ids = np.flatnonzero(eye)
+    new_ids = eye_ids[child.choice(len(eye_ids), size=k, p=weight[eye_ids] / weight[eye_ids].sum())].astype(np.int32)
+    new = _discs_on(v, faces, new_ids, weight[eye].sum() / k / density[new_ids], child)
+    slots = np.flatnonzero(eye[ids])
+    put = min(len(slots), k)
+    out = [points, quats, scales, ids, normals]
+    for i, (a, b) in enumerate(zip(out, (new[0], new[1], new[2], new_ids, new[3]))):
+        a = a.copy()
+        a[slots[:put]] = b[:put]
+        out[i] = np.concatenate([a, b[put:]]) if put < k else np.delete(a, slots[put:], axis=0)
+    return tuple(out)
 
 
 def _eye_colours(image: np.ndarray, analysis) -> np.ndarray:
@@ -200,6 +270,7 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     model = fit.model
     cam = fit.camera
     means, quats, scales, ids, normals = sample_bald(fit, n, rng, face_density)
+    n_drawn, n = n, len(means)              # n plus the eyes' extra discs (`EYE_DENSITY`)
     part = _face_parts(model)[ids]
     geo = GaussianSet.from_colors(means, quats, scales, np.full(n, 0.98), np.full((n, 3), 0.5))
     depth, _, dcam = depth_map(geo, cam)
@@ -237,10 +308,14 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     # closed mouth hides them), they are the mouth's inside when they show, not the lips'
     # colour the fill spreads onto them (on the shared clips a pink sheet filled the open mouth)
     rgb[_opening_faces(model)[ids] & ~known] = MOUTH_RGB
-    opacity = rng.uniform(0.95, 1.0, n)
+    # the extra eye discs' opacities from a child stream: what the caller draws from rng next
+    # (the hair) is as without them
+    opacity = rng.uniform(0.95, 1.0, n_drawn)
+    if n > n_drawn:
+        opacity = np.concatenate([opacity, rng.spawn(1)[0].uniform(0.95, 1.0, n - n_drawn)])
     out = GaussianSet.from_colors(means, quats, scales, opacity, np.clip(rgb, 0, 1),
                                   extras={"binding": ids, "part": part})
-    info = {"bald": n, "bald_seen": int(known.sum()),
+    info = {"bald": n, "bald_eye_extra": n - n_drawn, "bald_seen": int(known.sum()),
             "bald_seen_share": round(float(known.mean()), 4),
             "bald_seen_grazing": int((known & skin & (trust < 1.0)).sum())}
     return out, info

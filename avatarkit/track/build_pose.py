@@ -68,14 +68,14 @@ def view_transforms(rotation: np.ndarray, translation: np.ndarray, camera_w2c: n
 def eyes_from_build_frame(result, frame: int | None) -> bool:
     """Make the tracked clip's eye rotations relative to the build frame's (`gaze.relative_eyes`:
     the avatar's eyeballs carry that frame's eyes). False (clip unchanged) when the build frame
-    is unknown or not in the clip."""
-    from avatarkit.track.gaze import relative_eyes
+    is unknown or not in the clip. The change of gaze is scaled by `gaze.RELATIVE_GAIN`."""
+    from avatarkit.track import gaze
 
     rows = np.flatnonzero(np.asarray(result.frame_index) == frame) if frame is not None else []
     if len(rows) == 0:
         return False
     eyes = np.asarray(result.clip.eyes)
-    result.clip.eyes = relative_eyes(eyes, eyes[int(rows[0])]).astype(eyes.dtype)
+    result.clip.eyes = gaze.relative_eyes(eyes, eyes[int(rows[0])], gaze.RELATIVE_GAIN).astype(eyes.dtype)
     return True
 
 

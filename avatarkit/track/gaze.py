@@ -21,6 +21,10 @@ from avatarkit.rotations import axis_angle_to_matrix
 
 EYE_RADIUS = 0.012
 MAX_ANGLE = np.radians(40.0)
+#: the share of the tracked change of gaze that turns an avatar's eyes (`relative_eyes`' gain,
+#: as `track.build_pose.eyes_from_build_frame` drives a built avatar): 1 turns them by the whole
+#: tracked change. Read at the call, so setting it takes effect
+RELATIVE_GAIN = 1.0
 _C = np.diag([1.0, -1.0, -1.0])
 LEFT_EYE_JOINT, RIGHT_EYE_JOINT = 3, 4
 
@@ -88,9 +92,10 @@ def project_gaze(eyes: np.ndarray, eye_centres_head: np.ndarray, rotation: np.nd
     return out
 
 
-def relative_eyes(eyes: np.ndarray, reference: np.ndarray) -> np.ndarray:
+def relative_eyes(eyes: np.ndarray, reference: np.ndarray, gain: float = 1.0) -> np.ndarray:
     """(T, 6) eye rotations relative to the `reference` (6,): per eye R_t R_ref^T, so the
-    reference itself becomes no rotation. An avatar built from a frame carries that frame's
+    reference itself becomes no rotation; `gain` scales each relative rotation's angle (its axis
+    kept: 0 holds the eyes at the reference's gaze). An avatar built from a frame carries that frame's
     eyes painted on its eyeballs (iris where the photo showed it): driving it with the tracked
     gaze as it is turns the painted iris by the whole tracked angle, including the estimate's
     constant bias (measured on talking_man_glasses.mp4: ~25-30 degrees downward at every
@@ -103,4 +108,4 @@ def relative_eyes(eyes: np.ndarray, reference: np.ndarray) -> np.ndarray:
     R = axis_angle_to_matrix(e.reshape(-1, 3)).astype(np.float64).reshape(-1, 2, 3, 3)   # (T, 2, 3, 3)
     ref = axis_angle_to_matrix(np.asarray(reference, np.float64).reshape(2, 3)).astype(np.float64)
     rel = R @ np.swapaxes(ref, -1, -2)[None]
-    return matrix_to_axis_angle(rel.reshape(-1, 3, 3)).astype(np.float64).reshape(-1, 6)
+    return float(gain) * matrix_to_axis_angle(rel.reshape(-1, 3, 3)).astype(np.float64).reshape(-1, 6)
