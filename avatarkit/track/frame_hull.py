@@ -5,9 +5,9 @@ A single-frame build takes its outline from one photo: the head model's jaw and 
 and the hair's shell are as wide as that frame's fit and lifting made them, and a pixel or two of
 pose or shape error puts the render's outline over the wall. On the shared clips' held-out frames
 (session 17, docs/video-build.md "The outline on the talking clips") the render covers the
-wall (the video's person segmentation says background) on 1.4-1.6 % of the scored pixels, 11-15 %
-of the squared error, most of it within 3 px of the person's outline, on the hair, the jaw and
-the ears.
+wall (the video's person segmentation says background) on 1.4-1.6 % of the scored pixels, 10-15 %
+of the squared error, most of it within 3 px of the person's outline, on the hair, the ears and
+the jaw.
 
 The frame_colours stage poses the avatar at up to `frame_colours.FRAMES` frames of the video
 (registered to about half a pixel when its tracking is refined). Each frame's person mask
