@@ -27,8 +27,9 @@ the posed renders' outline) against all those frames at once (`refine_colours_fr
 video - render inside the frame's render mask eroded by `MASK_ERODE` px, averaged over each
 Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
 Gaussian shows in). The other Gaussians keep the portrait build's colours. Before the colours,
-the Gaussians the frames show over the background are cleared (`track.frame_hull`, `CARVE`). The video build runs
-it only when it has one keyframe (a head that does not turn: `track.video_build`).
+the Gaussians the frames show over the background are cleared (`track.frame_hull`, `CARVE`).
+The video build runs it only when it has one keyframe (a head that does not turn:
+`track.video_build`).
 
 With the stage's tracking refined by rendering the avatar (`REFINE`, or `fuse_frame_colours(
 refine=)`, which `avatarkit evaluate --refine` passes; every `REFINE_EVERY`-th frame), the frames
