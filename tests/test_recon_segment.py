@@ -10,7 +10,7 @@ from avatarkit.errors import FormatError, InputError
 from avatarkit.recon.image_io import read_image
 from avatarkit.recon.portrait import analysis_from_box, analyze_portrait
 from avatarkit.recon.segment import (BACKGROUND, BODY, HAIR, SKIN, ColourModel, lab_to_rgb, rgb_to_lab,
-                                     segment_portrait)
+                                     segment_person, segment_portrait)
 from avatarkit.recon.synthetic import synthetic_portrait
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
@@ -200,3 +200,17 @@ def test_mesh_subject_hair_is_its_hair_not_a_halo():
     out, far, lost = outline_offsets(seg.person, person)
     assert out < 0.5 and far <= 10 and lost < 0.5, (out, far, lost)
     assert iou(seg.hair, hair) > 0.9
+
+
+@pytest.mark.parametrize("work_size", [512, 96])
+def test_segment_person_is_the_portraits_person(work_size):
+    """`segment_person` (the silhouette alone, `track.frame_hull`) is `segment_portrait`'s labels
+    other than background, at full size and through the work size's downscale: the same GrabCut
+    (seeded alike), without the hair step."""
+    sp = synthetic_portrait(blur=1.0, noise=4, size=160)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    full = segment_portrait(sp.image, a, work_size=work_size).labels != BACKGROUND
+    person = segment_person(sp.image, a, work_size=work_size)
+    assert person.shape == full.shape and person.dtype == bool
+    assert (person != full).mean() < 0.002
+    assert iou(person, sp.labels != BACKGROUND) > 0.95

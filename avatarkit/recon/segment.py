@@ -400,6 +400,36 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     return Segmentation(labels=labels, skin_model=skin, hair_model=hair_model, hair_source=source)
 
 
+def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: int = WORK_SIZE,
+                   iterations: int = 3) -> np.ndarray:
+    """(H, W) bool: the person of `segment_portrait` (its labels other than background) without
+    the skin and hair models and the hair's GrabCut, which it does not need (step 1 and the face
+    core, upsampled as the labels are). For a caller that wants only the silhouette
+    (`track.frame_hull`)."""
+    import cv2
+
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.dtype} {image.shape}")
+    H, W = image.shape[:2]
+    if tuple(analysis.image_size) != (W, H):
+        raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
+                         f"this one is {W}x{H}")
+    cv2.setRNGSeed(0)          # as segment_portrait: the same GrabCut
+    k = min(1.0, work_size / max(H, W))
+    if k < 1.0:
+        img = cv2.resize(image, (max(1, round(W * k)), max(1, round(H * k))), interpolation=cv2.INTER_AREA)
+        a = analysis.scaled(k)
+    else:
+        img, a = image, analysis
+    u, v = a.face_grid(img.shape[:2])
+    reg = face_regions(u, v)
+    person = _person(img, reg, iterations, a.eye_distance, True) | reg["face_core"]
+    if k < 1.0:
+        person = _upsample_labels(person.astype(np.uint8), (W, H)) != BACKGROUND
+    return person
+
+
 def _upsample_labels(labels: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Smooth label upsampling: bilinear one-hot maps, then argmax (no blocky edges)."""
     import cv2

@@ -26,8 +26,10 @@ each from the tracked camera, and refine the colours of the selected Gaussians
 the posed renders' outline) against all those frames at once (`refine_colours_frames`: each round, the residual
 video - render inside the frame's render mask eroded by `MASK_ERODE` px, averaged over each
 Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
-Gaussian shows in). The other Gaussians keep the portrait build's colours. The video build runs
-it only when it has one keyframe (a head that does not turn: `track.video_build`).
+Gaussian shows in). The other Gaussians keep the portrait build's colours. Before the colours,
+the Gaussians the frames show over the background are cleared (`track.frame_hull`, `CARVE`).
+The video build runs it only when it has one keyframe (a head that does not turn:
+`track.video_build`).
 
 With the stage's tracking refined by rendering the avatar (`REFINE`, photometric-fast since
 session 17, or `fuse_frame_colours(refine=)`, which `avatarkit evaluate` passes; every
@@ -343,13 +345,15 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
 
 def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
                        span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE,
-                       refine: str | None = None):
+                       refine: str | None = None, carve: bool | None = None):
     """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
     the frame the avatar was built from; outline: the outline's Gaussians are fused too;
     refine: the refinement that registers the fused frames (`TrackOptions.refine`; None:
     `REFINE`, photometric-fast; the landmark fit's poses with `REFINE = None`), which sets what
-    is fused (`stage_settings`) and how often the stage's tracking refines (`stage_spacing`).
+    is fused (`stage_settings`) and how often the stage's tracking refines (`stage_spacing`);
+    carve: first clear the Gaussians the frames show over the background (`track.frame_hull`;
+    None: `frame_hull.CARVE`).
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
     one keyframe (`track.video_build`)."""
     from avatarkit.avatar import load_avatar
@@ -374,7 +378,11 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         return avatar, {"frames": [], "updated": 0}
     from avatarkit.track.keyframes import read_frames
 
-    views = posed_frames(saved, result, rows, read_frames(video, np.asarray(result.frame_index)[rows]))
+    images = read_frames(video, np.asarray(result.frame_index)[rows])
+    views = posed_frames(saved, result, rows, images)
+    carved = _carve(saved, avatar, views, carve)
+    if carved is not None and carved.cleared.any():
+        views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
     if outline:
         select = select | outline_selection(views)
@@ -388,7 +396,26 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
             "regions": None if settings.fuse_all else list(REGIONS), "hair": settings.hair, "in_regions": regions,
             "outline": bool(outline), "refine": refine, "refine_every": options.refine_every,
             "iterations": settings.iterations}
+    if carved is not None:
+        info["carved"] = carved.info
     return avatar, info
+
+
+def _carve(saved, avatar, views, carve: bool | None):
+    """`track.frame_hull.carve_frames` on the posed views when carve (None: `frame_hull.CARVE`):
+    the cleared Gaussians' opacities set to 0 on both `saved` (what the views pose) and `avatar`
+    (what the stage returns). -> the `Carved`, or None when off."""
+    from avatarkit.track import frame_hull
+
+    if not (frame_hull.CARVE if carve is None else carve):
+        return None
+    carved = frame_hull.carve_frames(views)
+    nb = len(avatar.bald)
+    for a in (saved, avatar):
+        a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
+        if len(a.hair):
+            a.hair = a.hair.replace(opacities=np.where(carved.cleared[nb:], 0.0, a.hair.opacities).astype(np.float32))
+    return carved
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",

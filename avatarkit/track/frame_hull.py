@@ -1,0 +1,151 @@
+"""The frames' silhouettes bound the avatar: Gaussians the video build's colour frames show over
+the background are cleared (`carve`), a visual hull made of the frame_colours stage's frames.
+
+A single-frame build takes its outline from one photo: the head model's jaw and cheeks, the ears
+and the hair's shell are as wide as that frame's fit and lifting made them, and a pixel or two of
+pose or shape error puts the render's outline over the wall. On the shared clips' held-out frames
+(session 17, docs/video-build.md "The outline on the talking clips") the render covers the
+wall (the video's person segmentation says background) on 1.4-1.6 % of the scored pixels, 10-15 %
+of the squared error, most of it within 3 px of the person's outline, on the hair, the ears and
+the jaw.
+
+The frame_colours stage poses the avatar at up to `frame_colours.FRAMES` frames of the video
+(registered to about half a pixel when its tracking is refined). Each frame's person mask
+(`person_masks`: `recon.segment`, the portrait build's segmentation, dilated by `MARGIN` px: the
+segmentation's and the registration's error) says where the person is not: the wall. Per frame
+a Gaussian votes "outside" when at least `SHARE` of its blending weight in that frame
+(`recon.label_lifting.accumulate_weights`: the renderer's compositing) falls on the wall; a
+Gaussian seen in at least `MIN_FRAMES` frames that at least `QUORUM` of them vote outside is
+cleared (opacity 0: it keeps its place in the rig). Clearing exposes what was behind it, so the
+votes are taken again, `ROUNDS` times. One frame that disagrees (a segmentation's slip, a frame
+whose head moved) clears nothing: the frames vote.
+
+Only the video build uses the frames; the single-frame build stays the baseline. `CARVE` turns it
+on in the frame_colours stage (`frame_colours.fuse_frame_colours`), before the colours are fused
+so the Gaussians it exposes get the frames' colours. `evaluate` scores the render's mask, so a
+bound that shrinks the head always scores better: the settings were chosen by the silhouette's
+disagreement both ways (the render over the wall, the person the render misses), not by the
+score (docs/video-build.md).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: clear the Gaussians the colour frames show over the background in the frame_colours stage.
+#: On (session 17, docs/video-build.md "The outline on the talking clips"): the shared clips'
+#: held-out frames, each build tracked with itself, +0.11 / +0.11 dB with `evaluate --refine
+#: photometric` (grey's lead over the single-frame build +0.89 -> +1.00, glasses +1.16 -> +1.28)
+#: and +0.44 / +0.43 dB with the default tracking; the synthetic talking avatar +2.40 / +1.42 dB,
+#: its render's mask brought from 34.9 % of the frame to 33.5 % (the true head's: 33.4-33.8 %)
+CARVE = True
+#: the person mask is dilated by this many pixels before the wall is taken (the segmentation's
+#: outline and the frames' registration are each good to about a pixel)
+MARGIN = 1
+#: a frame votes a Gaussian outside when this share of its blending weight there is on the wall
+SHARE = 0.3
+#: a Gaussian is cleared when this share of the frames it shows in vote it outside ...
+QUORUM = 0.3
+#: ... and it shows in at least this many frames
+MIN_FRAMES = 3
+#: rounds of votes (each round sees what the last one exposed)
+ROUNDS = 2
+#: a Gaussian shows in a frame when its blending weight summed over the frame is at least this
+#: many pixels (as `frame_colours.MIN_WEIGHT`)
+MIN_WEIGHT = 0.05
+
+
+@dataclass
+class Carved:
+    """cleared (N,) bool: the Gaussians to clear; info: JSON-able figures (per round the count
+    cleared, the frames that voted)."""
+
+    cleared: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def wall_image(person: np.ndarray, margin: int = MARGIN) -> np.ndarray:
+    """(H, W) int32: 1 where the frame shows no person (`person` (H, W) bool dilated by `margin`
+    px, an elliptic disc), 0 elsewhere: the label image `accumulate_weights` bins by."""
+    import cv2
+
+    p = np.asarray(person, np.uint8)
+    if margin > 0:
+        p = cv2.dilate(p, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2))
+    return (p == 0).astype(np.int32)
+
+
+def wall_votes(gaussians, camera, wall: np.ndarray, share: float = SHARE,
+               min_weight: float = MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's votes: (shows (N,) bool: blending weight summed over the frame >= min_weight
+    pixels, outside (N,) bool: shows, and at least `share` of that weight on the `wall` (H, W)
+    int32 label image's 1s)."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    w = accumulate_weights(gaussians, camera, wall, 2).astype(np.float64)   # (N, 2)
+    total = w.sum(axis=1)
+    shows = total >= min_weight
+    return shows, shows & (w[:, 1] >= share * total)
+
+
+def carve(views, walls: list, rounds: int = ROUNDS, share: float = SHARE, quorum: float = QUORUM,
+          min_frames: int = MIN_FRAMES, allowed: np.ndarray | None = None) -> Carved:
+    """The Gaussians the frames show over the wall (module docstring). views: posed frames with
+    `.gaussians` (N, the same order in each) and `.camera` (`frame_colours.FrameView`); walls:
+    per view an (H, W) int32 `wall_image`, or None (that frame does not vote); allowed: (N,)
+    bool, the Gaussians that may be cleared (None: all)."""
+    if len(views) != len(walls):
+        raise ValueError("one wall image per view")
+    n = len(views[0].gaussians) if views else 0
+    cleared = np.zeros(n, bool)
+    allowed = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool).reshape(n)
+    per_round = []
+    voting = sum(w is not None for w in walls)
+    for _ in range(rounds):
+        seen = np.zeros(n)
+        out = np.zeros(n)
+        for v, wall in zip(views, walls):
+            if wall is None:
+                continue
+            g = v.gaussians
+            if cleared.any():
+                g = g.replace(opacities=np.where(cleared, 0.0, g.opacities).astype(np.float32))
+            shows, outside = wall_votes(g, v.camera, wall, share)
+            seen += shows
+            out += outside
+        new = allowed & ~cleared & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
+        per_round.append(int(new.sum()))
+        if not new.any():
+            break
+        cleared |= new
+    return Carved(cleared, {"frames": int(voting), "cleared": per_round, "total": int(cleared.sum())})
+
+
+def person_masks(images: list) -> list:
+    """Per image ((H, W, 3) uint8) the person mask ((H, W) bool) of the portrait build's
+    segmentation (`recon.segment.segment_person`: `segment_portrait`'s person without its hair
+    step; the face found by `recon.portrait.analyze_portrait`), or None where no face is found.
+    ~2 s a 480 px frame on a loaded 2-vCPU machine: most of the stage's added time."""
+    from avatarkit.errors import AvatarKitError
+    from avatarkit.recon.portrait import analyze_portrait
+    from avatarkit.recon.segment import segment_person
+
+    out = []
+    for image in images:
+        try:
+            out.append(segment_person(image, analyze_portrait(image, None, detector="auto")))
+        except AvatarKitError:
+            out.append(None)
+    return out
+
+
+def carve_frames(views, margin: int = MARGIN, **kwargs) -> Carved:
+    """`carve` with each view's wall from its own image's segmentation (`person_masks`)."""
+    masks = person_masks([v.image for v in views])
+    walls = [None if m is None else wall_image(m, margin) for m in masks]
+    return carve(views, walls, **kwargs)
+
+
+__all__ = ["CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "ROUNDS", "SHARE",
+           "carve", "carve_frames", "person_masks", "wall_image", "wall_votes"]

@@ -1,0 +1,160 @@
+"""The frames' silhouettes bound the avatar (`track.frame_hull`) on cases whose answer is known."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
+from avatarkit.render.camera import Camera
+from avatarkit.track.frame_hull import carve, wall_image, wall_votes
+
+SIZE = 96
+
+
+def _plane(xs, ys, z=0.0, opacity=0.99) -> GaussianSet:
+    X, Y = np.meshgrid(xs, ys)
+    n = X.size
+    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
+    return GaussianSet(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0.008, 0.008, 0.001], (n, 1)),
+                       np.full(n, opacity), rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+
+
+def _camera():
+    return Camera.look_at((0.0, 0.0, 0.5), (0.0, 0.0, 0.0), width=SIZE, height=SIZE, fov_deg=40)
+
+
+def _view(g, cam):
+    return SimpleNamespace(gaussians=g, camera=cam)
+
+
+def _columns(g, cam):
+    px, _ = cam.project(g.means)
+    return np.asarray(px)[:, 0]
+
+
+def _left_person(cut=SIZE // 2):
+    person = np.zeros((SIZE, SIZE), bool)
+    person[:, :cut] = True
+    return person
+
+
+def test_gaussians_every_frame_shows_over_the_wall_are_cleared_those_inside_kept():
+    """A plane seen head on; every frame's person covers the image's left half. The Gaussians
+    whose footprint lies on the right half (the wall) are cleared, those on the left kept, and
+    the ones on the person's outline (within the margin and a footprint) are left alone."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    g = _plane(xs, ys)
+    cam = _camera()
+    wall = wall_image(_left_person(), margin=1)
+    assert wall[:, :SIZE // 2 + 1].sum() == 0 and wall[:, SIZE // 2 + 1:].all()
+    out = carve([_view(g, cam)] * 4, [wall] * 4)
+    col = _columns(g, cam)
+    assert out.cleared[col > SIZE / 2 + 4].all()
+    assert not out.cleared[col < SIZE / 2 - 2].any()
+    assert out.info["frames"] == 4 and out.info["total"] == int(out.cleared.sum())
+
+
+def test_one_frame_that_disagrees_clears_nothing():
+    """Three frames show the whole image as the person and one the right half as wall: under
+    the quorum (half of the frames a Gaussian shows in) nothing is cleared; a frame without a
+    segmentation (None) does not vote."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    g = _plane(xs, ys)
+    cam = _camera()
+    everyone = wall_image(np.ones((SIZE, SIZE), bool))
+    half = wall_image(_left_person())
+    views = [_view(g, cam)] * 4
+    assert not carve(views, [everyone, everyone, everyone, half]).cleared.any()
+    # the same wall in two frames of three that vote: cleared
+    out = carve(views, [half, half, everyone, None])
+    assert out.info["frames"] == 3 and out.cleared[_columns(g, cam) > SIZE / 2 + 4].all()
+    # seen in fewer than min_frames frames: kept
+    assert not carve(views[:2], [half, half], min_frames=3).cleared.any()
+
+
+def test_the_next_round_clears_what_the_first_exposed():
+    """Two planes, the back one hidden by the front one: the first round clears the front
+    plane's Gaussians over the wall (the back ones do not show), the second the back ones it
+    exposed there; the back plane's Gaussians on the person stay."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.005)
+    front = _plane(xs, ys, 0.0)
+    back = _plane(xs[np.abs(xs) < 0.08], ys[np.abs(ys) < 0.08], -0.02)   # inside the front's outline
+    g = GaussianSet.concat([front, back])
+    cam = _camera()
+    wall = wall_image(_left_person())
+    n = len(front)
+    col = _columns(g, cam)
+    one = carve([_view(g, cam)] * 3, [wall] * 3, rounds=1)
+    assert one.cleared[:n][col[:n] > SIZE / 2 + 4].all()
+    assert not one.cleared[n:].any()
+    two = carve([_view(g, cam)] * 3, [wall] * 3, rounds=2)
+    assert two.cleared[n:][col[n:] > SIZE / 2 + 4].all()
+    assert not two.cleared[:n][col[:n] < SIZE / 2 - 2].any()
+    # a back Gaussian by the cut shows only the sliver past the front's edge, on the wall: it
+    # may go; well inside, none does
+    assert not two.cleared[n:][col[n:] < SIZE / 2 - 8].any()
+    assert two.info["cleared"][0] == one.info["total"]
+
+
+def test_allowed_limits_what_may_be_cleared():
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    g = _plane(xs, ys)
+    cam = _camera()
+    wall = wall_image(_left_person())
+    allowed = np.arange(len(g)) % 2 == 0
+    out = carve([_view(g, cam)] * 3, [wall] * 3, allowed=allowed)
+    assert out.cleared.any() and not out.cleared[~allowed].any()
+
+
+def test_a_frame_votes_by_the_share_of_its_blending_weight_on_the_wall():
+    """One Gaussian straddling the wall's edge: with its centre on the edge about half its
+    weight is on the wall, so it votes outside at share 0.4 and not at 0.6."""
+    cam = _camera()
+    g = _plane(np.array([0.0]), np.array([0.0]))
+    col = _columns(g, cam)[0]
+    person = np.zeros((SIZE, SIZE), bool)
+    person[:, :int(round(col))] = True
+    wall = wall_image(person, margin=0)
+    shows, outside = wall_votes(g, cam, wall, share=0.4)
+    assert shows[0] and outside[0]
+    shows, outside = wall_votes(g, cam, wall, share=0.6)
+    assert shows[0] and not outside[0]
+
+
+def test_one_wall_image_per_view():
+    g = _plane(np.array([0.0]), np.array([0.0]))
+    with pytest.raises(ValueError):
+        carve([_view(g, _camera())] * 2, [None])
+
+
+def test_the_stage_clears_on_both_avatars_only_when_asked(monkeypatch):
+    """`frame_colours._carve`: off (carve False, or None with CARVE off) nothing is asked of the
+    frames; on, the Gaussians `carve_frames` clears get opacity 0 on the avatar the views pose
+    and on the one the stage returns (bald first, then hair), the others keep theirs."""
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track import frame_hull
+
+    def avatar():
+        return SimpleNamespace(bald=_plane(np.arange(3) * 0.01, np.array([0.0])),
+                               hair=_plane(np.arange(2) * 0.01, np.array([0.0]), opacity=0.7))
+
+    cleared = np.array([False, True, False, True, False])
+    asked = []
+
+    def fake(views):
+        asked.append(views)
+        return frame_hull.Carved(cleared.copy(), {"total": 2})
+
+    monkeypatch.setattr(frame_hull, "carve_frames", fake)
+    saved, built = avatar(), avatar()
+    assert fc._carve(saved, built, ["v"], False) is None
+    monkeypatch.setattr(frame_hull, "CARVE", False)
+    assert fc._carve(saved, built, ["v"], None) is None and not asked
+    monkeypatch.setattr(frame_hull, "CARVE", True)
+    out = fc._carve(saved, built, ["v"], None)
+    assert asked == [["v"]] and out.info["total"] == 2
+    for a in (saved, built):
+        np.testing.assert_array_equal(a.bald.opacities, np.float32([0.99, 0.0, 0.99]))
+        np.testing.assert_array_equal(a.hair.opacities, np.float32([0.0, 0.7]))
