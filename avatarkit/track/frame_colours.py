@@ -37,9 +37,10 @@ session 17, or `fuse_frame_colours(refine=)`, which `avatarkit evaluate` passes;
 kept the selection to the regions above is gone: the stage then fuses every bald Gaussian and
 the hair (`stage_settings`) for `REGISTERED_ITERATIONS` rounds. Measured on the shared clips,
 each build tracked with itself as `evaluate --compare-single` now does by default (photometric-
-fast): the video build leads the single-frame build by +0.73 dB (grey) / +1.17 dB (glasses) on
-the held-out frames (+0.06 / +0.72 with the stage and the tracking unregistered, the defaults
-before); with `--refine photometric` +0.89 / +1.16 (docs/video-build.md, sessions 15-17).
+fast), with the frame hull: the video build leads the single-frame build by +0.93 dB (grey) /
++1.25 dB (glasses) on the held-out frames (+0.73 / +1.17 without the hull; +0.06 / +0.72 with the
+stage and the tracking unregistered, the defaults before); with `--refine photometric` +1.00 /
++1.28 (docs/video-build.md, sessions 15-17).
 """
 from __future__ import annotations
 
