@@ -323,6 +323,35 @@ def _load_hair_mask(hair_mask, shape, path) -> np.ndarray:
     return fit_mask(arr, shape, path)
 
 
+def _checked_image(image, analysis: PortraitAnalysis, path=None) -> np.ndarray:
+    """`image` as a (H, W, 3) uint8 array the size `analysis` was made on, else InputError."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.dtype} {image.shape}", path)
+    H, W = image.shape[:2]
+    if tuple(analysis.image_size) != (W, H):
+        raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
+                         f"this one is {W}x{H}", path)
+    return image
+
+
+def _working_copy(image: np.ndarray, analysis: PortraitAnalysis, work_size: int):
+    """(the image GrabCut runs on: longer side at most `work_size`, its analysis, the scale k)."""
+    import cv2
+
+    # GrabCut's k-means draws from OpenCV's thread-global RNG: without a reset each
+    # segmentation starts where the last one left it, so a second build in one process (or a
+    # video build's keyframes) segments differently. Seed 0 is the RNG's fresh state
+    # (0xffffffff): a process's first segmentation is unchanged.
+    cv2.setRNGSeed(0)
+    H, W = image.shape[:2]
+    k = min(1.0, work_size / max(H, W))
+    if k < 1.0:
+        img = cv2.resize(image, (max(1, round(W * k)), max(1, round(H * k))), interpolation=cv2.INTER_AREA)
+        return img, analysis.scaled(k), k
+    return image, analysis, k
+
+
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
                      work_size: int = WORK_SIZE, iterations: int = 3, boundary: bool = True,
                      path: str | os.PathLike | None = None) -> Segmentation:
@@ -336,29 +365,10 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     boundary: False gives GrabCut's own person outline on the image as it is (no re-noised
         flat pixels, no boundary step): the behaviour before them, the benchmark's baseline.
     """
-    import cv2
-
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
-        raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.dtype} {image.shape}", path)
+    image = _checked_image(image, analysis, path)
     H, W = image.shape[:2]
-    if tuple(analysis.image_size) != (W, H):
-        raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
-                         f"this one is {W}x{H}", path)
     imported = _load_hair_mask(hair_mask, (H, W), path) if hair_mask is not None else None
-    # GrabCut's k-means draws from OpenCV's thread-global RNG: without a reset each
-    # segmentation starts where the last one left it, so a second build in one process (or a
-    # video build's keyframes) segments differently. Seed 0 is the RNG's fresh state
-    # (0xffffffff): a process's first segmentation is unchanged.
-    cv2.setRNGSeed(0)
-
-    k = min(1.0, work_size / max(H, W))
-    if k < 1.0:
-        size = (max(1, round(W * k)), max(1, round(H * k)))
-        img = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-        a = analysis.scaled(k)
-    else:
-        img, a = image, analysis
+    img, a, k = _working_copy(image, analysis, work_size)
     iod = a.eye_distance
     u, v = a.face_grid(img.shape[:2])
     reg = face_regions(u, v)
@@ -406,22 +416,9 @@ def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: 
     the skin and hair models and the hair's GrabCut, which it does not need (step 1 and the face
     core, upsampled as the labels are). For a caller that wants only the silhouette
     (`track.frame_hull`)."""
-    import cv2
-
-    image = np.asarray(image)
-    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
-        raise InputError(f"image must be (H, W, 3) uint8 RGB, got {image.dtype} {image.shape}")
+    image = _checked_image(image, analysis)
     H, W = image.shape[:2]
-    if tuple(analysis.image_size) != (W, H):
-        raise InputError(f"the analysis was made on a {analysis.image_size[0]}x{analysis.image_size[1]} image, "
-                         f"this one is {W}x{H}")
-    cv2.setRNGSeed(0)          # as segment_portrait: the same GrabCut
-    k = min(1.0, work_size / max(H, W))
-    if k < 1.0:
-        img = cv2.resize(image, (max(1, round(W * k)), max(1, round(H * k))), interpolation=cv2.INTER_AREA)
-        a = analysis.scaled(k)
-    else:
-        img, a = image, analysis
+    img, a, k = _working_copy(image, analysis, work_size)
     u, v = a.face_grid(img.shape[:2])
     reg = face_regions(u, v)
     person = _person(img, reg, iterations, a.eye_distance, True) | reg["face_core"]
