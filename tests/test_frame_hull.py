@@ -143,9 +143,9 @@ def test_the_stage_clears_on_both_avatars_only_when_asked(monkeypatch):
     cleared = np.array([False, True, False, True, False])
     asked = []
 
-    def fake(views):
+    def fake(views, allowed=None):
         asked.append(views)
-        return frame_hull.Carved(cleared.copy(), {"total": 2})
+        return frame_hull.Carved(cleared & (True if allowed is None else allowed), {"total": 2})
 
     monkeypatch.setattr(frame_hull, "carve_frames", fake)
     saved, built = avatar(), avatar()
@@ -153,8 +153,32 @@ def test_the_stage_clears_on_both_avatars_only_when_asked(monkeypatch):
     monkeypatch.setattr(frame_hull, "CARVE", False)
     assert fc._carve(saved, built, ["v"], None) is None and not asked
     monkeypatch.setattr(frame_hull, "CARVE", True)
+    monkeypatch.setattr(frame_hull, "BALD", True)
     out = fc._carve(saved, built, ["v"], None)
     assert asked == [["v"]] and out.info["total"] == 2
     for a in (saved, built):
         np.testing.assert_array_equal(a.bald.opacities, np.float32([0.99, 0.0, 0.99]))
         np.testing.assert_array_equal(a.hair.opacities, np.float32([0.0, 0.7]))
+
+
+def test_the_stage_clears_only_the_hair_by_default(monkeypatch):
+    """With `frame_hull.BALD` off (the default) the stage lets the vote clear hair only: the bald
+    head is one layer of discs, and a cleared outline disc is a hole a side view looks through."""
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track import frame_hull
+
+    got = []
+
+    def fake(views, allowed=None):
+        got.append(allowed)
+        return frame_hull.Carved(np.ones(5, bool) & (True if allowed is None else allowed), {})
+
+    monkeypatch.setattr(frame_hull, "carve_frames", fake)
+    monkeypatch.setattr(frame_hull, "CARVE", True)
+    assert frame_hull.BALD is False
+    saved = SimpleNamespace(bald=_plane(np.arange(3) * 0.01, np.array([0.0])),
+                            hair=_plane(np.arange(2) * 0.01, np.array([0.0]), opacity=0.7))
+    fc._carve(saved, saved, ["v"], None)
+    np.testing.assert_array_equal(got[0], [False, False, False, True, True])
+    np.testing.assert_array_equal(saved.bald.opacities, np.float32([0.99, 0.99, 0.99]))
+    np.testing.assert_array_equal(saved.hair.opacities, np.float32([0.0, 0.0]))

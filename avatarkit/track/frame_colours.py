@@ -37,10 +37,10 @@ session 17, or `fuse_frame_colours(refine=)`, which `avatarkit evaluate` passes;
 kept the selection to the regions above is gone: the stage then fuses every bald Gaussian and
 the hair (`stage_settings`) for `REGISTERED_ITERATIONS` rounds. Measured on the shared clips,
 each build tracked with itself as `evaluate --compare-single` now does by default (photometric-
-fast), with the frame hull: the video build leads the single-frame build by +0.93 dB (grey) /
-+1.25 dB (glasses) on the held-out frames (+0.73 / +1.17 without the hull; +0.06 / +0.72 with the
-stage and the tracking unregistered, the defaults before); with `--refine photometric` +1.00 /
-+1.28 (docs/video-build.md, sessions 15-17).
+fast), with the frame hull clearing hair: the video build leads the single-frame build by +0.87
+dB (grey) / +1.27 dB (glasses) on the held-out frames (+0.73 / +1.17 without the hull; +0.06 /
++0.72 with the stage and the tracking unregistered, the defaults before; docs/video-build.md,
+sessions 15-17).
 """
 from __future__ import annotations
 
@@ -405,13 +405,15 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 def _carve(saved, avatar, views, carve: bool | None):
     """`track.frame_hull.carve_frames` on the posed views when carve (None: `frame_hull.CARVE`):
     the cleared Gaussians' opacities set to 0 on both `saved` (what the views pose) and `avatar`
-    (what the stage returns). -> the `Carved`, or None when off."""
+    (what the stage returns); only the hair's unless `frame_hull.BALD`. -> the `Carved`, or None
+    when off."""
     from avatarkit.track import frame_hull
 
     if not (frame_hull.CARVE if carve is None else carve):
         return None
-    carved = frame_hull.carve_frames(views)
     nb = len(avatar.bald)
+    allowed = None if frame_hull.BALD else np.arange(nb + len(avatar.hair)) >= nb
+    carved = frame_hull.carve_frames(views, allowed=allowed)
     for a in (saved, avatar):
         a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
         if len(a.hair):

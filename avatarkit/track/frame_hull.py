@@ -40,6 +40,14 @@ import numpy as np
 #: and +0.44 / +0.43 dB with the default tracking; the synthetic talking avatar +2.40 / +1.42 dB,
 #: its render's mask brought from 34.9 % of the frame to 33.5 % (the true head's: 33.4-33.8 %)
 CARVE = True
+#: the bald set's Gaussians may be cleared too. Off: the bald head is one layer of discs on the
+#: head mesh, so clearing the discs on its outline (an ear, the side of the head a frontal frame
+#: sees edge-on over the wall) leaves a hole a side view looks through (the grey clip's default
+#: build showed one by the ear at the profile); the hair is a volume, and clearing its outer
+#: strands exposes hair or scalp. Only the hair is cleared (session 17, lead's review; default
+#: evaluate --compare-single: grey +0.87, glasses +1.27 dB over the single-frame build, against
+#: +0.93 / +1.25 with the bald discs cleared too; docs/video-build.md)
+BALD = False
 #: the person mask is dilated by this many pixels before the wall is taken (the segmentation's
 #: outline and the frames' registration are each good to about a pixel)
 MARGIN = 1
@@ -147,5 +155,5 @@ def carve_frames(views, margin: int = MARGIN, **kwargs) -> Carved:
     return carve(views, walls, **kwargs)
 
 
-__all__ = ["CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "ROUNDS", "SHARE",
+__all__ = ["BALD", "CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "ROUNDS", "SHARE",
            "carve", "carve_frames", "person_masks", "wall_image", "wall_votes"]
