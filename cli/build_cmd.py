@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from avatarkit.cli.options import quiet_option
+from avatarkit.cli.options import REFINE_NAMES, quiet_option
 
 _FILE = click.Path(dir_okay=False)
 
@@ -50,12 +50,24 @@ _FILE = click.Path(dir_okay=False)
               help="PORTRAIT is a video: learn from the tracked frames how the person's mouth opens "
               "beyond the head model's (a per-subject jaw corrective, saved with the avatar; off by "
               "default: on the shared clips' held-out frames it has not paid yet, docs/video-build.md).")
+@click.option("--frame-colours/--no-frame-colours", default=None,
+              help="PORTRAIT is a video whose head hardly turns (one keyframe, e.g. a talking head): "
+              "colour the head from 24 of its frames, each registered by rendering the avatar "
+              "(default on; about 50 s of a 250-frame clip's build; docs/video-build.md). "
+              "--no-frame-colours: the keyframe's colours only.")
+@click.option("--frame-refine", type=click.Choice(("none", *REFINE_NAMES)), default=None,
+              help="How the frame-colours stage registers its frames: refined by rendering the avatar "
+              "(default photometric-fast; the choices of `avatarkit evaluate --refine`), or none: the "
+              "landmark fit's poses.")
+@click.option("--frame-hull/--no-frame-hull", default=None,
+              help="With the frame-colours stage: clear the hair Gaussians those frames show over the "
+              "background (default on; docs/video-build.md).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
               face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
-              keyframes, register, jaw_corrective, preview, quiet):
+              keyframes, register, jaw_corrective, frame_colours, frame_refine, frame_hull, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
     a PORTRAIT video (MP4, MOV, MKV, AVI, WebM): by default from the whole video (tracked;
     keyframes covering the head's turns give the identity shape, colours and hair bounds;
@@ -81,6 +93,9 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
     options = BuildOptions(hair_mask=hair_mask, head_splats=head_splats, bald_splats=bald_splats,
                            head_model=head_model, flame_params=flame_params, face_index=face_index,
                            face_detector=face_detector, landmark_embedding=landmark_embedding, hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview)
+    if frame_colours is False and (frame_refine is not None or frame_hull is not None):
+        raise click.UsageError("--frame-refine and --frame-hull go with the frame-colours stage, "
+                               "not --no-frame-colours")
     options.check()
     check_avatar_target(output)  # refuse a bad output before the work
     t0 = time.perf_counter()
@@ -103,7 +118,9 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
             click.echo("tracking the video ...", err=True)
         try:
             avatar = build_video_avatar(portrait, options, keyframes=keyframes, progress=progress,
-                                        register=register, jaw_corrective=jaw_corrective)
+                                        register=register, jaw_corrective=jaw_corrective,
+                                        frame_colours=frame_colours, colour_refine=frame_refine,
+                                        frame_hull=frame_hull)
         except BaseException:
             if not quiet:
                 click.echo(" failed", err=True)

@@ -256,11 +256,12 @@ def test_plain_builds_register_the_stages_frames_with_photometric_fast():
 
 @pytest.mark.parametrize("stage, refine, expected, every", [
     (None, None, None, 1), ("photometric-fast", None, "photometric-fast", 5), (None, "photometric", "photometric", 3),
-    (None, "photometric-fast", "photometric-fast", 5), ("photometric-fast", "photometric-pose", "photometric-pose", 3)])
+    (None, "photometric-fast", "photometric-fast", 5), ("photometric-fast", "photometric-pose", "photometric-pose", 3),
+    ("photometric-fast", "none", None, 1)])
 def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, stage, refine, expected, every):
     """`fuse_frame_colours(refine=)` tracks the video with that refinement (None: the stage's
-    REFINE), every REFINE_EVERY-th frame or the setting's own sparser spacing (photometric-
-    fast's 5; none: the landmark fit's poses, every frame a fit)."""
+    REFINE; "none": the landmark fit's poses even while REFINE is set), every REFINE_EVERY-th
+    frame or the setting's own sparser spacing (photometric-fast's 5; none: every frame a fit)."""
     from contextlib import contextmanager
 
     import avatarkit.track.video as video

@@ -103,6 +103,19 @@ def test_a_head_that_never_turns_builds_the_single_frame_avatar(truth, tmp_path,
     for name, image in render_previews(a).items():
         saved = cv2.cvtColor(cv2.imread(str(tmp_path / "v" / name)), cv2.COLOR_BGR2RGB)
         assert (np.abs(saved.astype(int) - image.astype(int)).max(axis=2) > 3).mean() < 1e-3, name
+    assert "carved" in fused
+    # without the stage the video build of a head that never turns is the single-frame build
+    assert main(["build", str(tmp_path / "still.mp4"), "-o", str(tmp_path / "n"), "--no-frame-colours", *BUILD]) == 0
+    n = load_avatar(tmp_path / "n")
+    assert "frame_colours" not in read_manifest(tmp_path / "n")["provenance"]["build"]
+    np.testing.assert_array_equal(np.concatenate([n.bald.colors, n.hair.colors]), both_b)
+    np.testing.assert_array_equal(n.hair.opacities, b.hair.opacities)
+    # the stage's own switches reach it: the landmark fit's poses, no frame hull
+    assert main(["build", str(tmp_path / "still.mp4"), "-o", str(tmp_path / "h"), "--frame-refine", "none",
+                 "--no-frame-hull", *BUILD]) == 0
+    plain = read_manifest(tmp_path / "h")["provenance"]["build"]["frame_colours"]
+    assert plain["refine"] is None and plain["refine_every"] == 1 and "carved" not in plain
+    assert fused["refine"] == "photometric-fast"
 
 
 def test_a_video_without_a_face_is_bad_input(tmp_path, capsys):
@@ -133,6 +146,38 @@ def test_build_passes_its_switches_to_the_video_build(tmp_path, monkeypatch, fla
     write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
     main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
     assert seen[key] is expected and not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("flag, key, expected", [([], "frame_colours", None), (["--no-frame-colours"], "frame_colours", False),
+                                                  (["--frame-colours"], "frame_colours", True),
+                                                  ([], "frame_hull", None), (["--no-frame-hull"], "frame_hull", False),
+                                                  ([], "colour_refine", None),
+                                                  (["--frame-refine", "none"], "colour_refine", "none"),
+                                                  (["--frame-refine", "photometric"], "colour_refine", "photometric")])
+def test_build_passes_the_frame_colours_switches_to_the_video_build(tmp_path, monkeypatch, flag, key, expected):
+    """`build VIDEO`'s frame-colours stage switches reach `build_video_avatar`; left out they pass
+    None, so the library's defaults (`video_build.FRAME_COLOURS`, `frame_hull.CARVE`,
+    `frame_colours.REFINE`) decide."""
+    import avatarkit.track.video_build as video_build
+    from avatarkit.export.video import write_video
+
+    seen = {}
+
+    def fake(video, options, **kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(video_build, "build_video_avatar", fake)
+    write_video(tmp_path / "v.mp4", [np.full((32, 32, 3), 128, np.uint8)] * 2, fps=10)
+    main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "-q", *flag])
+    assert seen[key] == expected and type(seen[key]) is type(expected) and not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("flag", [["--frame-refine", "photometric"], ["--frame-hull"]])
+def test_frame_colours_options_without_the_stage_are_a_usage_error(tmp_path, capsys, flag):
+    code = main(["build", str(tmp_path / "v.mp4"), "-o", str(tmp_path / "a"), "--no-frame-colours", *flag])
+    err = capsys.readouterr().err
+    assert code == 2 and "--no-frame-colours" in err and "Traceback" not in err and not (tmp_path / "a").exists()
 
 
 def test_keyframes_must_be_positive(tmp_path, capsys):

@@ -239,6 +239,15 @@ class StageSettings:
     iterations: int
 
 
+def stage_refine(refine: str | None) -> str | None:
+    """The refinement the stage registers its frames with, from what a caller asked: None ->
+    `REFINE` (read when called); "none" -> None, the landmark fit's poses (`avatarkit build
+    --frame-refine none`: a caller has no other way to ask for them while `REFINE` is set)."""
+    if refine is None:
+        return REFINE
+    return None if refine == "none" else refine
+
+
 def stage_spacing(refine: str | None) -> int:
     """Every how many frames the stage's tracking refines with `refine`: REFINE_EVERY, or the
     setting's own spacing where that is sparser (`tracker.refine_spacing`: photometric-fast's
@@ -351,8 +360,9 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
     the frame the avatar was built from; outline: the outline's Gaussians are fused too;
     refine: the refinement that registers the fused frames (`TrackOptions.refine`; None:
-    `REFINE`, photometric-fast; the landmark fit's poses with `REFINE = None`), which sets what
-    is fused (`stage_settings`) and how often the stage's tracking refines (`stage_spacing`);
+    `REFINE`, photometric-fast; "none": the landmark fit's poses, as with `REFINE = None`),
+    which sets what is fused (`stage_settings`) and how often the stage's tracking refines
+    (`stage_spacing`);
     carve: first clear the Gaussians the frames show over the background (`track.frame_hull`;
     None: `frame_hull.CARVE`).
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
@@ -363,7 +373,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
     from avatarkit.track.tracker import TrackOptions
 
-    refine = REFINE if refine is None else refine
+    refine = stage_refine(refine)
     settings = stage_settings(refine)
     options = TrackOptions(refine=refine, refine_every=stage_spacing(refine))
     with tracked_with_built_avatar(avatar, video, tracking.meshes, options) as (folder, result):
@@ -423,5 +433,5 @@ def _carve(saved, avatar, views, carve: bool | None):
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
            "FUSE_ALL", "FUSE_HAIR", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
-           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_spacing", "frame_shows", "fuse_frame_colours",
+           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_refine", "stage_spacing", "frame_shows", "fuse_frame_colours",
            "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]

@@ -206,7 +206,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                        progress=None, track_progress: Callable[[int, int], None] | None = None,
                        tracking=None, colour_span: tuple[int, int] | None = None,
                        register: bool | None = None, jaw_corrective: bool | None = None,
-                       colour_refine: str | None = None):
+                       colour_refine: str | None = None, frame_colours: bool | None = None,
+                       frame_hull: bool | None = None):
     """The Avatar built from the whole video (module docstring). options: `BuildOptions`;
     keyframes: at most this many (default `track.keyframes.KEYFRAMES`); progress: the portrait
     build's stage callback; track_progress(done, total) per tracked frame; tracking: the
@@ -221,7 +222,11 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     `--no-jaw-corrective` passes False), from the frames in colour_span too; the provenance's
     `source_video.jaw_corrective` says what it learned. colour_refine: the refinement that
     registers the frame_colours stage's frames (`frame_colours.fuse_frame_colours(refine=)`;
-    None: `frame_colours.REFINE`; `avatarkit evaluate --refine` passes its own)."""
+    None: `frame_colours.REFINE`; "none": the landmark fit's poses; `avatarkit evaluate
+    --refine` passes its own, `avatarkit build --frame-refine` the user's). frame_colours: run
+    that stage where the video has one keyframe (None: `FRAME_COLOURS`; `--no-frame-colours`
+    passes False); frame_hull: the stage's frames clear the hair they show over the background
+    first (`fuse_frame_colours(carve=)`; None: `frame_hull.CARVE`; `--no-frame-hull`)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
@@ -332,7 +337,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             avatar.head_model = apply_jaw_corrective(avatar.head_model, learned.corrective)
         timings["jaw_corrective"] = time.perf_counter() - t0
         source["jaw_corrective"] = learned.figures
-    if FRAME_COLOURS and len(kf) == 1:
+    if (FRAME_COLOURS if frame_colours is None else frame_colours) and len(kf) == 1:
         # only when the head does not turn: with turned keyframes the views colour the sides, and
         # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
         # video's sides up to 0.21 dB (docs/video-build.md)
@@ -345,7 +350,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         t0 = time.perf_counter()
         if OPEN_MOUTH:
             avatar, source["open_mouth"] = _open_mouth(avatar, result, images[ref_frame], ref_frame)
-        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, refine=colour_refine)
+        avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, refine=colour_refine,
+                                           carve=frame_hull)
         timings["frame_colours"] = time.perf_counter() - t0
         if progress is not None:
             progress("frame_colours", last, last, timings["frame_colours"])
