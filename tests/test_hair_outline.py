@@ -155,3 +155,51 @@ def test_view_gaps_counts_the_uncovered_hair_band():
     # a point well inside the covered disc is on no outline
     on, push, _ = view_gaps(view, alpha, cam, right[None] * (5.0 * z / cam.fx), leaning)
     assert not on[0] and not push.any()
+
+
+def test_held_push_holds_only_the_views_own_side():
+    """`held_push` (`VETO` "direction"): a push along the holding view's ray passes whole; one
+    across it, toward the view's outline, is cut to the centre's distance to the outline less
+    `ON_OUTLINE`, plus `HOLD_TOLERANCE` (known answers in pixels)."""
+    from avatarkit.recon import hair_outline
+    from avatarkit.recon.hair_outline import held_push
+
+    cam = Camera.orbit(np.zeros(3), 0.0, 0.0, 1.0, 30.0, 96, 96)
+    right = np.asarray(cam.rotation, np.float64)[0]
+    toward = -np.asarray(cam.rotation, np.float64)[2]
+    p = np.zeros((3, 3))
+    px_per_m = cam.fx / 1.0
+    push = np.stack([0.01 * toward, right * (6.0 / px_per_m), -right * (6.0 / px_per_m)])
+    outward = np.array([[1.0, 0.0]] * 3)
+    slack = np.array([4.0, 4.0, 4.0])
+    f = held_push(push, p, cam, outward, slack)
+    allowed = 4.0 - hair_outline.ON_OUTLINE + hair_outline.HOLD_TOLERANCE
+    assert f[0] == 1.0                          # along the ray: the view cannot see it
+    assert abs(f[1] - allowed / 6.0) < 0.02     # toward the outline: cut to what is allowed
+    assert f[2] == 1.0                          # away from the outline: inward, free
+
+
+def test_direction_veto_lets_a_push_the_holding_view_cannot_see(scene, monkeypatch):
+    """The true cap's silhouette at +60 degrees, and a view at -30 (its rays across +60's)
+    labelled from the thin cap itself, which shows no gap anywhere. With `VETO` "band" the -30
+    view holds every Gaussian near its outline; with "direction" only the part of a push that
+    moves toward its outline, so more of the hair moves out, and the -30 view's outline still
+    does not grow (the pixels the fitted hair covers beyond the thin cap's render there)."""
+    from avatarkit.recon import hair_outline
+
+    sdf, bald, truth, thin, _ = scene
+    seen = _views(bald, truth, (60.0,))[0]
+    held = _views(bald, thin, (-30.0,))[0]
+    views = [View(seen.image, seen.camera, seen.labels, 1.0, 1, False),
+             View(held.image, held.camera, held.labels, 1.0, 2, False)]
+    out = {}
+    for mode in ("band", "direction"):
+        monkeypatch.setattr(hair_outline, "VETO", mode)
+        out[mode] = fit_outline(bald, thin, views, sdf)
+    assert out["direction"][1]["pushed"] > 1.2 * out["band"][1]["pushed"]      # measured: 170 against 126
+    before = render(GaussianSet.concat([bald, thin]), held.camera).alpha > 0.5
+    for mode in ("band", "direction"):
+        after = render(GaussianSet.concat([bald, out[mode][0]]), held.camera).alpha > 0.5
+        out[mode] = (out[mode][1]["pushed"], int((after & ~before).sum()))
+    # measured: 13 pixels against 0, of the 4,955 the thin render covers
+    assert out["direction"][1] <= out["band"][1] + 0.01 * before.sum()

@@ -27,6 +27,9 @@ A Gaussian on several keyframes' outlines takes the least of their pushes, and o
 bounds the hair from its side); only the Gaussians measured so move, at most `MAX_PUSH`, and a
 pushed centre must still project inside every such keyframe's person mask
 (`multiview.silhouette_outside`), else its push is halved (three times, then none).
+With `VETO` "direction" (off) a view with no gap holds only its own side: it cuts the part of a
+push that moves the centre toward its outline in its image (`held_push`), and lets a push along
+its rays pass.
 """
 from __future__ import annotations
 
@@ -52,9 +55,21 @@ MAX_GAP = 12
 #: turn-end frames' yaw is read 4-9 degrees short without the face being lost (so not the
 #: tracking's edge), 4 px let them cost the sample avatar 3.7 dB at -45 (8 px: 0.04)
 VETO_BAND = 8.0
+#: what a keyframe showing no gap near a Gaussian holds: "band" (any push of a Gaussian within
+#: `VETO_BAND` px of its outline) or "direction" (only the part of a push that moves the centre
+#: toward its outline in its image, `held_push`: a push along its rays, which it cannot see,
+#: passes). "band": with "direction" the mesh subject gains +0.08..+0.30 dB at every three-quarter
+#: and profile view (eased clip, seeds 0 / 1; whip), its crown no longer held by the frontal
+#: keyframes, but the sample avatar loses (eased -0.16 at -45; whip -0.12 / -0.30 at the
+#: profiles) and the held-out bob -0.06 / -0.14 at the profiles (docs/video-build.md, "The profile
+#: on the other subjects")
+VETO = "band"
 #: which way a Gaussian moves: "image" (across the view's ray, the image's outward direction)
 #: or "normal" (along the scalp's normal)
 DIRECTION = "image"
+#: pixels a holding keyframe lets a centre move toward its outline beyond the centre's own
+#: distance to it less `ON_OUTLINE` (`VETO` "direction")
+HOLD_TOLERANCE = 0.0
 #: the largest push, metres
 MAX_PUSH = 0.012
 #: a view moves a Gaussian outward by less than this many pixels per millimetre of push: the
@@ -63,13 +78,15 @@ MIN_PX_PER_MM = 0.1
 
 
 def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
-              normals: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              normals: np.ndarray, detail: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One keyframe's measurement (module docstring, steps 1-3) for hair centres points (N, 3)
     with scalp normals (N, 3) -> (on (N,) bool: measured by this view (on its outline, or
     within `VETO_BAND` of it with no gap), push (N, 3) metres (0 where the view shows no gap),
     beyond (N,) bool: on the outline with the centre's own pixel not the person's, the avatar
     standing beyond the silhouette there). alpha: (H, W) the avatar rendered by `camera` (the
-    view's camera at the render's size); the view's labels and image are resized to it."""
+    view's camera at the render's size); the view's labels and image are resized to it.
+    detail: a dict to fill with "outward" (N, 2) the image's outward unit direction and "slack"
+    (N,) the pixels from the centre to the render's outline (zero where not near it)."""
     import cv2
     from scipy import ndimage
 
@@ -148,7 +165,23 @@ def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
     # within the band but not on the outline: only a view showing no gap there counts (a veto)
     no_gap = np.zeros(n, bool)
     no_gap[idx] = (gap == 0) & can
+    if detail is not None:
+        detail["outward"] = np.zeros((n, 2))
+        detail["outward"][idx] = u
+        detail["slack"] = np.zeros(n)
+        detail["slack"][idx] = dist[yi[idx], xi[idx]]
     return on | (near & ~on & no_gap), push, beyond & on
+
+
+def held_push(push: np.ndarray, points: np.ndarray, camera, outward: np.ndarray, slack: np.ndarray) -> np.ndarray:
+    """(N,) the factor in [0, 1] that keeps each push (N, 3) metres of centres points (N, 3) from
+    moving them more than slack (N,) + `HOLD_TOLERANCE` pixels along outward (N, 2) in camera's
+    image (`VETO` "direction": a keyframe that shows no gap there holds its side only)."""
+    p0, _ = camera.project(points)
+    p1, _ = camera.project(points + push)
+    a = np.einsum("ij,ij->i", p1 - p0, outward)
+    allowed = np.maximum(slack - ON_OUTLINE, 0.0) + HOLD_TOLERANCE
+    return np.where(np.isfinite(a) & (a > allowed), allowed / np.maximum(a, 1e-9), 1.0)
 
 
 def fit_outline(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf,
@@ -172,29 +205,44 @@ def fit_outline(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf,
     best = np.zeros((len(means), 3))
     size = np.full(len(means), np.inf)
     count = np.zeros(len(means), np.int64)             # keyframes the Gaussian is measured in
+    holds = []                                         # VETO "direction": (camera, held, outward, slack)
     info["views"] = []
     for v in labelled:
         cam = _shrunk(v.camera)
         r = render(union, cam, background=(0.0, 0.0, 0.0))
-        on, push, beyond = view_gaps(v, r.alpha, cam, means, normals)
+        detail = {}
+        on, push, beyond = view_gaps(v, r.alpha, cam, means, normals, detail)
         norm = np.linalg.norm(push, axis=1)
+        measured_here = on
+        if VETO == "direction":
+            # a view with no gap there holds only its own side (`held_push`, below); the least
+            # push among the views that show a gap
+            held = on & (norm == 0)
+            holds.append((cam, held, detail["outward"], detail["slack"]))
+            on = on & ~held
         # the least push any view on whose outline the Gaussian lies asks for
         take = on & (norm < size)
         best[take], size[take] = push[take], norm[take]
         count += on
         gap = on & (norm > 0)
-        info["views"].append({"frame": v.frame, "on_outline": int(on.sum()), "with_gap": int(gap.sum()),
+        info["views"].append({"frame": v.frame, "on_outline": int(measured_here.sum()), "with_gap": int(gap.sum()),
                               "beyond": int(beyond.sum()),
                               "push_mm_p50": round(float(np.median(norm[gap])) * 1000, 2) if gap.any() else 0.0})
+    if VETO == "direction":
+        count += np.sum([h[1] for h in holds], axis=0).astype(np.int64) if holds else 0
     measured = count > 0
     info["measured"] = int(measured.sum())
     if not measured.any():
         return hair, info
     # only the measured move: the same push spread to their neighbours (6 mm) put hair beyond
     # the sample avatar's outline at -45 degrees, where no trusted keyframe looks (-0.6 dB)
-    push = np.where(measured[:, None], best, 0.0)
+    push = np.where(measured[:, None] & np.isfinite(size)[:, None], best, 0.0)
     norm = np.linalg.norm(push, axis=1)
     push *= (np.minimum(norm, MAX_PUSH) / np.maximum(norm, 1e-12))[:, None]
+    for cam, held, outward, slack in holds:
+        k = np.flatnonzero(held & (np.linalg.norm(push, axis=1) > 0))
+        if len(k):
+            push[k] *= held_push(push[k], means[k], cam, outward[k], slack[k])[:, None]
     # the visual hull: a pushed centre must stay inside every keyframe's person mask; the push
     # is halved up to three times until it does, else dropped (all four tried in one test)
     moved = np.flatnonzero(np.linalg.norm(push, axis=1) > 0)
@@ -212,5 +260,5 @@ def fit_outline(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf,
     return hair.replace(means=(means + push).astype(np.float32)), info
 
 
-__all__ = ["DIRECTION", "GAP_MARGIN", "HAIR_NEAR", "MAX_GAP", "MAX_PUSH", "ON_OUTLINE", "VETO_BAND", "fit_outline",
-           "view_gaps"]
+__all__ = ["DIRECTION", "GAP_MARGIN", "HAIR_NEAR", "HOLD_TOLERANCE", "MAX_GAP", "MAX_PUSH", "ON_OUTLINE", "VETO",
+           "VETO_BAND", "fit_outline", "held_push", "view_gaps"]

@@ -77,6 +77,9 @@ SEARCH_BEFORE, SEARCH_BEYOND = math.radians(5.0), math.radians(55.0)
 #: whole pose searched) or "aligned" (`register.register_aligned`: each render laid over the
 #: frame's silhouette by an image similarity first, so a first build of the wrong size or
 #: centre still matches; docs/video-build.md, session 10)
+#: Re-measured in session 18: "aligned" registers the held-out bob's -80 frame at -74 (plain -61)
+#: and gains it +0.58 dB at +90, but costs the sample avatar 0.16 at -45 / -90 and the mesh
+#: subject up to 0.09 (docs/video-build.md, "The profile on the other subjects")
 REGISTER_MODE = "plain"
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
 FIRST_BUILD_COUNTS = (8000, 4000)
@@ -95,7 +98,9 @@ FIRST_BUILD_COUNTS = (8000, 4000)
 #: held-out bob -0.14..+0.72 (two seeds); the whip -0.01..+0.20. "registered-all" also moves the
 #: whip's keyframes turned 30-40 degrees: its sample avatar lost 0.68 dB at +90 at seed 1 (its
 #: hair's labels flipped; docs/video-build.md, "Every stage sees the tracking's edge at its
-#: registered pose")
+#: registered pose"). Re-measured after session 17's fix of that flip (session 18): the eased
+#: clip builds the same (mesh subject within 0.04 dB), the whip's sample avatar +0.00..+0.14, its
+#: mesh subject -0.20 at -90 ("The profile on the other subjects")
 OUTLINE_POSES = "registered-edge"
 #: keyframes turned less than this (radians, the joint fit's yaw from the reference's) keep the
 #: joint fit's pose: nearer the front the landmarks read the yaw as well as the draft does (eased
