@@ -138,7 +138,13 @@ def bench_synthetic() -> None:
              "soft edges (blur 2)": dict(blur=2.0, noise=4),
              "JPEG, white wall": dict(blur=1.0, noise=0, background_rgb=(255, 255, 255)),
              "JPEG, light grey wall": dict(blur=1.5, noise=2, background_rgb=(245, 245, 245)),
-             "JPEG, black hair, black wall": dict(blur=1.0, noise=0, background_rgb=(20, 20, 20), hair_rgb=(35, 28, 25))}
+             "JPEG, black hair, black wall": dict(blur=1.0, noise=0, background_rgb=(20, 20, 20), hair_rgb=(35, 28, 25)),
+             # session 18: flat dark walls (a JPEG, a video codec or a render leaves them flat)
+             "JPEG, blonde, near-black wall": dict(blur=1.0, noise=0, background_rgb=(25, 23, 20),
+                                                   hair_rgb=(196, 164, 108)),
+             "JPEG, brown, dark grey wall": dict(blur=1.0, noise=0, background_rgb=(55, 55, 55)),
+             "JPEG, brown, near-black wall": dict(blur=1.0, noise=0, background_rgb=(25, 23, 20)),
+             "dark hair, near-black wall": dict(blur=1.0, noise=4, background_rgb=(25, 23, 20), hair_rgb=(35, 28, 25))}
     for name, kw in cases.items():
         sp = synthetic_portrait(**kw)
         a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)

@@ -214,3 +214,59 @@ def test_segment_person_is_the_portraits_person(work_size):
     assert person.shape == full.shape and person.dtype == bool
     assert (person != full).mean() < 0.002
     assert iou(person, sp.labels != BACKGROUND) > 0.95
+
+
+@pytest.mark.parametrize("kw", [
+    dict(blur=1.0, noise=0, background_rgb=(25, 23, 20), hair_rgb=(196, 164, 108)),  # blonde, near-black wall
+    dict(blur=1.0, noise=0, background_rgb=(55, 55, 55)),                            # brown, dark grey wall
+    dict(blur=1.0, noise=0, background_rgb=(20, 20, 20), hair_rgb=(35, 28, 25)),     # black hair, black wall
+], ids=["blonde-near-black", "brown-dark-grey", "black-on-black"])
+def test_dark_plain_background_leaves_no_halo(kw):
+    # A flat dark wall (JPEG, a video codec, a render) gave GrabCut's background model a
+    # zero-spread component: 7.7-9 px of wall stayed in the person (hair IoU 0.49-0.53 where
+    # the hair is dark) while its dark flat pixels were not re-noised. The black-on-black case
+    # is also the notch guard: re-noising the wall's colour must not cost the dark hair.
+    sp = synthetic_portrait(**kw)
+    a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
+    seg = segment_portrait(jpeg(sp.image), a)
+    truth = sp.labels != BACKGROUND
+    out, far, lost = outline_offsets(seg.person, truth)
+    assert out < 0.3 and far <= 10, (out, far)
+    assert lost < 0.5, lost
+    assert iou(seg.hair, sp.labels == HAIR) > 0.93
+    assert iou(seg.skin, sp.labels == SKIN) > 0.95
+
+
+def test_wall_colours_match_the_reference():
+    from avatarkit.recon.segment import _flat_pixels, _wall_coloured, _wall_coloured_reference
+
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (60, 70, 3)).astype(np.uint8)
+    img[:20] = (21, 22, 23)                          # a flat wall...
+    img[20:30, :35] = (27, 20, 23)                   # ...and flat patches of nearby and far colours
+    img[20:30, 35:] = (90, 20, 23)
+    img[40:50, 10:30] = rng.integers(15, 30, (10, 20, 3))
+    img[5:8, 60:63] = (200, 10, 10)                  # one stray flat pixel on the wall...
+    img[52:58, 40:60] = (200, 10, 10)                # ...is not enough to make its colour the wall's
+    wall = np.zeros(img.shape[:2], bool)
+    wall[:15] = True
+    flat = _flat_pixels(img)
+    got = _wall_coloured(img, flat, wall)
+    want = _wall_coloured_reference(img, flat, wall)
+    assert (got == want).all()
+    assert got[:5].all() and got[22:28, 2:33].all() and not got[22:28, 37:68].any()
+    assert not got[6, 61] and not got[52:58, 40:60].any()
+    assert not _wall_coloured(img, flat, np.zeros_like(wall)).any()
+
+
+def test_light_wall_is_renoised_as_before():
+    """The dark-wall rule adds nothing where the wall is light: the dark flat pixels of a light
+    portrait (flat dark hair) are not the wall's colour and keep their values."""
+    from avatarkit.recon import segment as S
+
+    sp = synthetic_portrait(blur=1.0, noise=0, background_rgb=(245, 245, 245), hair_rgb=(35, 28, 25))
+    img = jpeg(sp.image)
+    wall = sp.labels == BACKGROUND
+    flat_dark_hair = S._flat_pixels(img) & (sp.labels == HAIR)
+    assert flat_dark_hair.sum() > 100
+    assert (S._renoise_flat(img, wall) == S._renoise_flat(img)).all()

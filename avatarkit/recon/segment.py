@@ -4,12 +4,13 @@ Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular
 1. person vs background: `cv2.grabCut` seeded from the face: the face core and neck are sure
    person, a head ellipse (room for hair) and a widening torso below the chin probable person,
    far left/right of the head sure background, the rest probable background. GrabCut sees the
-   image with camera-size noise put back into its flat pixels (`_renoise_flat`: a clipped or
-   JPEG-flattened wall otherwise gives its background model a zero-spread component, and the
-   wall's pixels near the person join the person); then the outline's band (0.1 IOD) is
+   image with camera-size noise put back into its flat pixels, the light ones and those of
+   the wall's own colours when dark (`_renoise_flat`: a clipped, JPEG- or codec-flattened
+   wall otherwise gives its background model a zero-spread component, and the wall's pixels
+   near the person join the person); then the outline's band (0.1 IOD) is
    peeled from the outside where a pixel is mostly wall by a local colour mix
    (`recon.boundary`). Without the two, a plain light wall left a 1.5-10 px halo in the
-   person, which became the hair label;
+   person, which became the hair label (a flat dark wall 8-9 px until session 18);
 2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
    eyes, above the mouth), outliers (nostrils, shadows) trimmed;
 3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
@@ -219,32 +220,96 @@ def _drop_small(mask: np.ndarray, max_size: int) -> np.ndarray:
 
 #: sigma (0-255 levels) of the noise put back into flat pixels for GrabCut
 FLAT_NOISE = 3.0
-#: only flat pixels with every channel at least this light get it (see `_renoise_flat`)
+#: flat pixels with every channel at least this light get it (see `_renoise_flat`)...
 FLAT_LIGHT = 128
+#: ...and, when this is on, darker flat pixels of the wall's dark colours (`_wall_coloured`)
+RENOISE_DARK_WALL = True
+#: bin width (levels per channel) of the wall-colour table: a colour is the wall's when its
+#: bin is one of, or next to one of, the bins of the wall zone's flat pixels...
+WALL_BIN = 4
+#: ...that hold at least this share of the wall zone's pixels (a few stray flat pixels on a
+#: light wall are no flat dark wall)
+WALL_MIN_SHARE = 0.002
 
 
-def _renoise_flat(img: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8: `img` with a fixed pattern of Gaussian noise (`FLAT_NOISE`) added to
-    its light flat pixels, those whose 3x3 neighbourhood holds one colour with every channel
-    at least `FLAT_LIGHT`.
+def _colour_bins(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 -> (H, W) int: each pixel's colour bin (`WALL_BIN` levels a side)."""
+    n = 256 // WALL_BIN
+    q = (img // WALL_BIN).astype(np.intp)
+    return (q[..., 0] * n + q[..., 1]) * n + q[..., 2]
 
-    A camera's noise never leaves a pixel's neighbourhood exactly one colour; clipping (a
-    blown-out white wall), JPEG's quantisation of a plain wall (it drops the noise) and
-    synthetic renders do. Such a wall gives GrabCut's background mixture a component of almost
-    no spread (OpenCV adds only 0.01 to its diagonal), under which the wall's own pixels a few
-    levels off (JPEG ringing and 8x8 blocks near the person, chroma subsampling, the edge's
-    mixed pixels) are far less likely than under the person's broad components: GrabCut then
-    kept most of the probable-person zone (head ellipse, torso) of wall as person. Noise in
-    the flat pixels gives the component a camera's spread and leaves every other pixel as it
-    was (noise everywhere made dark hair on a dark wall fall to the background). Dark flat
-    pixels keep their values: with them re-noised, the sample composited onto black lost an
-    8 px notch of dark hair to the wall (dark strands on a black wall are GrabCut's own
-    ambiguity), and the halo this step is for is a light wall's."""
+
+def _wall_coloured(img: np.ndarray, flat: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels whose colour bin is, or touches (26-neighbourhood), a bin that
+    holds at least `WALL_MIN_SHARE` of the `wall` zone's pixels (the zone GrabCut starts as
+    background) as `flat` pixels. A 64^3 table of bins, dilated once;
+    `_wall_coloured_reference` is the rule pixel by pixel."""
+    from scipy import ndimage
+
+    n = 256 // WALL_BIN
+    key = _colour_bins(img)
+    counts = np.bincount(key[flat & wall], minlength=n**3)
+    table = counts >= max(1.0, WALL_MIN_SHARE * wall.sum())
+    if not table.any():
+        return np.zeros(img.shape[:2], bool)
+    table = ndimage.binary_dilation(table.reshape(n, n, n), np.ones((3, 3, 3), bool)).ravel()
+    return table[key]
+
+
+def _wall_coloured_reference(img: np.ndarray, flat: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    """`_wall_coloured` the obvious way: every pixel's bin against every wall bin with enough
+    flat wall pixels (Chebyshev distance in bins at most 1)."""
+    q = np.asarray(img, np.intp) // WALL_BIN
+    bins, counts = np.unique(q[flat & wall], axis=0, return_counts=True)  # (K, 3), (K,)
+    out = np.zeros(img.shape[:2], bool)
+    for b, c in zip(bins, counts):
+        if c >= max(1.0, WALL_MIN_SHARE * wall.sum()):
+            out |= np.abs(q - b).max(axis=2) <= 1
+    return out
+
+
+def _flat_pixels(img: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose 3x3 neighbourhood holds one colour."""
     import cv2
 
     k = np.ones((3, 3), np.uint8)
-    flat = (cv2.dilate(img, k) - cv2.erode(img, k)).max(axis=2) == 0
-    flat &= img.min(axis=2) >= FLAT_LIGHT
+    return (cv2.dilate(img, k) - cv2.erode(img, k)).max(axis=2) == 0
+
+
+def _renoise_flat(img: np.ndarray, wall: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) uint8: `img` with a fixed pattern of Gaussian noise (`FLAT_NOISE`) added to
+    its flat pixels (3x3 neighbourhood of one colour) that are light (every channel at least
+    `FLAT_LIGHT`) or, given the `wall` zone (H, W) bool and with `RENOISE_DARK_WALL` on, of
+    a colour the wall's dark flat pixels have (`_wall_coloured`).
+
+    A camera's noise never leaves a pixel's neighbourhood exactly one colour; clipping (a
+    blown-out white wall), JPEG's quantisation of a plain wall (it drops the noise), video
+    codecs and synthetic renders do. Such a wall gives GrabCut's background mixture a component
+    of almost no spread (OpenCV adds only 0.01 to its diagonal), under which the wall's own
+    pixels a few levels off (JPEG ringing and 8x8 blocks near the person, chroma subsampling,
+    the edge's mixed pixels) are far less likely than under the person's broad components:
+    GrabCut then kept most of the probable-person zone (head ellipse, torso) of wall as
+    person. Noise in the flat pixels gives the component a camera's spread and leaves every
+    other pixel as it was (noise everywhere made dark hair on a dark wall fall to the
+    background).
+
+    Dark flat pixels: session 8 left them alone (re-noised, the sample composited onto black
+    once lost an 8 px notch of dark hair), so a flat dark wall kept its halo: 8-9 px of wall
+    in the person on a JPEG near-black or dark grey wall, and on a dark video frame the halo
+    became the hair label while the real (blonde) hair became skin. Now the dark ones are
+    re-noised where their colour is the wall's: all of the wall's flat pixels, the ones
+    inside the probable-person zones too (re-noising only the wall zone left the flat wall
+    inside the head ellipse to the person's mixture as a zero-spread component of its own,
+    and GrabCut took the whole frame as person), and no dark flat pixel of another colour (a
+    black jumper, flat dark hair on a light wall keep their values, so light walls are
+    segmented as before)."""
+    flat = _flat_pixels(img)
+    pick = img.min(axis=2) >= FLAT_LIGHT
+    if wall is not None and RENOISE_DARK_WALL:
+        # the table from the dark flat pixels only: a light wall near FLAT_LIGHT (the grey
+        # clip's) must not pull its few darker flat pixels in
+        pick |= _wall_coloured(img, flat & ~pick, wall)
+    flat &= pick
     if not flat.any():
         return img
     noise = np.random.default_rng(0).normal(0.0, FLAT_NOISE, img.shape)
@@ -266,7 +331,8 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
     bg_share = np.isin(gc, (cv2.GC_BGD, cv2.GC_PR_BGD)).mean()
     if bg_share < 0.02:  # the head fills the picture: nothing to learn a background from
         return np.ones(img.shape[:2], bool)
-    person = _grabcut(_renoise_flat(img) if boundary else img, gc, iterations)
+    wall = ~(reg["head_zone"] | reg["torso"])
+    person = _grabcut(_renoise_flat(img, wall) if boundary else img, gc, iterations)
     person = _keep_touching(person, sure) | sure
     person = ndimage.binary_fill_holes(person)
     if not boundary:
