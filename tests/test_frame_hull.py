@@ -182,3 +182,129 @@ def test_the_stage_clears_only_the_hair_by_default(monkeypatch):
     np.testing.assert_array_equal(got[0], [False, False, False, True, True])
     np.testing.assert_array_equal(saved.bald.opacities, np.float32([0.99, 0.99, 0.99]))
     np.testing.assert_array_equal(saved.hair.opacities, np.float32([0.0, 0.0]))
+
+
+def _sphere(n=400, radius=0.05):
+    """(n, 3) points on a sphere at the origin (a Fibonacci lattice) and discs on them facing out."""
+    from avatarkit.rotations import matrix_to_quat
+
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5 ** 0.5) * i
+    r = np.sqrt(1 - z * z)
+    normal = np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+    # a frame whose third axis is the normal (the disc's thin axis)
+    a = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    u = np.cross(normal, a)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    rot = np.stack([u, np.cross(normal, u), normal], 2)
+    q = matrix_to_quat(rot)
+    return radius * normal, normal, q
+
+
+def test_recede_moves_the_outline_discs_inward_and_leaves_the_front():
+    """A sphere of discs seen head on by four frames whose person is a disc a little smaller
+    than the sphere's outline: the discs on the rim (their footprint over the wall) move inward
+    along their normal, a step a round; the discs facing the camera (inside the person) stay;
+    no disc is cleared (opacities kept), and the rendered outline comes inside the person."""
+    from avatarkit.render import render
+    from avatarkit.track.frame_hull import recede
+
+    centres, normal, q = _sphere()
+    cam = _camera()
+    n = len(centres)
+
+    def sphere_set(offsets):
+        return GaussianSet(centres + offsets, q, np.tile([0.008, 0.008, 0.0008], (n, 1)), np.full(n, 0.99),
+                           rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+
+    full = render(sphere_set(np.zeros((n, 3))), cam, np.ones(3)).alpha > 0.5
+    ys, xs = np.nonzero(full)
+    cy, cx = ys.mean(), xs.mean()
+    radius_px = np.sqrt(full.sum() / np.pi)
+    yy, xx = np.mgrid[:SIZE, :SIZE]
+    person = (yy - cy) ** 2 + (xx - cx) ** 2 <= (radius_px - 3) ** 2
+    wall = wall_image(person, margin=1)
+    poses = []
+
+    def pose(offsets):
+        poses.append(offsets.copy())
+        return [_view(sphere_set(offsets), cam)] * 4
+
+    out = recede(pose, [wall] * 4, -normal, np.ones(n, bool), step=0.004, rounds=3)
+    assert out.moved.any() and out.info["total"] == int(out.moved.sum())
+    depth = np.linalg.norm(out.offsets, axis=1)
+    # moved along the inward normal only, whole steps, at most `rounds` of them
+    np.testing.assert_allclose(out.offsets[out.moved], -normal[out.moved] * depth[out.moved, None], atol=1e-12)
+    steps = depth / 0.004
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+    assert np.round(steps).max() <= 3 and not depth[~out.moved].any()
+    # the discs that face the camera (the middle of the view) stay, the rim's move
+    facing = normal[:, 2]
+    assert not out.moved[facing > 0.8].any()
+    assert out.moved[(np.abs(facing) < 0.2)].mean() > 0.5
+    # each round posed the moves so far
+    assert len(poses) == len(out.info["moved"]) >= 2 and not poses[0].any() and all(p.any() for p in poses[1:])
+    after = render(sphere_set(out.offsets), cam, np.ones(3)).alpha > 0.5
+    assert (after & ~person).sum() < (full & ~person).sum() / 2
+    # only the movable move
+    keep = np.abs(facing) < 0.2
+    frozen = recede(pose, [wall] * 4, -normal, ~keep, step=0.004, rounds=3)
+    assert not frozen.moved[keep].any()
+
+
+def test_inward_normals_point_into_the_mesh_whatever_its_winding():
+    """A tetrahedron's face normals, wound outward or inward, come back pointing at its inside."""
+    from avatarkit.track.frame_hull import inward_normals
+
+    v = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    f = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    for faces in (f, f[:, ::-1]):
+        n = inward_normals(v, faces, np.arange(4))
+        centres = v[faces].mean(axis=1)
+        assert (np.einsum("fk,fk->f", n, -centres) > 0).all()
+        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+
+
+def test_the_stage_recedes_on_both_avatars_only_when_asked(monkeypatch):
+    """`frame_colours._recede`: off (RECEDE off, or the hull did not run) nothing moves; on,
+    `recede`'s offsets move the bald discs of the avatar the views pose (its cached binding
+    dropped, so posing sees them) and of the one the stage returns; the hair stays."""
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track import frame_hull
+
+    v = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    f = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+
+    def avatar():
+        bald = _plane(np.arange(3) * 0.01, np.array([0.0]))
+        bald = bald.replace(extras={"binding": np.array([0, 1, 3], np.int32)})
+        a = SimpleNamespace(bald=bald, hair=_plane(np.arange(2) * 0.01, np.array([0.0]), opacity=0.7),
+                            rest_head_vertices=v, head_model=SimpleNamespace(faces=f))
+        a.binding = "stale"
+        return a
+
+    offsets = np.array([[0.0, 0, 0], [0.001, 0.002, 0], [0, 0, -0.003]])
+    got = {}
+
+    def fake(pose, walls, normals, movable, **kw):
+        got.update(walls=walls, normals=normals, movable=movable, posed=pose(offsets))
+        return frame_hull.Receded(offsets, np.array([False, True, True]), {"total": 2})
+
+    monkeypatch.setattr(frame_hull, "recede", fake)
+    carved = frame_hull.Carved(np.zeros(5, bool), {}, walls=["w"])
+    saved, built = avatar(), avatar()
+    before = saved.bald.means.copy()
+    monkeypatch.setattr(frame_hull, "RECEDE", False)
+    assert fc._recede(saved, built, carved, lambda: "views") is None and not got
+    monkeypatch.setattr(frame_hull, "RECEDE", True)
+    assert fc._recede(saved, built, None, lambda: "views") is None and not got
+    seen = []
+    out = fc._recede(saved, built, carved, lambda: seen.append(saved.bald.means.copy()) or "views")
+    assert out.info["total"] == 2 and got["walls"] == ["w"] and got["posed"] == "views"
+    np.testing.assert_allclose(seen[0], before + offsets, atol=1e-7)
+    np.testing.assert_allclose(got["normals"], frame_hull.inward_normals(v, f, [0, 1, 3]))
+    for a in (saved, built):
+        np.testing.assert_allclose(a.bald.means, before + offsets, atol=1e-7)
+        assert "binding" not in a.__dict__
+        np.testing.assert_array_equal(a.hair.means, avatar().hair.means)

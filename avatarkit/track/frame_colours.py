@@ -382,7 +382,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     images = read_frames(video, np.asarray(result.frame_index)[rows])
     views = posed_frames(saved, result, rows, images)
     carved = _carve(saved, avatar, views, carve)
-    if carved is not None and carved.cleared.any():
+    receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images))
+    if (carved is not None and carved.cleared.any()) or (receded is not None and receded.moved.any()):
         views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
     if outline:
@@ -399,6 +400,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
             "iterations": settings.iterations}
     if carved is not None:
         info["carved"] = carved.info
+    if receded is not None:
+        info["receded"] = receded.info
     return avatar, info
 
 
@@ -419,6 +422,37 @@ def _carve(saved, avatar, views, carve: bool | None):
         if len(a.hair):
             a.hair = a.hair.replace(opacities=np.where(carved.cleared[nb:], 0.0, a.hair.opacities).astype(np.float32))
     return carved
+
+
+def _set_bald_means(avatar, means: np.ndarray) -> None:
+    """The avatar's bald Gaussians moved to means (N, 3) in the rest pose; its cached triangle
+    binding (what posing reads) is dropped so the next pose sees them."""
+    avatar.bald = avatar.bald.replace(means=np.asarray(means, np.float32))
+    avatar.__dict__.pop("binding", None)
+
+
+def _recede(saved, avatar, carved, pose_views):
+    """`track.frame_hull.recede` on the bald discs when `frame_hull.RECEDE` and the frame hull
+    ran (`carved`, whose walls it votes with): pose_views() poses `saved` at the stage's frames;
+    the moves are applied to both `saved` and `avatar`. -> the `Receded`, or None when off."""
+    from avatarkit.track import frame_hull
+
+    if carved is None or carved.walls is None or not frame_hull.RECEDE:
+        return None
+    nb = len(saved.bald)
+    normals = frame_hull.inward_normals(saved.rest_head_vertices, saved.head_model.faces,
+                                        saved.bald.extras["binding"])
+    rest = np.asarray(saved.bald.means, np.float64)
+    mine = np.asarray(avatar.bald.means, np.float64)
+
+    def pose(offsets):
+        _set_bald_means(saved, rest + offsets)
+        return pose_views()
+
+    receded = frame_hull.recede(pose, carved.walls, normals, np.ones(nb, bool))
+    _set_bald_means(saved, rest + receded.offsets)
+    _set_bald_means(avatar, mine + receded.offsets)
+    return receded
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",

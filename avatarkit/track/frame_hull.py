@@ -48,6 +48,16 @@ CARVE = True
 #: evaluate --compare-single: grey +0.87, glasses +1.27 dB over the single-frame build, against
 #: +0.93 / +1.25 with the bald discs cleared too; docs/video-build.md)
 BALD = False
+#: the bald set's discs the colour frames show over the wall are moved inward instead (`recede`):
+#: along their host triangle's inward normal, `STEP` metres a round, `RECEDE_ROUNDS` rounds at
+#: most, each round voting as `carve` does on the frames posed with the moves so far. The head
+#: stays one closed layer (a side view sees the moved discs face on, a few millimetres deeper)
+#: while its outline in the frames comes inside the person
+RECEDE = False
+#: metres a voted bald disc moves inward per round (about a pixel of a 480 px talking-head frame)
+STEP = 0.001
+#: rounds of `recede` (at most RECEDE_ROUNDS x STEP metres inward)
+RECEDE_ROUNDS = 3
 #: the person mask is dilated by this many pixels before the wall is taken (the segmentation's
 #: outline and the frames' registration are each good to about a pixel)
 MARGIN = 1
@@ -71,6 +81,8 @@ class Carved:
 
     cleared: np.ndarray
     info: dict = field(default_factory=dict)
+    #: per view the wall image that voted (None: that frame did not), when `carve_frames` made them
+    walls: list | None = None
 
 
 def wall_image(person: np.ndarray, margin: int = MARGIN) -> np.ndarray:
@@ -111,23 +123,83 @@ def carve(views, walls: list, rounds: int = ROUNDS, share: float = SHARE, quorum
     per_round = []
     voting = sum(w is not None for w in walls)
     for _ in range(rounds):
-        seen = np.zeros(n)
-        out = np.zeros(n)
-        for v, wall in zip(views, walls):
-            if wall is None:
-                continue
-            g = v.gaussians
-            if cleared.any():
-                g = g.replace(opacities=np.where(cleared, 0.0, g.opacities).astype(np.float32))
-            shows, outside = wall_votes(g, v.camera, wall, share)
-            seen += shows
-            out += outside
+        seen, out = _tally(views, walls, cleared, share)
         new = allowed & ~cleared & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
         per_round.append(int(new.sum()))
         if not new.any():
             break
         cleared |= new
     return Carved(cleared, {"frames": int(voting), "cleared": per_round, "total": int(cleared.sum())})
+
+
+def _tally(views, walls: list, cleared: np.ndarray | None, share: float) -> tuple[np.ndarray, np.ndarray]:
+    """Over the views whose wall is not None: (seen (N,): frames the Gaussian shows in, out (N,):
+    frames that vote it outside), the `cleared` (N,) bool Gaussians drawn with opacity 0."""
+    n = len(views[0].gaussians) if views else 0
+    seen = np.zeros(n)
+    out = np.zeros(n)
+    for v, wall in zip(views, walls):
+        if wall is None:
+            continue
+        g = v.gaussians
+        if cleared is not None and cleared.any():
+            g = g.replace(opacities=np.where(cleared, 0.0, g.opacities).astype(np.float32))
+        shows, outside = wall_votes(g, v.camera, wall, share)
+        seen += shows
+        out += outside
+    return seen, out
+
+
+@dataclass
+class Receded:
+    """offsets (M, 3) float64: each movable Gaussian's move in the rest pose (metres; 0 for the
+    unmoved); moved (M,) bool; info: JSON-able figures (per round the count moved)."""
+
+    offsets: np.ndarray
+    moved: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray) -> np.ndarray:
+    """(M, 3) float64 unit normals of the host triangles `faces[face_ids]` of the mesh
+    `vertices` (V, 3), turned to point into the mesh: the side the mesh's area-weighted normals
+    point away from its centroid is out (one sign for the whole mesh, whatever its winding)."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    tri = v[f]                                                   # (F, 3, 3)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])   # (F, 3), |.| = 2 area
+    outward = np.einsum("fk,fk->", cross, tri.mean(axis=1) - v.mean(axis=0)) >= 0
+    n = cross[np.asarray(face_ids, np.int64)]
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    return -n if outward else n
+
+
+def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float = STEP,
+           rounds: int = RECEDE_ROUNDS, share: float = SHARE, quorum: float = QUORUM,
+           min_frames: int = MIN_FRAMES) -> Receded:
+    """The movable Gaussians the frames show over the wall moved inward (module docstring):
+    pose(offsets (M, 3)) -> the views (as `carve`'s, their first M Gaussians the movable set's
+    M, moved by `offsets` in the rest pose); walls: per view an (H, W) int32 `wall_image` or
+    None; normals (M, 3): unit directions to move along (`inward_normals`); movable (M,) bool.
+    Each round the views are posed with the moves so far and vote as in `carve`; a Gaussian
+    voted outside moves `step` further along its normal."""
+    normals = np.asarray(normals, np.float64)
+    m = len(normals)
+    movable = np.asarray(movable, bool).reshape(m)
+    offsets = np.zeros((m, 3))
+    moved = np.zeros(m, bool)
+    per_round = []
+    for _ in range(rounds):
+        seen, out = _tally(pose(offsets), walls, None, share)
+        seen, out = seen[:m], out[:m]
+        new = movable & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
+        per_round.append(int(new.sum()))
+        if not new.any():
+            break
+        offsets[new] += step * normals[new]
+        moved |= new
+    return Receded(offsets, moved, {"moved": per_round, "total": int(moved.sum()),
+                                    "deepest": float(np.linalg.norm(offsets, axis=1).max(initial=0.0))})
 
 
 def person_masks(images: list) -> list:
@@ -152,8 +224,11 @@ def carve_frames(views, margin: int = MARGIN, **kwargs) -> Carved:
     """`carve` with each view's wall from its own image's segmentation (`person_masks`)."""
     masks = person_masks([v.image for v in views])
     walls = [None if m is None else wall_image(m, margin) for m in masks]
-    return carve(views, walls, **kwargs)
+    out = carve(views, walls, **kwargs)
+    out.walls = walls
+    return out
 
 
-__all__ = ["BALD", "CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "ROUNDS", "SHARE",
-           "carve", "carve_frames", "person_masks", "wall_image", "wall_votes"]
+__all__ = ["BALD", "CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "RECEDE", "RECEDE_ROUNDS",
+           "ROUNDS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "person_masks", "recede",
+           "wall_image", "wall_votes"]
