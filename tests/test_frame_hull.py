@@ -308,3 +308,126 @@ def test_the_stage_recedes_on_both_avatars_only_when_asked(monkeypatch):
         np.testing.assert_allclose(a.bald.means, before + offsets, atol=1e-7)
         assert "binding" not in a.__dict__
         np.testing.assert_array_equal(a.hair.means, avatar().hair.means)
+
+
+def test_the_other_gaussians_recede_from_their_own_walls():
+    """`recede(other=, other_walls=)`: the sphere's frames show it whole as the person, so no
+    disc moves by `walls`; the discs marked other vote with a smaller person (their wall, as
+    the neck's is the clothes too) and only the rim's of them move."""
+    from avatarkit.track.frame_hull import recede
+
+    centres, normal, q = _sphere()
+    cam = _camera()
+    n = len(centres)
+
+    def pose(offsets):
+        g = GaussianSet(centres + offsets, q, np.tile([0.008, 0.008, 0.0008], (n, 1)), np.full(n, 0.99),
+                        rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+        return [_view(g, cam)] * 3
+
+    everyone = wall_image(np.ones((SIZE, SIZE), bool))
+    yy, xx = np.mgrid[:SIZE, :SIZE]
+    small = wall_image((yy - SIZE / 2) ** 2 + (xx - SIZE / 2) ** 2 <= 8 ** 2)
+    assert not recede(pose, [everyone] * 3, -normal, np.ones(n, bool)).moved.any()
+    left = centres[:, 0] < 0
+    out = recede(pose, [everyone] * 3, -normal, np.ones(n, bool), other_walls=[small] * 3, other=left)
+    assert out.moved.any() and not out.moved[~left].any()
+    rim = np.abs(normal[:, 2]) < 0.3
+    assert out.moved[left & rim].mean() > 0.5
+
+
+def test_the_necks_wall_is_all_but_skin_and_hair():
+    """`neck_walls`: background and body (clothes) are wall, skin and hair (dilated by the
+    margin) are not; a frame without labels gives None."""
+    from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, SKIN
+    from avatarkit.track.frame_hull import neck_walls
+
+    lab = np.full((8, 12), BACKGROUND, np.uint8)
+    lab[:, 3:6] = SKIN
+    lab[:2, 6:9] = HAIR
+    lab[4:, 6:] = BODY
+    wall, none = neck_walls([lab, None], margin=0)
+    assert none is None
+    np.testing.assert_array_equal(wall, ~np.isin(lab, (SKIN, HAIR)))
+    grown = neck_walls([lab], margin=1)[0]
+    assert not grown[:, 2:7].any() and grown[4:, 8:].all() and grown[:, 0].all()
+
+
+def test_the_stage_recedes_the_regions_asked_and_the_neck_from_the_clothes(monkeypatch):
+    """`frame_colours._recede` hands `recede` the discs of `RECEDE_REGIONS` as movable (None:
+    all), and with `CLOTHES_NECK` the neck's discs as `other` with walls made of the frames'
+    labels (`neck_walls`: the clothes are wall for them); without labels, no other walls."""
+    from avatarkit.recon.segment import BODY, SKIN
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track import frame_hull
+
+    v = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    f = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+    neck = np.array([False, True, False, True])          # vertices: faces 1 (0, 3, 1) and 3 (1, 3, 2) hold two
+
+    def avatar():
+        bald = _plane(np.arange(3) * 0.01, np.array([0.0])).replace(extras={"binding": np.array([0, 1, 3], np.int32)})
+        model = SimpleNamespace(faces=f, regions={"neck": np.flatnonzero(neck)}, region_mask=lambda name: neck)
+        return SimpleNamespace(bald=bald, hair=_plane(np.arange(2) * 0.01, np.array([0.0])),
+                               rest_head_vertices=v, head_model=model)
+
+    got = {}
+
+    def fake(pose, walls, normals, movable, other_walls=None, other=None, **kw):
+        got.update(movable=movable, other=other, other_walls=other_walls)
+        return frame_hull.Receded(np.zeros((3, 3)), np.zeros(3, bool), {})
+
+    lab = np.full((4, 4), BODY, np.uint8)
+    lab[:, :2] = SKIN
+    monkeypatch.setattr(frame_hull, "recede", fake)
+    monkeypatch.setattr(frame_hull, "RECEDE", True)
+    carved = frame_hull.Carved(np.zeros(5, bool), {}, walls=["w"], labels=[lab])
+    fc._recede(avatar(), avatar(), carved, lambda: None)
+    np.testing.assert_array_equal(got["movable"], [True, True, True])
+    assert got["other"] is None and got["other_walls"] is None
+    monkeypatch.setattr(frame_hull, "RECEDE_REGIONS", ("neck",))
+    monkeypatch.setattr(frame_hull, "CLOTHES_NECK", True)
+    fc._recede(avatar(), avatar(), carved, lambda: None)
+    np.testing.assert_array_equal(got["movable"], [False, True, True])
+    np.testing.assert_array_equal(got["other"], [False, True, True])
+    np.testing.assert_array_equal(got["other_walls"][0], frame_hull.neck_walls([lab])[0])
+    assert got["other_walls"][0][:, 3].all() and not got["other_walls"][0][:, 0].any()
+    fc._recede(avatar(), avatar(), frame_hull.Carved(np.zeros(5, bool), {}, walls=["w"]), lambda: None)
+    assert got["other"] is None and got["other_walls"] is None
+
+
+def test_the_hull_keeps_the_labels_only_when_the_neck_needs_them(monkeypatch):
+    """`_carve` asks `carve_frames` for the segmentation's labels only with RECEDE and
+    CLOTHES_NECK both on; `carve_frames(labels=True)` takes its walls from those labels' person
+    (non-background) and keeps them."""
+    from avatarkit.recon.segment import BACKGROUND, BODY, SKIN
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track import frame_hull
+
+    asked = []
+
+    def fake(views, allowed=None, labels=False):
+        asked.append(labels)
+        return frame_hull.Carved(np.zeros(5, bool), {})
+
+    monkeypatch.setattr(frame_hull, "carve_frames", fake)
+    monkeypatch.setattr(frame_hull, "CARVE", True)
+    saved = SimpleNamespace(bald=_plane(np.arange(3) * 0.01, np.array([0.0])),
+                            hair=_plane(np.arange(2) * 0.01, np.array([0.0])))
+    for recede_on, neck, want in ((False, True, False), (True, False, False), (True, True, True)):
+        monkeypatch.setattr(frame_hull, "RECEDE", recede_on)
+        monkeypatch.setattr(frame_hull, "CLOTHES_NECK", neck)
+        fc._carve(saved, saved, ["v"], None)
+        assert asked[-1] is want
+    monkeypatch.undo()
+
+    lab = np.full((SIZE, SIZE), BACKGROUND, np.uint8)
+    lab[:, :SIZE // 2] = SKIN
+    lab[SIZE // 2:, :SIZE // 2] = BODY
+    monkeypatch.setattr(frame_hull, "person_labels", lambda images: [lab, None])
+    monkeypatch.setattr(frame_hull, "person_masks", lambda images: pytest.fail("segmented twice"))
+    g = _plane(np.arange(-0.1, 0.1 + 1e-9, 0.01), np.arange(-0.1, 0.1 + 1e-9, 0.01))
+    views = [SimpleNamespace(gaussians=g, camera=_camera(), image=None)] * 2
+    out = frame_hull.carve_frames(views, labels=True, min_frames=1)
+    assert out.labels[0] is lab and out.labels[1] is None and out.walls[1] is None
+    np.testing.assert_array_equal(out.walls[0], wall_image(lab != BACKGROUND))

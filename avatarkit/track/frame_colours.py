@@ -416,7 +416,10 @@ def _carve(saved, avatar, views, carve: bool | None):
         return None
     nb = len(avatar.bald)
     allowed = None if frame_hull.BALD else np.arange(nb + len(avatar.hair)) >= nb
-    carved = frame_hull.carve_frames(views, allowed=allowed)
+    if frame_hull.RECEDE and frame_hull.CLOTHES_NECK:     # the neck recedes from the clothes: labels kept
+        carved = frame_hull.carve_frames(views, allowed=allowed, labels=True)
+    else:
+        carved = frame_hull.carve_frames(views, allowed=allowed)
     for a in (saved, avatar):
         a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
         if len(a.hair):
@@ -449,7 +452,13 @@ def _recede(saved, avatar, carved, pose_views):
         _set_bald_means(saved, rest + offsets)
         return pose_views()
 
-    receded = frame_hull.recede(pose, carved.walls, normals, np.ones(nb, bool))
+    other = other_walls = None
+    if frame_hull.CLOTHES_NECK and carved.labels is not None:
+        other = fusion_selection(saved, ("neck",))[:nb]
+        other_walls = frame_hull.neck_walls(carved.labels)
+    regions = frame_hull.RECEDE_REGIONS
+    movable = np.ones(nb, bool) if regions is None else fusion_selection(saved, tuple(regions))[:nb]
+    receded = frame_hull.recede(pose, carved.walls, normals, movable, other_walls=other_walls, other=other)
     _set_bald_means(saved, rest + receded.offsets)
     _set_bald_means(avatar, mine + receded.offsets)
     return receded

@@ -54,10 +54,18 @@ BALD = False
 #: stays one closed layer (a side view sees the moved discs face on, a few millimetres deeper)
 #: while its outline in the frames comes inside the person
 RECEDE = False
+#: the head model's regions whose bald discs recede (a disc whose host triangle has two vertices
+#: in one); None: every bald disc
+RECEDE_REGIONS = None
 #: metres a voted bald disc moves inward per round (about a pixel of a 480 px talking-head frame)
 STEP = 0.001
 #: rounds of `recede` (at most RECEDE_ROUNDS x STEP metres inward)
 RECEDE_ROUNDS = 3
+#: with RECEDE, the neck's discs (the head model's "neck" region) recede from the clothes too: for
+#: them the wall is everything but the frames' skin and hair (`recon.segment`'s labels: the
+#: background and the body/clothes). The head model's neck is wider than most necks and its
+#: sides draw over the collar, which the person mask calls person (`neck_walls`)
+CLOTHES_NECK = False
 #: the person mask is dilated by this many pixels before the wall is taken (the segmentation's
 #: outline and the frames' registration are each good to about a pixel)
 MARGIN = 1
@@ -83,6 +91,9 @@ class Carved:
     info: dict = field(default_factory=dict)
     #: per view the wall image that voted (None: that frame did not), when `carve_frames` made them
     walls: list | None = None
+    #: per view the segmentation's labels ((H, W) uint8, `recon.segment`) when `carve_frames` was
+    #: asked for them, else None
+    labels: list | None = None
 
 
 def wall_image(person: np.ndarray, margin: int = MARGIN) -> np.ndarray:
@@ -176,22 +187,29 @@ def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray
 
 def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float = STEP,
            rounds: int = RECEDE_ROUNDS, share: float = SHARE, quorum: float = QUORUM,
-           min_frames: int = MIN_FRAMES) -> Receded:
+           min_frames: int = MIN_FRAMES, other_walls: list | None = None,
+           other: np.ndarray | None = None) -> Receded:
     """The movable Gaussians the frames show over the wall moved inward (module docstring):
     pose(offsets (M, 3)) -> the views (as `carve`'s, their first M Gaussians the movable set's
     M, moved by `offsets` in the rest pose); walls: per view an (H, W) int32 `wall_image` or
-    None; normals (M, 3): unit directions to move along (`inward_normals`); movable (M,) bool.
+    None; normals (M, 3): unit directions to move along (`inward_normals`); movable (M,) bool;
+    other (M,) bool: these vote with `other_walls` (per view, as walls) instead.
     Each round the views are posed with the moves so far and vote as in `carve`; a Gaussian
     voted outside moves `step` further along its normal."""
     normals = np.asarray(normals, np.float64)
     m = len(normals)
     movable = np.asarray(movable, bool).reshape(m)
+    other = None if other is None or other_walls is None else np.asarray(other, bool).reshape(m)
     offsets = np.zeros((m, 3))
     moved = np.zeros(m, bool)
     per_round = []
     for _ in range(rounds):
-        seen, out = _tally(pose(offsets), walls, None, share)
+        views = pose(offsets)
+        seen, out = _tally(views, walls, None, share)
         seen, out = seen[:m], out[:m]
+        if other is not None and other.any():
+            seen2, out2 = _tally(views, other_walls, None, share)
+            seen, out = np.where(other, seen2[:m], seen), np.where(other, out2[:m], out)
         new = movable & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
         per_round.append(int(new.sum()))
         if not new.any():
@@ -220,15 +238,45 @@ def person_masks(images: list) -> list:
     return out
 
 
-def carve_frames(views, margin: int = MARGIN, **kwargs) -> Carved:
-    """`carve` with each view's wall from its own image's segmentation (`person_masks`)."""
-    masks = person_masks([v.image for v in views])
-    walls = [None if m is None else wall_image(m, margin) for m in masks]
-    out = carve(views, walls, **kwargs)
-    out.walls = walls
+def person_labels(images: list) -> list:
+    """Per image ((H, W, 3) uint8) the portrait build's segmentation's labels ((H, W) uint8:
+    `recon.segment` BACKGROUND, SKIN, HAIR, BODY; `segment_portrait`, ~30 % dearer than
+    `person_masks`), or None where no face is found."""
+    from avatarkit.errors import AvatarKitError
+    from avatarkit.recon.portrait import analyze_portrait
+    from avatarkit.recon.segment import segment_portrait
+
+    out = []
+    for image in images:
+        try:
+            out.append(segment_portrait(image, analyze_portrait(image, None, detector="auto")).labels)
+        except AvatarKitError:
+            out.append(None)
     return out
 
 
-__all__ = ["BALD", "CARVE", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "RECEDE", "RECEDE_ROUNDS",
-           "ROUNDS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "person_masks", "recede",
+def neck_walls(labels: list, margin: int = MARGIN) -> list:
+    """Per view (labels (H, W) uint8 or None) the wall the neck recedes from (`CLOTHES_NECK`):
+    everything but skin and hair, as `wall_image` makes it (the skin and hair dilated by
+    `margin`), or None."""
+    from avatarkit.recon.segment import HAIR, SKIN
+
+    return [None if lab is None else wall_image(np.isin(lab, (SKIN, HAIR)), margin) for lab in labels]
+
+
+def carve_frames(views, margin: int = MARGIN, labels: bool = False, **kwargs) -> Carved:
+    """`carve` with each view's wall from its own image's segmentation (`person_masks`; with
+    labels, `person_labels`' non-background, the same masks, kept in the result)."""
+    images = [v.image for v in views]
+    labs = person_labels(images) if labels else None
+    masks = person_masks(images) if labs is None else [None if lab is None else lab != 0 for lab in labs]
+    walls = [None if m is None else wall_image(m, margin) for m in masks]
+    out = carve(views, walls, **kwargs)
+    out.walls = walls
+    out.labels = labs
+    return out
+
+
+__all__ = ["BALD", "CARVE", "CLOTHES_NECK", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "RECEDE", "RECEDE_REGIONS", "RECEDE_ROUNDS",
+           "ROUNDS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "neck_walls", "person_labels", "person_masks", "recede",
            "wall_image", "wall_votes"]
