@@ -138,12 +138,12 @@ def test_the_stage_clears_on_both_avatars_only_when_asked(monkeypatch):
 
     def avatar():
         return SimpleNamespace(bald=_plane(np.arange(3) * 0.01, np.array([0.0])),
-                               hair=_plane(np.arange(2) * 0.01, np.array([0.0]), opacity=0.7))
+                               hair=_plane(np.arange(2) * 0.01, np.array([0.0]), opacity=0.7), binding="stale")
 
     cleared = np.array([False, True, False, True, False])
     asked = []
 
-    def fake(views, allowed=None):
+    def fake(views, allowed=None, **kw):
         asked.append(views)
         return frame_hull.Carved(cleared & (True if allowed is None else allowed), {"total": 2})
 
@@ -159,6 +159,7 @@ def test_the_stage_clears_on_both_avatars_only_when_asked(monkeypatch):
     for a in (saved, built):
         np.testing.assert_array_equal(a.bald.opacities, np.float32([0.99, 0.0, 0.99]))
         np.testing.assert_array_equal(a.hair.opacities, np.float32([0.0, 0.7]))
+        assert "binding" not in a.__dict__       # posing rebinds: the cleared discs are not drawn
 
 
 def test_the_stage_clears_only_the_hair_by_default(monkeypatch):
@@ -169,7 +170,7 @@ def test_the_stage_clears_only_the_hair_by_default(monkeypatch):
 
     got = []
 
-    def fake(views, allowed=None):
+    def fake(views, allowed=None, **kw):
         got.append(allowed)
         return frame_hull.Carved(np.ones(5, bool) & (True if allowed is None else allowed), {})
 

@@ -422,6 +422,7 @@ def _carve(saved, avatar, views, carve: bool | None):
         carved = frame_hull.carve_frames(views, allowed=allowed)
     for a in (saved, avatar):
         a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
+        a.__dict__.pop("binding", None)     # the cached binding holds the old opacities: pose the new
         if len(a.hair):
             a.hair = a.hair.replace(opacities=np.where(carved.cleared[nb:], 0.0, a.hair.opacities).astype(np.float32))
     return carved
