@@ -432,3 +432,25 @@ def test_the_hull_keeps_the_labels_only_when_the_neck_needs_them(monkeypatch):
     out = frame_hull.carve_frames(views, labels=True, min_frames=1)
     assert out.labels[0] is lab and out.labels[1] is None and out.walls[1] is None
     np.testing.assert_array_equal(out.walls[0], wall_image(lab != BACKGROUND))
+
+
+def test_recede_reads_its_step_and_rounds_when_called(monkeypatch):
+    """`recede` without step / rounds takes the module's `STEP` and `RECEDE_ROUNDS` as they are
+    when it runs (a setting changed after import is used)."""
+    from avatarkit.track import frame_hull
+
+    centres, normal, q = _sphere()
+    n = len(centres)
+    cam = _camera()
+    wall = wall_image(np.zeros((SIZE, SIZE), bool))        # all wall: every shown disc votes out
+
+    def pose(offsets):
+        g = GaussianSet(centres + offsets, q, np.tile([0.008, 0.008, 0.0008], (n, 1)), np.full(n, 0.99),
+                        rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+        return [_view(g, cam)] * 3
+
+    monkeypatch.setattr(frame_hull, "STEP", 0.0005)
+    monkeypatch.setattr(frame_hull, "RECEDE_ROUNDS", 2)
+    out = frame_hull.recede(pose, [wall] * 3, -normal, np.ones(n, bool))
+    assert len(out.info["moved"]) == 2
+    np.testing.assert_allclose(out.info["deepest"], 0.001)

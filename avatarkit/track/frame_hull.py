@@ -185,8 +185,8 @@ def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray
     return -n if outward else n
 
 
-def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float = STEP,
-           rounds: int = RECEDE_ROUNDS, share: float = SHARE, quorum: float = QUORUM,
+def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float | None = None,
+           rounds: int | None = None, share: float = SHARE, quorum: float = QUORUM,
            min_frames: int = MIN_FRAMES, other_walls: list | None = None,
            other: np.ndarray | None = None) -> Receded:
     """The movable Gaussians the frames show over the wall moved inward (module docstring):
@@ -195,7 +195,10 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     None; normals (M, 3): unit directions to move along (`inward_normals`); movable (M,) bool;
     other (M,) bool: these vote with `other_walls` (per view, as walls) instead.
     Each round the views are posed with the moves so far and vote as in `carve`; a Gaussian
-    voted outside moves `step` further along its normal."""
+    voted outside moves `step` (None: `STEP`) further along its normal, `rounds` (None:
+    `RECEDE_ROUNDS`) times at most."""
+    step = STEP if step is None else float(step)
+    rounds = RECEDE_ROUNDS if rounds is None else int(rounds)
     normals = np.asarray(normals, np.float64)
     m = len(normals)
     movable = np.asarray(movable, bool).reshape(m)
