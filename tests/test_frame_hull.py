@@ -382,6 +382,8 @@ def test_the_stage_recedes_the_regions_asked_and_the_neck_from_the_clothes(monke
     lab[:, :2] = SKIN
     monkeypatch.setattr(frame_hull, "recede", fake)
     monkeypatch.setattr(frame_hull, "RECEDE", True)
+    monkeypatch.setattr(frame_hull, "RECEDE_REGIONS", None)
+    monkeypatch.setattr(frame_hull, "CLOTHES_NECK", False)
     carved = frame_hull.Carved(np.zeros(5, bool), {}, walls=["w"], labels=[lab])
     fc._recede(avatar(), avatar(), carved, lambda: None)
     np.testing.assert_array_equal(got["movable"], [True, True, True])
