@@ -107,6 +107,12 @@ OUTLINE_SHARE = 0.25
 #: a Gaussian takes a frame's residual when its blending weight summed over the mask is at
 #: least this many pixels (as `recon.assemble.refine_colours`)
 MIN_WEIGHT = 0.05
+#: a Gaussian's update from a frame is scaled by w / (w + HIDDEN_WEIGHT), w its blending weight
+#: summed over the frame's mask (pixels); 0: off, every Gaussian that shows takes its footprint's
+#: whole residual. A Gaussian mostly hidden there (under the chin, behind the jaw's edge) does not
+#: change the render, so the residual it reads stays and, round after round, pushes its colour
+#: toward whatever the pixels around it miss (the green band under the chin in the previews)
+HIDDEN_WEIGHT = 0.0
 
 
 @dataclass
@@ -122,6 +128,16 @@ class FrameView:
     mask: np.ndarray
     outline: np.ndarray | None = None
     shows: np.ndarray | None = None
+    #: (N,) float: each Gaussian's blending weight summed over the mask (`frame_weights`), or None
+    weights: np.ndarray | None = None
+
+
+def frame_weights(view: FrameView) -> np.ndarray:
+    """(N,) float32: each Gaussian's blending weight summed over the frame's mask, in pixels
+    (`label_lifting.accumulate_weights`)."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1]
 
 
 def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
@@ -148,19 +164,21 @@ class FusedColours:
 
 def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int = ITERATIONS,
                           step: float = 1.0, min_weight: float = MIN_WEIGHT,
-                          background=None) -> FusedColours:
+                          background=None, hidden: float | None = None) -> FusedColours:
     """`recon.assemble.refine_colours` over several posed frames of the same Gaussians: each
     round renders every frame, takes the residual image - render inside its mask, per Gaussian
     that shows there (blending weight summed over the mask >= min_weight pixels) the residual
     averaged over about its own footprint (the blur scale matched to its projected radius);
     a selected Gaussian's update is the mean over the frames it shows in. Unselected Gaussians
     keep their colours. background: (3,) render background (None: each frame's median outside
-    its mask). With one frame and every Gaussian selected this is refine_colours."""
+    its mask); hidden: `HIDDEN_WEIGHT` (None: the module's). With one frame, every Gaussian
+    selected and hidden 0 this is refine_colours."""
     from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
     if not views:
         raise ValueError("no frames to fuse")
+    hidden = HIDDEN_WEIGHT if hidden is None else float(hidden)
     n = len(views[0].gaussians)
     select = np.asarray(select, bool).reshape(n)
     rgb = views[0].gaussians.colors.astype(np.float32).copy()
@@ -174,7 +192,11 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
               else np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32))
         px, _ = v.camera.project(v.gaussians.means)
         shows = _shows(v, min_weight) & np.isfinite(px).all(axis=1) & select
-        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None))
+        damp = None
+        if hidden > 0:
+            w = np.asarray(v.weights if getattr(v, "weights", None) is not None else frame_weights(v), np.float64)
+            damp = (w / (w + hidden))[shows][:, None]
+        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None, damp=damp))
     history = []
     for it in range(iterations + 1):
         num = np.zeros((n, 3))
@@ -189,7 +211,7 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
                 continue
             delta, p["level"] = footprint_residuals(r.rgb, p["target"], p["m"], p["px"][sh],
                                                     r.meta["radii"][sh], p["level"])
-            num[sh] += delta
+            num[sh] += delta if p["damp"] is None else delta * p["damp"]
             den[sh] += 1.0
         history.append(float(np.mean(scores)))
         if it == iterations or not (den > 0).any():
@@ -339,7 +361,8 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
         person = render(g, result.camera, np.ones(3)).alpha > 0.5
         mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
         view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
-        view.shows = frame_shows(view)
+        view.weights = frame_weights(view)
+        view.shows = view.weights >= MIN_WEIGHT
         out.append(view)
     return out
 
@@ -466,6 +489,6 @@ def _recede(saved, avatar, carved, pose_views):
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "FUSE_ALL", "FUSE_HAIR", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
-           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_spacing", "frame_shows", "fuse_frame_colours",
+           "FUSE_ALL", "FUSE_HAIR", "HIDDEN_WEIGHT", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
+           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_spacing", "frame_shows", "frame_weights", "fuse_frame_colours",
            "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]
