@@ -201,6 +201,10 @@ def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
         ref = np.concatenate([whole[r].face.means, whole[r].hair.means])
         np.testing.assert_allclose(v.gaussians.means, ref, atol=1e-6)
         assert int(v.image[0, 0, 0]) == r and v.mask.shape == (48, 48)
+    # without masks (the frame hull's rounds): the same poses, nothing rendered
+    for v, bare in zip(views, posed_frames(avatar, result, rows, images, masks=False)):
+        np.testing.assert_array_equal(bare.gaussians.means, v.gaussians.means)
+        assert bare.mask is None and bare.shows is None and bare.weights is None
 
 
 def test_shared_weights_give_the_same_refine_and_outline():

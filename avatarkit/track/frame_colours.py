@@ -338,10 +338,11 @@ def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
     return (seen > 0) & (hits >= share * np.maximum(seen, 1))
 
 
-def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
+def posed_frames(avatar, result, rows, images: dict, masks: bool = True) -> list[FrameView]:
     """The avatar posed by the tracked clip (`result`: a TrackResult) at `rows` (static hair),
     each with its video frame (images: video frame number -> (H, W, 3) uint8) and the render's
-    person mask (alpha > 0.5) eroded by MASK_ERODE px."""
+    person mask (alpha > 0.5) eroded by MASK_ERODE px; masks False: the posed Gaussians alone
+    (mask, outline, weights and shows None: what the frame hull's votes need)."""
     import cv2
 
     from avatarkit.bake import BakeConfig, bake
@@ -358,6 +359,9 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
     out = []
     for i, frame in zip(rows, baked):
         g = frame.person(static, avatar.has_hair)
+        if not masks:
+            out.append(FrameView(g, result.camera, images[int(result.frame_index[i])], None))
+            continue
         person = render(g, result.camera, np.ones(3)).alpha > 0.5
         mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
         view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
@@ -405,7 +409,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     images = read_frames(video, np.asarray(result.frame_index)[rows])
     views = posed_frames(saved, result, rows, images)
     carved = _carve(saved, avatar, views, carve)
-    receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images))
+    receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images, masks=False))
     if (carved is not None and carved.cleared.any()) or (receded is not None and receded.moved.any()):
         views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
