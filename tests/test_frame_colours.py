@@ -201,6 +201,10 @@ def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
         ref = np.concatenate([whole[r].face.means, whole[r].hair.means])
         np.testing.assert_allclose(v.gaussians.means, ref, atol=1e-6)
         assert int(v.image[0, 0, 0]) == r and v.mask.shape == (48, 48)
+    # without masks (the frame hull's rounds): the same poses, nothing rendered
+    for v, bare in zip(views, posed_frames(avatar, result, rows, images, masks=False)):
+        np.testing.assert_array_equal(bare.gaussians.means, v.gaussians.means)
+        assert bare.mask is None and bare.shows is None and bare.weights is None
 
 
 def test_shared_weights_give_the_same_refine_and_outline():
@@ -281,3 +285,33 @@ def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, stag
         fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None), 0, refine=refine)
     assert seen["options"].refine == expected
     assert seen["options"].refine_every == every == fc.stage_spacing(expected)
+
+
+def test_a_hidden_gaussian_keeps_its_colour_when_updates_are_weighted_by_what_shows():
+    """A grey plane in front of a second one (the second hidden but for a sliver of weight,
+    as the discs under the chin are) and a frame showing the front plane red: without the
+    weighting (`hidden` 0) the hidden plane's discs take the whole residual and turn as red as
+    the front's; with it (`hidden` 0.5 px) they move by their share of the render, nearly not at
+    all, while the front plane still reaches the frame's red."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    cam = _camera()
+    front = _plane(np.full((len(xs) ** 2, 3), 0.5), xs, ys).replace(opacities=np.full(len(xs) ** 2, 0.7))
+    back = front.replace(means=front.means - np.array([0.0, 0.0, 0.02]))
+    both = GaussianSet.concat([front, back])
+    red = front.with_colors(np.tile(np.float32([0.8, 0.2, 0.2]), (len(front), 1)))
+    image = (np.clip(render(red, cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    X, Y = np.meshgrid(xs, ys)
+    inner = np.tile((np.abs(X.ravel()) < 0.06) & (np.abs(Y.ravel()) < 0.06), 2)
+    n = len(front)
+    view = FrameView(both, cam, image, np.ones((SIZE, SIZE), bool))
+    from avatarkit.track.frame_colours import frame_weights
+
+    w = frame_weights(view)
+    assert (w[n:][inner[n:]] < 0.3).all() and (w[n:][inner[n:]] >= 0.05).any() and (w[:n][inner[:n]] > 1).all()
+    plain = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.0)
+    weighted = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.5)
+    shown_back = inner & (np.arange(2 * n) >= n) & (w >= 0.05)
+    for fused in (plain, weighted):
+        np.testing.assert_allclose(fused.rgb[:n][inner[:n]].mean(axis=0), [0.8, 0.2, 0.2], atol=0.05)
+    drift = lambda f: np.abs(f.rgb[shown_back] - 0.5).max(axis=1).mean()
+    assert drift(plain) > 0.1 and drift(weighted) < 0.5 * drift(plain), (drift(plain), drift(weighted))

@@ -84,11 +84,17 @@ def test_a_head_that_never_turns_builds_the_single_frame_avatar(truth, tmp_path,
     assert main(["build", str(tmp_path / "still.mp4"), "-o", str(tmp_path / "s"), "--frame", str(src["frame"]),
                  *BUILD]) == 0
     a, b = load_avatar(tmp_path / "v"), load_avatar(tmp_path / "s")
-    np.testing.assert_array_equal(a.bald.means, b.bald.means)
+    fused = read_manifest(tmp_path / "v")["provenance"]["build"]["frame_colours"]
+    # the same discs, except those the stage's frame hull moved inward (`frame_hull.recede`):
+    # as many as it reports, none further than its rounds of steps
+    from avatarkit.track import frame_hull
+
+    moved = np.linalg.norm(a.bald.means.astype(np.float64) - b.bald.means, axis=1)
+    assert int((moved > 0).sum()) == fused.get("receded", {}).get("total", 0)
+    assert moved.max() <= frame_hull.RECEDE_ROUNDS * frame_hull.STEP + 1e-6
     # the frame_colours stage recolours the neck, lips, mouth and outline from the video's
     # frames (`track.frame_colours`); every other Gaussian keeps the single-frame build's
     # colour, and a head that shows the same in every frame changes those little
-    fused = read_manifest(tmp_path / "v")["provenance"]["build"]["frame_colours"]
     both_a = np.concatenate([a.bald.colors, a.hair.colors])
     both_b = np.concatenate([b.bald.colors, b.hair.colors])
     changed = np.abs(both_a - both_b).max(axis=1) > 1e-6

@@ -107,6 +107,12 @@ OUTLINE_SHARE = 0.25
 #: a Gaussian takes a frame's residual when its blending weight summed over the mask is at
 #: least this many pixels (as `recon.assemble.refine_colours`)
 MIN_WEIGHT = 0.05
+#: a Gaussian's update from a frame is scaled by w / (w + HIDDEN_WEIGHT), w its blending weight
+#: summed over the frame's mask (pixels); 0: off, every Gaussian that shows takes its footprint's
+#: whole residual. A Gaussian mostly hidden there (under the chin, behind the jaw's edge) does not
+#: change the render, so the residual it reads stays and, round after round, pushes its colour
+#: toward whatever the pixels around it miss (the green band under the chin in the previews)
+HIDDEN_WEIGHT = 0.0
 
 
 @dataclass
@@ -122,6 +128,16 @@ class FrameView:
     mask: np.ndarray
     outline: np.ndarray | None = None
     shows: np.ndarray | None = None
+    #: (N,) float: each Gaussian's blending weight summed over the mask (`frame_weights`), or None
+    weights: np.ndarray | None = None
+
+
+def frame_weights(view: FrameView) -> np.ndarray:
+    """(N,) float32: each Gaussian's blending weight summed over the frame's mask, in pixels
+    (`label_lifting.accumulate_weights`)."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1]
 
 
 def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
@@ -148,19 +164,21 @@ class FusedColours:
 
 def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int = ITERATIONS,
                           step: float = 1.0, min_weight: float = MIN_WEIGHT,
-                          background=None) -> FusedColours:
+                          background=None, hidden: float | None = None) -> FusedColours:
     """`recon.assemble.refine_colours` over several posed frames of the same Gaussians: each
     round renders every frame, takes the residual image - render inside its mask, per Gaussian
     that shows there (blending weight summed over the mask >= min_weight pixels) the residual
     averaged over about its own footprint (the blur scale matched to its projected radius);
     a selected Gaussian's update is the mean over the frames it shows in. Unselected Gaussians
     keep their colours. background: (3,) render background (None: each frame's median outside
-    its mask). With one frame and every Gaussian selected this is refine_colours."""
+    its mask); hidden: `HIDDEN_WEIGHT` (None: the module's). With one frame, every Gaussian
+    selected and hidden 0 this is refine_colours."""
     from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
     if not views:
         raise ValueError("no frames to fuse")
+    hidden = HIDDEN_WEIGHT if hidden is None else float(hidden)
     n = len(views[0].gaussians)
     select = np.asarray(select, bool).reshape(n)
     rgb = views[0].gaussians.colors.astype(np.float32).copy()
@@ -174,7 +192,11 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
               else np.median(target[~m], axis=0) if (~m).any() else np.zeros(3, np.float32))
         px, _ = v.camera.project(v.gaussians.means)
         shows = _shows(v, min_weight) & np.isfinite(px).all(axis=1) & select
-        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None))
+        damp = None
+        if hidden > 0:
+            w = np.asarray(v.weights if getattr(v, "weights", None) is not None else frame_weights(v), np.float64)
+            damp = (w / (w + hidden))[shows][:, None]
+        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None, damp=damp))
     history = []
     for it in range(iterations + 1):
         num = np.zeros((n, 3))
@@ -189,7 +211,7 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
                 continue
             delta, p["level"] = footprint_residuals(r.rgb, p["target"], p["m"], p["px"][sh],
                                                     r.meta["radii"][sh], p["level"])
-            num[sh] += delta
+            num[sh] += delta if p["damp"] is None else delta * p["damp"]
             den[sh] += 1.0
         history.append(float(np.mean(scores)))
         if it == iterations or not (den > 0).any():
@@ -325,10 +347,11 @@ def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
     return (seen > 0) & (hits >= share * np.maximum(seen, 1))
 
 
-def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
+def posed_frames(avatar, result, rows, images: dict, masks: bool = True) -> list[FrameView]:
     """The avatar posed by the tracked clip (`result`: a TrackResult) at `rows` (static hair),
     each with its video frame (images: video frame number -> (H, W, 3) uint8) and the render's
-    person mask (alpha > 0.5) eroded by MASK_ERODE px."""
+    person mask (alpha > 0.5) eroded by MASK_ERODE px; masks False: the posed Gaussians alone
+    (mask, outline, weights and shows None: what the frame hull's votes need)."""
     import cv2
 
     from avatarkit.bake import BakeConfig, bake
@@ -345,10 +368,14 @@ def posed_frames(avatar, result, rows, images: dict) -> list[FrameView]:
     out = []
     for i, frame in zip(rows, baked):
         g = frame.person(static, avatar.has_hair)
+        if not masks:
+            out.append(FrameView(g, result.camera, images[int(result.frame_index[i])], None))
+            continue
         person = render(g, result.camera, np.ones(3)).alpha > 0.5
         mask = cv2.erode(person.astype(np.uint8), kernel).astype(bool) if kernel is not None else person
         view = FrameView(g, result.camera, images[int(result.frame_index[i])], mask, outline_band(person))
-        view.shows = frame_shows(view)
+        view.weights = frame_weights(view)
+        view.shows = view.weights >= MIN_WEIGHT
         out.append(view)
     return out
 
@@ -392,7 +419,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     images = read_frames(video, np.asarray(result.frame_index)[rows])
     views = posed_frames(saved, result, rows, images)
     carved = _carve(saved, avatar, views, carve)
-    if carved is not None and carved.cleared.any():
+    receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images, masks=False))
+    if (carved is not None and carved.cleared.any()) or (receded is not None and receded.moved.any()):
         views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
     if outline:
@@ -409,6 +437,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
             "iterations": settings.iterations}
     if carved is not None:
         info["carved"] = carved.info
+    if receded is not None:
+        info["receded"] = receded.info
     return avatar, info
 
 
@@ -423,15 +453,56 @@ def _carve(saved, avatar, views, carve: bool | None):
         return None
     nb = len(avatar.bald)
     allowed = None if frame_hull.BALD else np.arange(nb + len(avatar.hair)) >= nb
-    carved = frame_hull.carve_frames(views, allowed=allowed)
+    if frame_hull.RECEDE and frame_hull.CLOTHES_NECK:     # the neck recedes from the clothes: labels kept
+        carved = frame_hull.carve_frames(views, allowed=allowed, labels=True)
+    else:
+        carved = frame_hull.carve_frames(views, allowed=allowed)
     for a in (saved, avatar):
         a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
+        a.__dict__.pop("binding", None)     # the cached binding holds the old opacities: pose the new
         if len(a.hair):
             a.hair = a.hair.replace(opacities=np.where(carved.cleared[nb:], 0.0, a.hair.opacities).astype(np.float32))
     return carved
 
 
+def _set_bald_means(avatar, means: np.ndarray) -> None:
+    """The avatar's bald Gaussians moved to means (N, 3) in the rest pose; its cached triangle
+    binding (what posing reads) is dropped so the next pose sees them."""
+    avatar.bald = avatar.bald.replace(means=np.asarray(means, np.float32))
+    avatar.__dict__.pop("binding", None)
+
+
+def _recede(saved, avatar, carved, pose_views):
+    """`track.frame_hull.recede` on the bald discs when `frame_hull.RECEDE` and the frame hull
+    ran (`carved`, whose walls it votes with): pose_views() poses `saved` at the stage's frames;
+    the moves are applied to both `saved` and `avatar`. -> the `Receded`, or None when off."""
+    from avatarkit.track import frame_hull
+
+    if carved is None or carved.walls is None or not frame_hull.RECEDE:
+        return None
+    nb = len(saved.bald)
+    normals = frame_hull.inward_normals(saved.rest_head_vertices, saved.head_model.faces,
+                                        saved.bald.extras["binding"])
+    rest = np.asarray(saved.bald.means, np.float64)
+    mine = np.asarray(avatar.bald.means, np.float64)
+
+    def pose(offsets):
+        _set_bald_means(saved, rest + offsets)
+        return pose_views()
+
+    other = other_walls = None
+    if frame_hull.CLOTHES_NECK and carved.labels is not None:
+        other = fusion_selection(saved, ("neck",))[:nb]
+        other_walls = frame_hull.neck_walls(carved.labels)
+    regions = frame_hull.RECEDE_REGIONS
+    movable = np.ones(nb, bool) if regions is None else fusion_selection(saved, tuple(regions))[:nb]
+    receded = frame_hull.recede(pose, carved.walls, normals, movable, other_walls=other_walls, other=other)
+    _set_bald_means(saved, rest + receded.offsets)
+    _set_bald_means(avatar, mine + receded.offsets)
+    return receded
+
+
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "FUSE_ALL", "FUSE_HAIR", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
-           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_refine", "stage_spacing", "frame_shows", "fuse_frame_colours",
+           "FUSE_ALL", "FUSE_HAIR", "HIDDEN_WEIGHT", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
+           "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_refine", "stage_spacing", "frame_shows", "frame_weights", "fuse_frame_colours",
            "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]
