@@ -61,7 +61,7 @@ _FILE = click.Path(dir_okay=False)
               "landmark fit's poses.")
 @click.option("--frame-hull/--no-frame-hull", default=None,
               help="With the frame-colours stage: clear the hair Gaussians those frames show over the "
-              "background (default on; docs/video-build.md).")
+              "background and move the bald head's surface there inward (default on; docs/video-build.md).")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
