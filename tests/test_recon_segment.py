@@ -169,7 +169,7 @@ def outline_offsets(person: np.ndarray, truth: np.ndarray) -> tuple[float, int, 
 def test_plain_background_leaves_no_halo(kw):
     # Saved as JPEG (as photos are): GrabCut took a band of 1.5-10 px of wall into the person
     # (8x8 blocks of it where the wall is clipped), which then became hair.
-    out, far, lost, hair = jpeg_portrait_outline(kw)
+    out, far, lost, hair, _ = jpeg_portrait_outline(kw)
     assert out < 0.5 and far <= 10, (out, far)
     assert lost < 0.5, lost   # ...without eating into the person
     assert hair > 0.9
@@ -177,12 +177,12 @@ def test_plain_background_leaves_no_halo(kw):
 
 def jpeg_portrait_outline(kw):
     """The synthetic portrait `kw` saved as JPEG, segmented: (outward px per outline px, far
-    halo px, inward px per outline px, hair IoU) against its known labels."""
+    halo px, inward px per outline px, hair IoU, skin IoU) against its known labels."""
     sp = synthetic_portrait(**kw)
     a = analysis_from_box(sp.image.shape[1::-1], sp.face_box)
     seg = segment_portrait(jpeg(sp.image), a)
     out, far, lost = outline_offsets(seg.person, sp.labels != BACKGROUND)
-    return out, far, lost, iou(seg.hair, sp.labels == HAIR)
+    return out, far, lost, iou(seg.hair, sp.labels == HAIR), iou(seg.skin, sp.labels == SKIN)
 
 
 def mesh_subject_front(size: int = 192):
@@ -232,11 +232,11 @@ def test_dark_plain_background_leaves_no_halo(kw):
     # zero-spread component: 7.7-9 px of wall stayed in the person (hair IoU 0.49-0.53 where
     # the hair is dark) while its dark flat pixels were not re-noised. The black-on-black case
     # is also the notch guard: re-noising the wall's colour must not cost the dark hair.
-    out, far, lost, hair = jpeg_portrait_outline(kw)
+    out, far, lost, hair, skin = jpeg_portrait_outline(kw)
     assert out < 0.3 and far <= 10, (out, far)
     assert lost < 0.5, lost
     assert hair > 0.93
-    assert iou(seg.skin, sp.labels == SKIN) > 0.95
+    assert skin > 0.95
 
 
 def test_wall_colours_match_the_reference():
