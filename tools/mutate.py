@@ -295,7 +295,7 @@ MUTATIONS = [
       ["tests/test_frame_colours.py", "-k", "registered"],
       "the frame-colours stage fuses only its regions even when its frames are registered"),
     M("track.frame_hull_one_frame_clears", "avatarkit/track/frame_hull.py",
-      "        new = allowed & ~cleared & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))",
+      "        new = allowed & ~cleared & _voted(seen, out, min_frames, quorum)",
       "        new = allowed & ~cleared & (out >= 1)",
       ["tests/test_frame_hull.py"],
       "one colour frame that shows a Gaussian over the wall clears it (no quorum, no minimum of frames)"),

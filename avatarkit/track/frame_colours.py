@@ -143,9 +143,7 @@ def frame_weights(view: FrameView) -> np.ndarray:
 def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
     """(N,) bool: the Gaussians whose blending weight summed over the frame's mask is at least
     `min_weight` pixels (the renderer's compositing, `label_lifting.accumulate_weights`)."""
-    from avatarkit.recon.label_lifting import accumulate_weights
-
-    return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1] >= min_weight
+    return frame_weights(view) >= min_weight
 
 
 def _shows(view: FrameView, min_weight: float) -> np.ndarray:
@@ -453,10 +451,8 @@ def _carve(saved, avatar, views, carve: bool | None):
         return None
     nb = len(avatar.bald)
     allowed = None if frame_hull.BALD else np.arange(nb + len(avatar.hair)) >= nb
-    if frame_hull.RECEDE and frame_hull.CLOTHES_NECK:     # the neck recedes from the clothes: labels kept
-        carved = frame_hull.carve_frames(views, allowed=allowed, labels=True)
-    else:
-        carved = frame_hull.carve_frames(views, allowed=allowed)
+    # the neck recedes from the clothes: the segmentations' labels kept
+    carved = frame_hull.carve_frames(views, allowed=allowed, labels=frame_hull.RECEDE and frame_hull.CLOTHES_NECK)
     for a in (saved, avatar):
         a.bald = a.bald.replace(opacities=np.where(carved.cleared[:nb], 0.0, a.bald.opacities).astype(np.float32))
         a.__dict__.pop("binding", None)     # the cached binding holds the old opacities: pose the new

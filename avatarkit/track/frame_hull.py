@@ -148,12 +148,17 @@ def carve(views, walls: list, rounds: int = ROUNDS, share: float = SHARE, quorum
     voting = sum(w is not None for w in walls)
     for _ in range(rounds):
         seen, out = _tally(views, walls, cleared, share)
-        new = allowed & ~cleared & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
+        new = allowed & ~cleared & _voted(seen, out, min_frames, quorum)
         per_round.append(int(new.sum()))
         if not new.any():
             break
         cleared |= new
     return Carved(cleared, {"frames": int(voting), "cleared": per_round, "total": int(cleared.sum())})
+
+
+def _voted(seen: np.ndarray, out: np.ndarray, min_frames: int, quorum: float) -> np.ndarray:
+    """(N,) bool: shown in at least min_frames frames, and at least quorum of them vote outside."""
+    return (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
 
 
 def _tally(views, walls: list, cleared: np.ndarray | None, share: float) -> tuple[np.ndarray, np.ndarray]:
@@ -226,7 +231,7 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
         if other is not None and other.any():
             seen2, out2 = _tally(views, other_walls, None, share)
             seen, out = np.where(other, seen2[:m], seen), np.where(other, out2[:m], out)
-        new = movable & (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
+        new = movable & _voted(seen, out, min_frames, quorum)
         per_round.append(int(new.sum()))
         if not new.any():
             break
@@ -241,31 +246,30 @@ def person_masks(images: list) -> list:
     segmentation (`recon.segment.segment_person`: `segment_portrait`'s person without its hair
     step; the face found by `recon.portrait.analyze_portrait`), or None where no face is found.
     ~2 s a 480 px frame on a loaded 2-vCPU machine: most of the stage's added time."""
-    from avatarkit.errors import AvatarKitError
-    from avatarkit.recon.portrait import analyze_portrait
     from avatarkit.recon.segment import segment_person
 
-    out = []
-    for image in images:
-        try:
-            out.append(segment_person(image, analyze_portrait(image, None, detector="auto")))
-        except AvatarKitError:
-            out.append(None)
-    return out
+    return _each_segmented(images, segment_person)
 
 
 def person_labels(images: list) -> list:
     """Per image ((H, W, 3) uint8) the portrait build's segmentation's labels ((H, W) uint8:
     `recon.segment` BACKGROUND, SKIN, HAIR, BODY; `segment_portrait`, ~30 % dearer than
     `person_masks`), or None where no face is found."""
+    from avatarkit.recon.segment import segment_portrait
+
+    return _each_segmented(images, lambda image, analysis: segment_portrait(image, analysis).labels)
+
+
+def _each_segmented(images: list, segment) -> list:
+    """Per image segment(image, its `analyze_portrait` with the face front end's "auto"
+    detector), or None where the analysis or the segmentation finds no face (AvatarKitError)."""
     from avatarkit.errors import AvatarKitError
     from avatarkit.recon.portrait import analyze_portrait
-    from avatarkit.recon.segment import segment_portrait
 
     out = []
     for image in images:
         try:
-            out.append(segment_portrait(image, analyze_portrait(image, None, detector="auto")).labels)
+            out.append(segment(image, analyze_portrait(image, None, detector="auto")))
         except AvatarKitError:
             out.append(None)
     return out
