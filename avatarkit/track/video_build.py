@@ -230,8 +230,9 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     None: `frame_colours.REFINE`; "none": the landmark fit's poses; `avatarkit evaluate
     --refine` passes its own, `avatarkit build --frame-refine` the user's). frame_colours: run
     that stage where the video has one keyframe (None: `FRAME_COLOURS`; `--no-frame-colours`
-    passes False); frame_hull: the stage's frames clear the hair they show over the background
-    first (`fuse_frame_colours(carve=)`; None: `frame_hull.CARVE`; `--no-frame-hull`)."""
+    passes False); frame_hull: the stage's frames first clear the hair they show over the
+    background and move the bald surface there inward (`fuse_frame_colours(carve=)`; None:
+    `frame_hull.CARVE`; `--no-frame-hull`)."""
     from avatarkit.recon.multiview import Keyframe, VideoViews, pose_matrix
     from avatarkit.recon.pipeline import BuildOptions, build_avatar
     from avatarkit.track.keyframes import (KEYFRAMES, choose_keyframes, read_frames, tracking_edge, video_sharpness,
