@@ -25,6 +25,8 @@ with brute-force nearest-pixel searches (the test compares the two).
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 #: |F - B| (RGB, 0-255 units) below which the mix is not trusted and a pixel keeps its label
@@ -56,6 +58,9 @@ def _cores(person: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray, np.nd
     return interior, clean_bg, person & ~interior
 
 
+_KERNEL_LOCK = threading.Lock()
+
+
 def _nearest_interior_colour2(f: np.ndarray, interior: np.ndarray, ring: np.ndarray, reach: int) -> np.ndarray:
     """(H, W) float32: for each `ring` pixel the smallest squared colour distance to an
     `interior` pixel at most `reach` px away (inf where none is; 0 off the ring). Whole-number
@@ -73,8 +78,9 @@ def _nearest_interior_colour2(f: np.ndarray, interior: np.ndarray, ring: np.ndar
     from avatarkit.recon import _boundary_kernels as k
 
     best = np.empty(len(ys), np.float32)
-    k.nearest_interior(ys.astype(np.int32), xs.astype(np.int32), np.ascontiguousarray(f),
-                       np.ascontiguousarray(interior, np.uint8), int(reach), best)
+    with _KERNEL_LOCK:      # frames segmented on several threads (`track.frame_hull`): one launch at a time
+        k.nearest_interior(ys.astype(np.int32), xs.astype(np.int32), np.ascontiguousarray(f),
+                           np.ascontiguousarray(interior, np.uint8), int(reach), best)
     best[best >= k.NONE] = np.inf
     out[ys, xs] = best
     return out
