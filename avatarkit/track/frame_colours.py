@@ -415,10 +415,16 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     from avatarkit.track.keyframes import read_frames
 
     images = read_frames(video, np.asarray(result.frame_index)[rows])
-    views = posed_frames(saved, result, rows, images)
+    from avatarkit.track import frame_hull
+
+    # the frame hull votes on the posed Gaussians alone (no render, no weights) and nearly always
+    # changes them: the masks and weights the colours need are made after it, once
+    hull = frame_hull.CARVE if carve is None else carve
+    views = posed_frames(saved, result, rows, images, masks=not hull)
     carved = _carve(saved, avatar, views, carve)
     receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images, masks=False))
-    if (carved is not None and carved.cleared.any()) or (receded is not None and receded.moved.any()):
+    if (views[0].mask is None or (carved is not None and carved.cleared.any())
+            or (receded is not None and receded.moved.any())):
         views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
     if outline:
