@@ -213,31 +213,3 @@ def test_kernel_atan2_matches_numpy():
     out = np.empty_like(x)
     _kernels.atan2_pos(y, x, out)
     np.testing.assert_allclose(out, np.arctan2(y, x), rtol=1e-15, atol=1e-16)
-
-
-def test_the_same_inputs_give_the_kept_weights_again(monkeypatch):
-    """`mvc_weights` keeps its last results by their inputs' bytes (an avatar saved and loaded
-    again in one process): the same points and cage give the same array without the kernel,
-    a copy (changing it changes nothing kept); a point moved by one float64 step, another cage
-    or the other layout computes again."""
-    from avatarkit.cage import mvc
-
-    v, f = bumpy_sphere(3)
-    pts = inside_points(v, f, 50, 3)
-    calls = []
-    real = mvc._mvc_weights
-    monkeypatch.setattr(mvc, "_mvc_weights", lambda *a: calls.append(1) or real(*a))
-    monkeypatch.setattr(mvc, "_CACHE", type(mvc._CACHE)())
-    first = mvc_weights(pts, v, f)
-    again = mvc_weights(pts.copy(), v.copy(), f.copy())
-    assert len(calls) == 1 and again.dtype == first.dtype and np.array_equal(again, first)
-    again[:] = 0
-    assert np.array_equal(mvc_weights(pts, v, f), first) and len(calls) == 1
-    moved = pts.copy()
-    moved[0, 0] = np.nextafter(moved[0, 0], np.inf)
-    mvc_weights(moved, v, f)
-    mvc_weights(pts, v * 1.01, f)
-    t = mvc_weights(pts, v, f, transposed=True)
-    assert len(calls) == 4 and np.array_equal(t, first.T)
-    # computed afresh, the kept weights are what the kernel gives
-    assert np.array_equal(real(*mvc._check_inputs(pts, v, f), False, None), first)

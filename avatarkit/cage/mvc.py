@@ -17,9 +17,6 @@ out); `mvc_weights_reference` is the slow literal numpy/float64 version tests co
 """
 from __future__ import annotations
 
-import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
@@ -66,47 +63,6 @@ def mvc_weights(points: np.ndarray, cage_vertices: np.ndarray, cage_faces: np.nd
     product prefers), without a transposed copy. progress(done, total) is called between chunks.
     """
     pts, v, f = _check_inputs(points, cage_vertices, cage_faces)
-    key = _cache_key(pts, v, f, transposed)
-    with _CACHE_LOCK:
-        hit = _CACHE.get(key)
-        if hit is not None:
-            _CACHE.move_to_end(key)
-    if hit is not None:
-        if progress is not None:
-            progress(len(pts), len(pts))
-        return hit.copy()
-    out = _mvc_weights(pts, v, f, transposed, progress)
-    if 0 < out.nbytes <= CACHE_BYTES:
-        with _CACHE_LOCK:
-            _CACHE[key] = out.copy()
-            while len(_CACHE) > CACHE_ENTRIES:
-                _CACHE.popitem(last=False)
-    return out
-
-
-#: the last few weights `mvc_weights` computed, by their inputs' bytes (a copy handed out on a
-#: hit: the same array the kernel gives, each point's weights being its own computation). One
-#: process builds an avatar, saves it and loads it again (the video build's frame_colours stage,
-#: `avatarkit evaluate`): every load of the same hair in the same cage computed them again
-#: (~2 s each for ~5k hair Gaussians on 2 cores)
-CACHE_ENTRIES = 2
-#: weights larger than this (bytes) are not kept
-CACHE_BYTES = 64 << 20
-_CACHE: OrderedDict = OrderedDict()
-_CACHE_LOCK = threading.Lock()
-
-
-def _cache_key(pts: np.ndarray, v: np.ndarray, f: np.ndarray, transposed: bool) -> tuple:
-    h = hashlib.blake2b(digest_size=20)
-    for a in (pts, v, np.ascontiguousarray(f, np.int64)):
-        h.update(repr(a.shape).encode())
-        h.update(a.tobytes())
-    return h.hexdigest(), bool(transposed)
-
-
-def _mvc_weights(pts: np.ndarray, v: np.ndarray, f: np.ndarray, transposed: bool,
-                 progress: Callable[[int, int], None] | None) -> np.ndarray:
-    """`mvc_weights` computed (checked inputs, no cache)."""
     from avatarkit.cage import _kernels  # imports Taichi
 
     edges, face_edges = mesh_edges(f)
