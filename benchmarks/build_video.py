@@ -165,9 +165,19 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
     if edge:
         print("  the tracking's edge (yaw likely under-read; keyframes.tracking_edge), true yaw: " + ", ".join(
             f"{f} ({true[f]:.0f})" for f in edge))
+    # the turn-end frames' pose: `register_turned`'s against the first draft, then (REFINE_TURNED)
+    # the refinement's (`refine_keyframes`, its last round), which every stage uses; the refined
+    # yaw is reported from the reference keyframe's, so it is compared with the true yaw's change
+    refined = {f["frame"]: f for f in prov["source_video"].get("refined", [])}
     for r in prov["source_video"].get("registered", []):
-        print(f"  registered by the first build: frame {r['frame']} at yaw {r['yaw_deg']:.1f} (true "
-              f"{true[r['frame']]:.1f}), {r['renders']} renders")
+        f = r["frame"]
+        line = (f"  turn end: frame {f} registered by the first build at yaw {r['yaw_deg']:.1f} (true "
+                f"{true[f]:.1f}), {r['renders']} renders")
+        if f in refined:
+            x = refined[f]
+            line += (f"; refined (the pose every stage uses) {x['registered_deg']:+.1f} from the reference (true "
+                     f"{true[f] - true[ref]:+.1f}){', at the bound' if x['at_bound'] else ''}")
+        print(line)
     b = prov["build"]
     hull, dirs = b.get("segment3d", {}).get("hull"), b.get("hair_directions")
     if hull is not None:

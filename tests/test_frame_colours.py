@@ -315,3 +315,35 @@ def test_a_hidden_gaussian_keeps_its_colour_when_updates_are_weighted_by_what_sh
         np.testing.assert_allclose(fused.rgb[:n][inner[:n]].mean(axis=0), [0.8, 0.2, 0.2], atol=0.05)
     drift = lambda f: np.abs(f.rgb[shown_back] - 0.5).max(axis=1).mean()
     assert drift(plain) > 0.1 and drift(weighted) < 0.5 * drift(plain), (drift(plain), drift(weighted))
+
+
+def test_the_recessions_reposer_gives_the_bakes_frames_as_the_bald_moves():
+    """`bald_reposer` (the head meshes and hair baked once, the bald Gaussians posed again on
+    the current binding) gives what `posed_frames(masks=False)` gives, bit for bit, at its first
+    call and after the bald Gaussians moved (as `recede` moves them) twice."""
+    from avatarkit.motion.clip import MotionClip
+    from avatarkit.synthetic.sample_avatar import make_sample_avatar
+    from avatarkit.track.frame_colours import _set_bald_means, bald_reposer, posed_frames
+
+    avatar = make_sample_avatar(n_hair=800, n_bald=1000, cage_vertices=150, seed=5)
+    rng = np.random.default_rng(1)
+    T = 7
+    clip = MotionClip(30.0, rng.normal(0, 0.1, (T, 3)), rng.normal(0, 0.01, (T, 3)), np.zeros((T, 3)),
+                      np.abs(rng.normal(0, 0.1, (T, 3))), np.zeros((T, 6)), np.zeros((T, 0)))
+    camera = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=48, height=48, fov_deg=40)
+    result = SimpleNamespace(clip=clip, camera=camera, frame_index=np.arange(T) + 100)
+    rows = np.array([0, 3, 6])
+    images = {int(f): np.full((48, 48, 3), k, np.uint8) for k, f in enumerate(np.arange(T) + 100)}
+    pose = bald_reposer(avatar, result, rows, images)
+    rest = np.asarray(avatar.bald.means, np.float64)
+    moves = rng.normal(0, 0.002, rest.shape) * (rng.random(len(rest)) < 0.3)[:, None]
+    for k in range(3):
+        _set_bald_means(avatar, rest + k * moves)
+        fast, slow = pose(), posed_frames(avatar, result, rows, images, masks=False)
+        for a, b in zip(fast, slow):
+            for name in ("means", "quats", "scales", "opacities", "sh"):
+                np.testing.assert_array_equal(getattr(a.gaussians, name), getattr(b.gaussians, name))
+            assert a.image is b.image and a.mask is None and a.camera is b.camera
+        if k:
+            assert not np.array_equal(fast[0].gaussians.means, before)
+        before = fast[0].gaussians.means

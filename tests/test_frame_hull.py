@@ -456,3 +456,58 @@ def test_recede_reads_its_step_and_rounds_when_called(monkeypatch):
     out = frame_hull.recede(pose, [wall] * 3, -normal, np.ones(n, bool))
     assert len(out.info["moved"]) == 2
     np.testing.assert_allclose(out.info["deepest"], 0.001)
+
+
+def test_one_pass_for_both_walls_tallies_as_two():
+    """`_tally_pair` (one 4-label compositing pass per frame, what `recede` runs for the neck's
+    other wall) counts the same votes as `_tally` once per wall, frames without one wall or the
+    other included; shares near the votes' edge (several) so that a weight off by its
+    summation's rounding would show."""
+    from avatarkit.track.frame_hull import _tally, _tally_pair
+
+    centres, normal, q = _sphere(n=900)
+    cam = _camera()
+    n = len(centres)
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[:SIZE, :SIZE]
+    views, walls, others = [], [], []
+    for k in range(5):
+        t = np.array([0.004 * (k - 2), 0.002 * k, 0.0])
+        g = GaussianSet(centres + t, q, np.tile([0.008, 0.008, 0.0008], (n, 1)), rng.uniform(0.3, 0.99, n),
+                        rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+        views.append(_view(g, cam))
+        cx, cy = SIZE / 2 + rng.normal(0, 3, 2)
+        walls.append(None if k == 1 else wall_image((yy - cy) ** 2 + (xx - cx) ** 2 <= (14 + k) ** 2))
+        others.append(None if k == 3 else wall_image(((yy - cy) ** 2 + (xx - cx) ** 2 <= 11 ** 2) & (yy < cy + 4)))
+    for share in (0.1, 0.3, 0.5, 0.7):
+        seen, out, seen2, out2 = _tally_pair(views, walls, others, share)
+        a, b = _tally(views, walls, None, share)
+        c, d = _tally(views, others, None, share)
+        assert out.any() and out2.any() and (out != out2).any()
+        for x, y in ((seen, a), (out, b), (seen2, c), (out2, d)):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_frames_segmented_on_threads_as_one_after_another():
+    """`_each_segmented` on two threads gives each frame the labels the plain loop gives (each
+    segmentation seeds its own thread's OpenCV RNG), in the frames' order, None where no face
+    is found: the sample portrait, it mirrored, and a blank frame."""
+    from pathlib import Path
+
+    from avatarkit.recon.image_io import read_image
+    from avatarkit.recon.segment import segment_portrait
+    from avatarkit.track.frame_hull import _each_segmented
+
+    image = read_image(Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg")
+    images = [image, np.ascontiguousarray(image[:, ::-1]), np.full_like(image, 200)]
+
+    def labels(im, analysis):
+        return segment_portrait(im, analysis).labels
+
+    serial = _each_segmented(images, labels, threads=1)
+    threaded = _each_segmented(images, labels, threads=2)
+    assert serial[2] is None and threaded[2] is None
+    for a, b in zip(serial[:2], threaded[:2]):
+        assert a is not None and (a == 2).any()
+        np.testing.assert_array_equal(a, b)
+    assert (serial[0] != serial[1]).any()

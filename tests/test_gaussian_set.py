@@ -285,3 +285,58 @@ def test_from_checked_takes_arrays_as_given_but_checks_extras():
     with pytest.raises(InputError, match="first axis must be 5"):
         GaussianSet.from_checked(gs.means, gs.quats, gs.scales, gs.opacities, gs.sh,
                                  {"binding": np.arange(4)})
+
+
+def _replace_case(n=64, seed=0):
+    import numpy as np
+
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(n, 4))
+    return GaussianSet(rng.normal(size=(n, 3)), q / np.linalg.norm(q, axis=1, keepdims=True),
+                       rng.uniform(0.01, 0.1, (n, 3)), rng.uniform(0, 1, n), rng.normal(size=(n, 4, 3)),
+                       {"binding": np.arange(n)}), rng
+
+
+def test_replace_checks_what_it_replaces_and_gives_the_constructors_set():
+    """`replace` (only the replaced fields checked) gives `replace_reference`'s set (the
+    constructor's, every field checked) bit for bit: float64 inputs made float32, quats a
+    little off unit renormalised, DC-only sh, other extras; and raises the same errors for
+    bad replacements (a row count, a NaN, a scale of 0, an opacity above 1, a long quat)."""
+    import numpy as np
+    import pytest
+
+    from avatarkit.errors import InputError
+
+    gs, rng = _replace_case()
+    n = len(gs)
+    q = gs.quats.astype(np.float64) * (1 + 1e-5 * rng.normal(size=(n, 1)))
+    cases = [dict(means=rng.normal(size=(n, 3))), dict(quats=q), dict(scales=gs.scales * 2),
+             dict(opacities=rng.uniform(0, 1, n).astype(np.float64)), dict(sh=rng.normal(size=(n, 3))),
+             dict(extras={}), dict(extras={"w": rng.normal(size=n)}),
+             dict(means=gs.means[:10], quats=gs.quats[:10], scales=gs.scales[:10], opacities=gs.opacities[:10],
+                  sh=gs.sh[:10], extras={}), {}]
+    for change in cases:
+        a, b = gs.replace(**change), gs.replace_reference(**change)
+        assert type(a) is type(b) and set(a.extras) == set(b.extras)
+        for k in ("means", "quats", "scales", "opacities", "sh"):
+            x, y = getattr(a, k), getattr(b, k)
+            assert x.dtype == y.dtype == np.float32 and x.flags.c_contiguous and np.array_equal(x, y), k
+        for k in a.extras:
+            assert np.array_equal(a.extras[k], b.extras[k])
+    assert not np.array_equal(gs.replace(quats=q).quats, q.astype(np.float32))   # renormalised
+    bad_q = gs.quats.copy()
+    bad_q[3] *= 1.1
+    nan = gs.means.copy()
+    nan[5, 1] = np.nan
+    for change in (dict(means=gs.means[:10]), dict(means=nan), dict(scales=gs.scales * 0),
+                   dict(opacities=gs.opacities + 1.5), dict(quats=bad_q), dict(sh=np.zeros((n, 2, 3))),
+                   dict(extras={"w": np.zeros(n + 1)})):
+        with pytest.raises(InputError) as e1:
+            gs.replace(**change)
+        with pytest.raises(InputError) as e2:
+            gs.replace_reference(**change)
+        assert str(e1.value) == str(e2.value)
+    with pytest.raises(TypeError):
+        gs.replace(colour=1)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from avatarkit.recon.boundary import MIN_CONTRAST, _peel, drop_mask, drop_mask_reference, person_share, refine_person
+from avatarkit.recon.boundary import (MIN_CONTRAST, _cores, _nearest_interior_colour2,
+                                      _nearest_interior_colour2_loop, _peel, drop_mask, drop_mask_reference, person_share, refine_person)
 
 
 def disc_image(size=96, radius=28.0, fg=(120, 80, 60), bg=(245, 243, 240), blur=1.5, noise=2.0, seed=0):
@@ -68,3 +69,24 @@ def test_fast_matches_reference(seed):
     ref, tied = drop_mask_reference(img, grown, band=3)
     assert fast.sum() > 20 and tied.sum() < 0.1 * fast.sum()   # the case does drop pixels; few ties
     assert (fast == ref)[~tied].all()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_nearest_interior_colour_kernel_matches_the_loop(seed):
+    """The Taichi kernel gives the offset loop's array bit for bit on uint8 colours (exact
+    integer distances), inf where no interior pixel is in reach included; a frame with an
+    image's edge near the disc's ring and a blob with no interior pixel in reach."""
+    rng = np.random.default_rng(seed)
+    img, disc = disc_image(size=64, radius=20.0, seed=seed)
+    img = np.clip(img.astype(np.int16) + rng.integers(-40, 40, img.shape), 0, 255).astype(np.uint8)
+    person = disc.copy()
+    person[2:7, 56:61] = True                     # a blob all ring, no interior pixel in reach
+    interior, _, ring = _cores(person, 3)
+    f = img.astype(np.float32)
+    fast = _nearest_interior_colour2(f, interior, ring, 6)
+    slow = _nearest_interior_colour2_loop(f, interior, ring, 6)
+    assert np.isinf(slow).any() and np.isfinite(slow[ring]).sum() > 100
+    assert fast.dtype == slow.dtype and np.array_equal(fast, slow)
+    # colours that are not whole numbers take the loop itself
+    g = f + np.float32(0.25)
+    assert np.array_equal(_nearest_interior_colour2(g, interior, ring, 6), _nearest_interior_colour2_loop(g, interior, ring, 6))

@@ -16,6 +16,8 @@ from avatarkit.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
 
 #: a quaternion whose norm is further than this from 1 is an input error, not rounding noise
 QUAT_NORM_TOLERANCE = 1e-3
+#: the fields a set is made of, in the constructor's order
+_FIELDS = ("means", "quats", "scales", "opacities", "sh", "extras")
 
 
 def _as_f32(name: str, a, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -67,42 +69,56 @@ class GaussianSet:
     extras: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self):
-        self.means = _as_f32("means", self.means, (3,))
+        self._validate(_FIELDS)
+
+    def _validate(self, names) -> None:
+        """Hold the fields `names` (all of them on construction; the replaced ones in `replace`,
+        the others having passed already) to the rules, made float32; every field's row count
+        and the extras are checked whatever the names."""
+        if "means" in names:
+            self.means = _as_f32("means", self.means, (3,))
         n = len(self.means)
-        self.quats = _as_f32("quats", self.quats, (4,))
-        self.scales = _as_f32("scales", self.scales, (3,))
-        self.opacities = _as_f32("opacities", self.opacities, ())
-        sh = np.asarray(self.sh)
-        if sh.ndim == 2 and sh.shape[1] == 3:  # (N, 3): DC only
-            sh = sh[:, None, :]
-        if sh.ndim != 3 or sh.shape[2] != 3 or sh.shape[1] not in SH_COUNTS:
-            raise InputError(f"sh must have shape (N, K, 3) with K in {SH_COUNTS}, got {sh.shape}")
-        self.sh = np.ascontiguousarray(sh, dtype=np.float32)
+        if "quats" in names:
+            self.quats = _as_f32("quats", self.quats, (4,))
+        if "scales" in names:
+            self.scales = _as_f32("scales", self.scales, (3,))
+        if "opacities" in names:
+            self.opacities = _as_f32("opacities", self.opacities, ())
+        if "sh" in names:
+            sh = np.asarray(self.sh)
+            if sh.ndim == 2 and sh.shape[1] == 3:  # (N, 3): DC only
+                sh = sh[:, None, :]
+            if sh.ndim != 3 or sh.shape[2] != 3 or sh.shape[1] not in SH_COUNTS:
+                raise InputError(f"sh must have shape (N, K, 3) with K in {SH_COUNTS}, got {sh.shape}")
+            self.sh = np.ascontiguousarray(sh, dtype=np.float32)
         for name in ("quats", "scales", "opacities", "sh"):
             if len(getattr(self, name)) != n:
                 raise InputError(f"{name} has {len(getattr(self, name))} rows but means has {n}")
         for name in ("means", "quats", "scales", "opacities", "sh"):
+            if name not in names:
+                continue
             a = getattr(self, name)
             if not _all_finite(a):
                 bad = int(np.flatnonzero(~np.isfinite(a.reshape(n, -1)).all(axis=1))[0])
                 raise InputError(f"{name} has a non-finite value (Gaussian {bad})")
-        if n and not (self.scales > 0).all():
+        if "scales" in names and n and not (self.scales > 0).all():
             bad = int(np.flatnonzero(~(self.scales > 0).all(axis=1))[0])
             raise InputError(f"scales must be > 0 (Gaussian {bad} has {self.scales[bad].tolist()})")
-        if n and not ((self.opacities >= 0) & (self.opacities <= 1)).all():
+        if "opacities" in names and n and not ((self.opacities >= 0) & (self.opacities <= 1)).all():
             bad = int(np.flatnonzero((self.opacities < 0) | (self.opacities > 1))[0])
             raise InputError(f"opacities must lie in [0, 1] (Gaussian {bad} has {self.opacities[bad]})")
-        norms = np.sqrt(np.einsum("ij,ij->i", self.quats, self.quats, dtype=np.float64))
-        if n and not (np.abs(norms - 1) <= QUAT_NORM_TOLERANCE).all():
-            bad = int(np.flatnonzero(np.abs(norms - 1) > QUAT_NORM_TOLERANCE)[0])
-            raise InputError(f"quats must be unit length (Gaussian {bad} has norm {norms[bad]:.6g}); "
-                             "normalise them first")
-        # Renormalise only rows not already unit to float32 precision, so constructing a set
-        # from another set's quats (replace, subset, file round trips) keeps them bit-identical.
-        fix = np.abs(norms - 1) > 4 * np.finfo(np.float32).eps
-        if fix.any():
-            self.quats = self.quats.copy()
-            self.quats[fix] = self.quats[fix].astype(np.float64) / norms[fix, None]
+        if "quats" in names:
+            norms = np.sqrt(np.einsum("ij,ij->i", self.quats, self.quats, dtype=np.float64))
+            if n and not (np.abs(norms - 1) <= QUAT_NORM_TOLERANCE).all():
+                bad = int(np.flatnonzero(np.abs(norms - 1) > QUAT_NORM_TOLERANCE)[0])
+                raise InputError(f"quats must be unit length (Gaussian {bad} has norm {norms[bad]:.6g}); "
+                                 "normalise them first")
+            # Renormalise only rows not already unit to float32 precision, so constructing a set
+            # from another set's quats (replace, subset, file round trips) keeps them bit-identical.
+            fix = np.abs(norms - 1) > 4 * np.finfo(np.float32).eps
+            if fix.any():
+                self.quats = self.quats.copy()
+                self.quats[fix] = self.quats[fix].astype(np.float64) / norms[fix, None]
         self.extras = _checked_extras(self.extras, n)
 
     # --- construction -------------------------------------------------------------------
@@ -170,7 +186,21 @@ class GaussianSet:
 
     # --- derived sets --------------------------------------------------------------------
     def replace(self, **changes) -> "GaussianSet":
-        """A new, validated set with some fields replaced (arrays are not copied)."""
+        """A new, validated set with some fields replaced (arrays are not copied). Only the
+        replaced fields are checked (the others passed on this set's construction), and the
+        row counts: the same set as `replace_reference`'s, which checks every field again (a
+        refined tracking's frame or a colour round replaces one or two of five)."""
+        unknown = set(changes) - set(_FIELDS)
+        if unknown or type(self) is not GaussianSet:
+            return self.replace_reference(**changes)
+        gs = object.__new__(GaussianSet)
+        gs.means, gs.quats, gs.scales, gs.opacities, gs.sh, gs.extras = (
+            changes.get(k, getattr(self, k)) for k in _FIELDS)
+        gs._validate(frozenset(changes))
+        return gs
+
+    def replace_reference(self, **changes) -> "GaussianSet":
+        """`replace` through the constructor: every field checked (the obvious twin)."""
         fields = dict(means=self.means, quats=self.quats, scales=self.scales,
                       opacities=self.opacities, sh=self.sh, extras=self.extras)
         fields.update(changes)

@@ -103,9 +103,11 @@ class ColourModel:
         """Squared Mahalanobis distance of Lab colours (..., 3) -> (...)."""
         return _mahalanobis2(lab, self.mean, self.cov)
 
-    def log_likelihood(self, lab: np.ndarray) -> np.ndarray:
-        """Log density (up to a shared constant) of Lab colours (..., 3) -> (...)."""
-        return -0.5 * self.distance2(lab) - 0.5 * float(np.linalg.slogdet(self.cov)[1])
+    def log_likelihood(self, lab: np.ndarray, distance2: np.ndarray | None = None) -> np.ndarray:
+        """Log density (up to a shared constant) of Lab colours (..., 3) -> (...); distance2:
+        their `distance2` when the caller has it already (the same numbers, not recomputed)."""
+        d2 = self.distance2(lab) if distance2 is None else distance2
+        return -0.5 * d2 - 0.5 * float(np.linalg.slogdet(self.cov)[1])
 
     @property
     def rgb(self) -> np.ndarray:
@@ -342,9 +344,12 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
     return _keep_touching(person, sure) | sure
 
 
-def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod) -> np.ndarray:
+def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod, skin_d2=None) -> np.ndarray:
+    """skin_d2: skin.distance2(lab) when the caller has it (an image-sized Mahalanobis pass
+    saved twice)."""
     import cv2
 
+    skin_d2 = skin.distance2(lab) if skin_d2 is None else skin_d2
     # Work only inside the box around the person's hair zone: GrabCut cost scales with its area.
     ys, xs = np.nonzero(reg["hair_zone"] & person)
     if len(ys) == 0:
@@ -356,7 +361,7 @@ def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod) -> 
 
     sub = img[win].copy()
     sub[~person[win]] = skin.rgb
-    hairlike = hair.log_likelihood(lab) > skin.log_likelihood(lab)
+    hairlike = hair.log_likelihood(lab) > skin.log_likelihood(lab, skin_d2)
     gc = np.full(sub.shape[:2], cv2.GC_PR_BGD, np.uint8)
     gc[person[win] & reg["hair_zone"][win] & hairlike[win]] = cv2.GC_PR_FGD
     gc[seeds[win]] = cv2.GC_FGD
@@ -370,7 +375,7 @@ def _hair_grabcut(img, lab, person, reg, skin, hair, seeds, iterations, iod) -> 
     # the adjacent person pixels that are hair-like and clearly not skin.
     r = max(1, round(0.05 * iod))
     near = cv2.dilate(fg.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)).astype(bool)
-    fg |= near & person & ~reg["face_core"] & hairlike & (skin.distance2(lab) > MATCH_D2)
+    fg |= near & person & ~reg["face_core"] & hairlike & (skin_d2 > MATCH_D2)
     min_area = max(4, int(0.02 * iod * iod))
     fg = _drop_small(fg, min_area)
     fg |= ~_drop_small(~fg, int(0.15 * iod * iod))  # fill small holes
@@ -453,7 +458,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
         if seeds.sum() >= max(20, 0.05 * (reg["seed_zone"] & person).sum()):
             hair_model = ColourModel.fit(lab[seeds])
             seeds &= hair_model.distance2(lab) <= MATCH_D2
-            hair = _hair_grabcut(img, lab, person, reg, skin, hair_model, seeds, iterations, iod)
+            hair = _hair_grabcut(img, lab, person, reg, skin, hair_model, seeds, iterations, iod, skin_d2)
             if not hair.any():
                 hair_model = None
 

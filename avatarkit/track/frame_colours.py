@@ -352,16 +352,9 @@ def posed_frames(avatar, result, rows, images: dict, masks: bool = True) -> list
     (mask, outline, weights and shows None: what the frame hull's votes need)."""
     import cv2
 
-    from avatarkit.bake import BakeConfig, bake
     from avatarkit.render import render
-    from avatarkit.sim.config import SimConfig
 
-    from avatarkit.motion.clip import CHANNELS
-
-    rows = [int(r) for r in rows]
-    # the hair rides the head (no simulation), so the frames are independent: only these are baked
-    clip = result.clip.replace(**{k: np.asarray(getattr(result.clip, k))[rows] for k in CHANNELS})
-    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    static, baked = _baked_rows(avatar, result, rows)
     kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * MASK_ERODE + 1,) * 2) if MASK_ERODE else None)
     out = []
     for i, frame in zip(rows, baked):
@@ -376,6 +369,50 @@ def posed_frames(avatar, result, rows, images: dict, masks: bool = True) -> list
         view.shows = view.weights >= MIN_WEIGHT
         out.append(view)
     return out
+
+
+def _baked_rows(avatar, result, rows):
+    """(BakeStatic, [BakeFrame] per row): the avatar baked at the tracked clip's `rows`, the
+    hair riding the head (no simulation: the frames are independent, only these are baked)."""
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.motion.clip import CHANNELS
+    from avatarkit.sim.config import SimConfig
+
+    rows = [int(r) for r in rows]
+    clip = result.clip.replace(**{k: np.asarray(getattr(result.clip, k))[rows] for k in CHANNELS})
+    static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
+    return static, list(baked)
+
+
+def bald_reposer(avatar, result, rows, images: dict):
+    """pose() -> `posed_frames(avatar, result, rows, images, masks=False)` for the avatar's
+    bald Gaussians as they are at the call (the frame hull's `recede` moves them between
+    calls; nothing else of the avatar may change). The first call bakes; later calls keep its
+    head meshes and hair (neither depends on the bald Gaussians) and pose only the bald ones
+    again on the avatar's current binding, as the bake does (`binding_to_world` of the same
+    head mesh): the same Gaussians, without the head model, the cage and the hair's deformation
+    per frame again."""
+    import dataclasses
+
+    from avatarkit.baked import SplatFrame
+    from avatarkit.rig.binding_kernel import binding_to_world
+
+    kept: list = []
+
+    def pose() -> list[FrameView]:
+        if not kept:
+            kept.append(_baked_rows(avatar, result, rows))
+        static, baked = kept[0]
+        static = dataclasses.replace(static, face=avatar.bald)
+        binding = avatar.binding
+        out = []
+        for i, frame in zip(rows, baked):
+            frame = dataclasses.replace(frame, face=SplatFrame(*binding_to_world(binding, frame.head_vertices)))
+            out.append(FrameView(frame.person(static, avatar.has_hair), result.camera,
+                                 images[int(result.frame_index[int(i)])], None))
+        return out
+
+    return pose
 
 
 def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
@@ -415,10 +452,17 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     from avatarkit.track.keyframes import read_frames
 
     images = read_frames(video, np.asarray(result.frame_index)[rows])
-    views = posed_frames(saved, result, rows, images)
+    from avatarkit.track import frame_hull
+
+    # the frame hull votes on the posed Gaussians alone (no render, no weights) and nearly always
+    # changes them: the masks and weights the colours need are made after it, once
+    hull = frame_hull.CARVE if carve is None else carve
+    views = posed_frames(saved, result, rows, images, masks=not hull)
     carved = _carve(saved, avatar, views, carve)
-    receded = _recede(saved, avatar, carved, lambda: posed_frames(saved, result, rows, images, masks=False))
-    if (carved is not None and carved.cleared.any()) or (receded is not None and receded.moved.any()):
+    # the recession's rounds move only the bald Gaussians: the head meshes and the hair are baked once
+    receded = _recede(saved, avatar, carved, bald_reposer(saved, result, rows, images))
+    if (views[0].mask is None or (carved is not None and carved.cleared.any())
+            or (receded is not None and receded.moved.any())):
         views = posed_frames(saved, result, rows, images)       # the masks without the cleared
     regions = int(select.sum())
     if outline:
@@ -501,4 +545,4 @@ def _recede(saved, avatar, carved, pose_views):
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
            "FUSE_ALL", "FUSE_HAIR", "HIDDEN_WEIGHT", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
            "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_refine", "stage_spacing", "frame_shows", "frame_weights", "fuse_frame_colours",
-           "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "refine_colours_frames"]
+           "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "bald_reposer", "refine_colours_frames"]

@@ -127,10 +127,32 @@ def wall_votes(gaussians, camera, wall: np.ndarray, share: float = SHARE,
     int32 label image's 1s)."""
     from avatarkit.recon.label_lifting import accumulate_weights
 
-    w = accumulate_weights(gaussians, camera, wall, 2).astype(np.float64)   # (N, 2)
+    return _votes(accumulate_weights(gaussians, camera, wall, 2), share, min_weight)
+
+
+def _votes(w: np.ndarray, share: float, min_weight: float) -> tuple[np.ndarray, np.ndarray]:
+    """`wall_votes` from the (N, 2) float32 weights off / on the wall."""
+    w = w.astype(np.float64)
     total = w.sum(axis=1)
     shows = total >= min_weight
     return shows, shows & (w[:, 1] >= share * total)
+
+
+def wall_votes_pair(gaussians, camera, wall: np.ndarray, other: np.ndarray, share: float = SHARE,
+                    min_weight: float = MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`wall_votes` with `wall` and with `other` (both (H, W) int32 0 / 1) from one compositing
+    pass (4 labels: wall + 2 other; each wall's two weights are the sums of two of them, in
+    float64 before the cast to float32 as `accumulate_weights` casts): (shows, outside,
+    shows_other, outside_other). The weights are the same sums of the same pixels' terms as
+    two passes give, added in another order (float64; the kernel's atomics add in no fixed
+    order either)."""
+    from avatarkit.recon.label_lifting import accumulate_view, check_label_image
+
+    both = check_label_image(np.asarray(wall, np.int32) + 2 * np.asarray(other, np.int32), camera, 4)
+    w = accumulate_view(gaussians, camera, both, 4)[0]                       # (N, 4) float64
+    mine = np.stack([w[:, 0] + w[:, 2], w[:, 1] + w[:, 3]], 1).astype(np.float32)
+    theirs = np.stack([w[:, 0] + w[:, 1], w[:, 2] + w[:, 3]], 1).astype(np.float32)
+    return (*_votes(mine, share, min_weight), *_votes(theirs, share, min_weight))
 
 
 def carve(views, walls: list, rounds: int = ROUNDS, share: float = SHARE, quorum: float = QUORUM,
@@ -177,6 +199,30 @@ def _tally(views, walls: list, cleared: np.ndarray | None, share: float) -> tupl
         seen += shows
         out += outside
     return seen, out
+
+
+def _tally_pair(views, walls: list, other_walls: list, share: float):
+    """`_tally(views, walls)` and `_tally(views, other_walls)` (nothing cleared) in one pass
+    per view where both walls are given (`wall_votes_pair`): (seen, out, seen_other,
+    out_other)."""
+    n = len(views[0].gaussians) if views else 0
+    seen, out, seen2, out2 = (np.zeros(n) for _ in range(4))
+    for v, wall, other in zip(views, walls, other_walls):
+        if wall is not None and other is not None:
+            a, b, c, d = wall_votes_pair(v.gaussians, v.camera, wall, other, share)
+            seen += a
+            out += b
+            seen2 += c
+            out2 += d
+        elif wall is not None:
+            a, b = wall_votes(v.gaussians, v.camera, wall, share)
+            seen += a
+            out += b
+        elif other is not None:
+            c, d = wall_votes(v.gaussians, v.camera, other, share)
+            seen2 += c
+            out2 += d
+    return seen, out, seen2, out2
 
 
 @dataclass
@@ -226,11 +272,13 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     per_round = []
     for _ in range(rounds):
         views = pose(offsets)
-        seen, out = _tally(views, walls, None, share)
-        seen, out = seen[:m], out[:m]
         if other is not None and other.any():
-            seen2, out2 = _tally(views, other_walls, None, share)
-            seen, out = np.where(other, seen2[:m], seen), np.where(other, out2[:m], out)
+            # one compositing pass per frame for both walls (`_tally_pair`; two `_tally`s give the same)
+            seen, out, seen2, out2 = _tally_pair(views, walls, other_walls, share)
+            seen, out = np.where(other, seen2[:m], seen[:m]), np.where(other, out2[:m], out[:m])
+        else:
+            seen, out = _tally(views, walls, None, share)
+            seen, out = seen[:m], out[:m]
         new = movable & _voted(seen, out, min_frames, quorum)
         per_round.append(int(new.sum()))
         if not new.any():
@@ -260,9 +308,50 @@ def person_labels(images: list) -> list:
     return _each_segmented(images, lambda image, analysis: segment_portrait(image, analysis).labels)
 
 
-def _each_segmented(images: list, segment) -> list:
+#: threads the frames are segmented on (None: one per core, as the Taichi kernels use:
+#: `AVATARKIT_THREADS` or the CPU count). GrabCut, most of a segmentation's time, runs in
+#: OpenCV without the GIL, and each segmentation seeds its own thread's OpenCV RNG
+#: (`recon.segment._working_copy`), so each frame's labels are the same on any thread
+SEGMENT_THREADS: int | None = None
+
+
+def _each_segmented(images: list, segment, threads: int | None = None) -> list:
     """Per image segment(image, its `analyze_portrait` with the face front end's "auto"
-    detector), or None where the analysis or the segmentation finds no face (AvatarKitError)."""
+    detector), or None where the analysis or the segmentation finds no face (AvatarKitError).
+    The analyses run here, one after another (the face front end's interpreters are shared);
+    the segmentations on `threads` threads (None: `SEGMENT_THREADS`), one frame each, in any
+    order: each is a function of its own image and analysis alone. threads=1 is the plain
+    loop (`_each_segmented_serial`)."""
+    from avatarkit._taichi import _threads
+
+    threads = SEGMENT_THREADS if threads is None else threads
+    threads = min(len(images), _threads() if threads is None else int(threads))
+    if threads <= 1:
+        return _each_segmented_serial(images, segment)
+    from concurrent.futures import ThreadPoolExecutor
+
+    from avatarkit.errors import AvatarKitError
+    from avatarkit.recon.portrait import analyze_portrait
+
+    def one(image, analysis):
+        try:
+            return segment(image, analysis)
+        except AvatarKitError:
+            return None
+
+    analyses = []
+    for image in images:
+        try:
+            analyses.append(analyze_portrait(image, None, detector="auto"))
+        except AvatarKitError:
+            analyses.append(None)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        jobs = [None if a is None else pool.submit(one, image, a) for image, a in zip(images, analyses)]
+        return [None if j is None else j.result() for j in jobs]
+
+
+def _each_segmented_serial(images: list, segment) -> list:
+    """`_each_segmented` one frame after another on this thread."""
     from avatarkit.errors import AvatarKitError
     from avatarkit.recon.portrait import analyze_portrait
 
@@ -298,5 +387,5 @@ def carve_frames(views, margin: int = MARGIN, labels: bool = False, **kwargs) ->
 
 
 __all__ = ["BALD", "CARVE", "CLOTHES_NECK", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "RECEDE", "RECEDE_REGIONS", "RECEDE_ROUNDS",
-           "ROUNDS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "neck_walls", "person_labels", "person_masks", "recede",
-           "wall_image", "wall_votes"]
+           "ROUNDS", "SEGMENT_THREADS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "neck_walls", "person_labels", "person_masks", "recede",
+           "wall_image", "wall_votes", "wall_votes_pair"]
