@@ -308,8 +308,8 @@ def test_a_hidden_gaussian_keeps_its_colour_when_updates_are_weighted_by_what_sh
 
     w = frame_weights(view)
     assert (w[n:][inner[n:]] < 0.3).all() and (w[n:][inner[n:]] >= 0.05).any() and (w[:n][inner[:n]] > 1).all()
-    plain = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.0)
-    weighted = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.5)
+    plain = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.0, depth=0.0)
+    weighted = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.5, depth=0.0)
     shown_back = inner & (np.arange(2 * n) >= n) & (w >= 0.05)
     for fused in (plain, weighted):
         np.testing.assert_allclose(fused.rgb[:n][inner[:n]].mean(axis=0), [0.8, 0.2, 0.2], atol=0.05)
@@ -347,3 +347,65 @@ def test_the_recessions_reposer_gives_the_bakes_frames_as_the_bald_moves():
         if k:
             assert not np.array_equal(fast[0].gaussians.means, before)
         before = fast[0].gaussians.means
+
+
+def _front_and_hidden_planes(gap: float = 0.05, hidden_colour=(0.5, 0.5, 0.5)):
+    """A grey plane (opacity 0.7) in front of a second one `gap` behind it (hidden but for a
+    sliver of weight, as the back of the neck is behind the front of it and the chin) and a
+    frame showing the front plane red. -> (gaussians, camera, image, n per plane, inner (2n,)
+    bool: away from the planes' edges)."""
+    xs = ys = np.arange(-0.1, 0.1 + 1e-9, 0.01)
+    cam = _camera()
+    front = _plane(np.full((len(xs) ** 2, 3), 0.5), xs, ys).replace(opacities=np.full(len(xs) ** 2, 0.7))
+    back = front.replace(means=front.means - np.array([0.0, 0.0, gap])).with_colors(
+        np.tile(np.float32(hidden_colour), (len(front), 1)))
+    red = front.with_colors(np.tile(np.float32([0.8, 0.2, 0.2]), (len(front), 1)))
+    image = (np.clip(render(red, cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    X, Y = np.meshgrid(xs, ys)
+    inner = np.tile((np.abs(X.ravel()) < 0.06) & (np.abs(Y.ravel()) < 0.06), 2)
+    return GaussianSet.concat([front, back]), cam, image, len(front), inner
+
+
+@pytest.mark.parametrize("count", [True, False])
+def test_a_disc_behind_the_surface_keeps_its_colour_and_one_in_view_takes_the_frames(monkeypatch, count):
+    """The back plane's discs show (weight >= MIN_WEIGHT) but lie 5 cm behind what the frame
+    shows: without HIDDEN_DEPTH (0) they take the front's residual every round and turn red;
+    with it (3 cm) they keep their grey exactly and are not counted as updated (whether the
+    hiding frame counts in their mean or not: HIDDEN_COUNT), while the front plane reaches the
+    frame's red as before."""
+    from avatarkit.track import frame_colours as fc
+    from avatarkit.track.frame_colours import MIN_WEIGHT, frame_weights
+
+    monkeypatch.setattr(fc, "HIDDEN_COUNT", count)
+
+    g, cam, image, n, inner = _front_and_hidden_planes()
+    view = FrameView(g, cam, image, np.ones((SIZE, SIZE), bool))
+    shown_back = inner & (np.arange(2 * n) >= n) & (frame_weights(view) >= MIN_WEIGHT)
+    assert shown_back.sum() > 10
+    plain = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.0, depth=0.0)
+    kept = refine_colours_frames([view], np.ones(2 * n, bool), background=np.ones(3), hidden=0.0, depth=0.03)
+    for fused in (plain, kept):
+        np.testing.assert_allclose(fused.rgb[:n][inner[:n]].mean(axis=0), [0.8, 0.2, 0.2], atol=0.05)
+    assert np.abs(plain.rgb[shown_back] - 0.5).max(axis=1).mean() > 0.25
+    np.testing.assert_array_equal(kept.rgb[shown_back], g.colors[shown_back])
+    assert plain.updated[shown_back].all() and not kept.updated[shown_back].any()
+
+
+def test_a_disc_seen_in_one_frame_takes_that_frames_colour_whole():
+    """Two frames of the same discs: in one the front plane hides the back plane (5 cm behind),
+    in the other the front plane is moved out of view and the frame shows the back plane blue.
+    The back plane takes the blue from the frame that sees it, the mean over the frames that
+    see it (HIDDEN_COUNT): two rounds reach it, where averaging in the hiding frame's zero
+    update would leave it a quarter short."""
+    from avatarkit.track import frame_colours as fc
+
+    g, cam, image, n, inner = _front_and_hidden_planes()
+    away = g.replace(means=np.where((np.arange(2 * n) < n)[:, None], g.means + np.array([1.0, 0.0, 0.0]), g.means))
+    blue = away.with_colors(np.tile(np.float32([0.2, 0.3, 0.8]), (2 * n, 1)))
+    image2 = (np.clip(render(blue, cam, np.ones(3)).rgb, 0, 1) * 255).round().astype(np.uint8)
+    views = [FrameView(g, cam, image, np.ones((SIZE, SIZE), bool)),
+             FrameView(away, cam, image2, np.ones((SIZE, SIZE), bool))]
+    back = inner & (np.arange(2 * n) >= n)
+    fused = refine_colours_frames(views, np.ones(2 * n, bool), iterations=2, background=np.ones(3), hidden=0.0, depth=0.03)
+    np.testing.assert_allclose(fused.rgb[back].mean(axis=0), [0.2, 0.3, 0.8], atol=0.03)
+    np.testing.assert_allclose(fused.rgb[:n][inner[:n]].mean(axis=0), [0.8, 0.2, 0.2], atol=0.05)

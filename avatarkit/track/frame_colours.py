@@ -26,7 +26,8 @@ each from the tracked camera, and refine the colours of the selected Gaussians
 the posed renders' outline) against all those frames at once (`refine_colours_frames`: each round, the residual
 video - render inside the frame's render mask eroded by `MASK_ERODE` px, averaged over each
 Gaussian's footprint as `recon.assemble.refine_colours` does, then averaged over the frames the
-Gaussian shows in). The other Gaussians keep the portrait build's colours. Before the colours,
+Gaussian shows in, leaving out those where it lies more than `HIDDEN_DEPTH` behind the surface
+the frame shows). The other Gaussians keep the portrait build's colours. Before the colours,
 the Gaussians the frames show over the background are cleared (`track.frame_hull`, `CARVE`).
 The video build runs it only when it has one keyframe (a head that does not turn:
 `track.video_build`).
@@ -113,6 +114,22 @@ MIN_WEIGHT = 0.05
 #: change the render, so the residual it reads stays and, round after round, pushes its colour
 #: toward whatever the pixels around it miss (the green band under the chin in the previews)
 HIDDEN_WEIGHT = 0.0
+#: a frame where a Gaussian's centre lies more than this (metres) behind the surface the frame
+#: shows there (the render's depth at its projection) gives it no update, and with HIDDEN_COUNT
+#: does not count in the mean over the frames it shows in either; 0: off. Such a disc shows a
+#: sliver (its blending weight reaches MIN_WEIGHT) yet takes the residual of the surface in
+#: front, and, changing the render hardly at all, takes it again every round: the back of the
+#: neck (10-18 cm behind the front of the neck and the chin in the colour frames) drifted to
+#: the specks and the dark blotch a profile or back view shows (session 19, docs/video-build.md).
+#: At 3 cm: the grey clip's neck discs off their 12 neighbours' median by > 0.15 fall 177 -> 34
+#: (the single-frame build: 24), the back view's PSNR against the single-frame build 25.6 ->
+#: 30.1 dB (glasses 29.3 -> 30.3); `evaluate --compare-single` grey 27.747 -> 27.742, glasses
+#: 28.721 -> 28.715, the synthetic talking video 30.109 -> 30.113
+HIDDEN_DEPTH = 0.03
+#: with HIDDEN_DEPTH, a Gaussian's update is the mean over the frames that see it (not hidden
+#: so): a disc the mouth or the jaw hides in most frames takes the few that see it whole.
+#: False (the hiding frames count, as zeros): grey 27.767, glasses 28.712 (session 19)
+HIDDEN_COUNT = True
 
 
 @dataclass
@@ -162,21 +179,25 @@ class FusedColours:
 
 def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int = ITERATIONS,
                           step: float = 1.0, min_weight: float = MIN_WEIGHT,
-                          background=None, hidden: float | None = None) -> FusedColours:
+                          background=None, hidden: float | None = None,
+                          depth: float | None = None) -> FusedColours:
     """`recon.assemble.refine_colours` over several posed frames of the same Gaussians: each
     round renders every frame, takes the residual image - render inside its mask, per Gaussian
     that shows there (blending weight summed over the mask >= min_weight pixels) the residual
     averaged over about its own footprint (the blur scale matched to its projected radius);
     a selected Gaussian's update is the mean over the frames it shows in. Unselected Gaussians
     keep their colours. background: (3,) render background (None: each frame's median outside
-    its mask); hidden: `HIDDEN_WEIGHT` (None: the module's). With one frame, every Gaussian
-    selected and hidden 0 this is refine_colours."""
+    its mask); hidden: `HIDDEN_WEIGHT`, depth: `HIDDEN_DEPTH` (None: the module's): a frame
+    where a Gaussian lies more than depth behind the render's depth at its projection gives it
+    no update (and no count, with `HIDDEN_COUNT`). With one frame, every Gaussian selected,
+    hidden and depth 0 this is refine_colours."""
     from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
     if not views:
         raise ValueError("no frames to fuse")
     hidden = HIDDEN_WEIGHT if hidden is None else float(hidden)
+    depth = HIDDEN_DEPTH if depth is None else float(depth)
     n = len(views[0].gaussians)
     select = np.asarray(select, bool).reshape(n)
     rgb = views[0].gaussians.colors.astype(np.float32).copy()
@@ -194,7 +215,7 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
         if hidden > 0:
             w = np.asarray(v.weights if getattr(v, "weights", None) is not None else frame_weights(v), np.float64)
             damp = (w / (w + hidden))[shows][:, None]
-        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None, damp=damp))
+        prep.append(dict(v=v, m=m, target=target, bg=bg, px=px, shows=shows, level=None, damp=damp, scale=None))
     history = []
     for it in range(iterations + 1):
         num = np.zeros((n, 3))
@@ -207,10 +228,18 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
             sh = p["shows"]
             if it == iterations or not sh.any():
                 continue
+            if depth > 0 and p["scale"] is None:
+                # the colours do not move the Gaussians: the first round's depths hold
+                p["scale"] = (_depth_behind(r, sh) <= depth).astype(np.float64)
             delta, p["level"] = footprint_residuals(r.rgb, p["target"], p["m"], p["px"][sh],
                                                     r.meta["radii"][sh], p["level"])
-            num[sh] += delta if p["damp"] is None else delta * p["damp"]
-            den[sh] += 1.0
+            if p["damp"] is not None:
+                delta = delta * p["damp"]
+            if p["scale"] is not None:
+                delta = delta * p["scale"][:, None]
+            num[sh] += delta
+            # a frame that does not see it (behind the surface) neither drives it nor counts
+            den[sh] += p["scale"] if p["scale"] is not None and HIDDEN_COUNT else 1.0
         history.append(float(np.mean(scores)))
         if it == iterations or not (den > 0).any():
             break
@@ -218,10 +247,26 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
         rgb[upd] = np.clip(rgb[upd] + step * (num[upd] / den[upd, None]).astype(np.float32), 0.0, 1.0)
     updated = np.zeros(n, bool)
     for p in prep:
-        updated |= p["shows"]
+        # a frame that hides a Gaussian (HIDDEN_DEPTH) did not update it
+        updated[p["shows"]] |= True if p["scale"] is None else p["scale"] > 0
     return FusedColours(rgb, updated, {"frames": len(views), "selected": int(select.sum()),
                                        "updated": int(updated.sum()),
                                        "psnr_before": round(history[0], 3), "psnr_after": round(history[-1], 3)})
+
+
+def _depth_behind(r, idx: np.ndarray) -> np.ndarray:
+    """(k,) metres: how far the Gaussians idx (bool (N,) or indices) lie behind the render r's
+    depth (the alpha-weighted expected depth of what the pixel shows) at the pixel of their
+    projected centre; 0 off the image or where the render is empty."""
+    xy = np.asarray(r.meta["means2d"])[idx]
+    z = np.asarray(r.meta["depths"], np.float64)[idx]
+    h, w = r.depth.shape
+    q = np.round(np.nan_to_num(xy, nan=-1.0)).astype(np.int64)
+    ok = np.isfinite(xy).all(axis=1) & (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
+    out = np.zeros(len(z))
+    front = np.asarray(r.depth, np.float64)[q[ok, 1], q[ok, 0]]
+    out[ok] = np.where(front > 0, z[ok] - front, 0.0)
+    return out
 
 
 def colour_frames(result, span: tuple[int, int] | None = None, count: int | None = None,
@@ -543,6 +588,6 @@ def _recede(saved, avatar, carved, pose_views):
 
 
 __all__ = ["FRAMES", "FrameView", "FusedColours", "ITERATIONS", "MASK_ERODE", "MAX_TURN",
-           "FUSE_ALL", "FUSE_HAIR", "HIDDEN_WEIGHT", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
+           "FUSE_ALL", "FUSE_HAIR", "HIDDEN_WEIGHT", "HIDDEN_DEPTH", "HIDDEN_COUNT", "OUTLINE", "OUTLINE_BAND", "OUTLINE_SHARE", "REFINE", "REFINE_EVERY", "REGIONS",
            "REGISTERED_ITERATIONS", "StageSettings", "colour_frames", "stage_refine", "stage_spacing", "frame_shows", "frame_weights", "fuse_frame_colours",
            "fusion_selection", "outline_band", "stage_settings", "outline_selection", "posed_frames", "bald_reposer", "refine_colours_frames"]
