@@ -251,6 +251,34 @@ def test_build_fails_cleanly_late_in_the_pipeline(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_the_build_trims_its_outline_when_asked(monkeypatch):
+    """With `outline_trim.TRIM_OUTLINE` the colours stage trims the bald discs and hair against
+    the photo's person (the segmentation's, in the fit's camera) after the coverage fill; the
+    build is stopped after the colours stage (the hair rig raises)."""
+    from avatarkit.recon import hair_rig, outline_trim, pipeline
+
+    calls = []
+    real = outline_trim.trim_outline
+
+    def spy(bald, hair, fit, person, **kwargs):
+        out = real(bald, hair, fit, person, **kwargs)
+        calls.append((len(bald), len(hair), person.shape, (fit.camera.height, fit.camera.width), out))
+        return out
+
+    def stop(*args, **kwargs):
+        raise InputError("stopped after the colours stage (test)")
+
+    monkeypatch.setattr(outline_trim, "TRIM_OUTLINE", True)
+    monkeypatch.setattr(outline_trim, "trim_outline", spy)
+    monkeypatch.setattr(hair_rig, "rig_hair", stop)
+    with pytest.raises(InputError, match="test"):
+        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    assert len(calls) == 1
+    nb, nh, shape, view, (bald, hair, info) = calls[0]
+    assert shape == view and nb >= 2000 and nh > 0
+    assert info["bald_moved"] > 0 and len(bald) == nb and len(hair) == nh - info["hair_dropped"]
+
+
 def test_fast_end_to_end_build(tmp_path):
     """The whole pipeline on the sample portrait at low Gaussian counts: saved, loaded, checked."""
     from avatarkit.avatar import load_avatar
@@ -276,6 +304,7 @@ def test_fast_end_to_end_build(tmp_path):
     assert set(build["timings_s"]) == set(STAGES)
     assert loaded.provenance["hair_mode"] in ("rigid", "cage")
     assert build["assemble"]["inside_after"] == 0
+    assert "outline_trim" not in build                 # off by default (`recon.outline_trim`)
     image = read_image(SAMPLE)
     analysis = analyze_portrait(image)
     m = front_view_metrics(loaded, image, segment_portrait(image, analysis))

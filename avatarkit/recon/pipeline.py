@@ -318,6 +318,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
+    from avatarkit.recon import outline_trim
     from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
     from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, rig_sdf
     from avatarkit.recon.image_io import load_image
@@ -458,6 +459,9 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             from avatarkit.recon.coverage import cover_silhouette
 
             bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels)
+        if outline_trim.TRIM_OUTLINE:
+            # before the colours are matched: the discs moved in, not recoloured to hide on the wall
+            bald, hair, report.info["outline_trim"] = outline_trim.trim_outline(bald, hair, fit, segmentation.person)
         if options.refine_iterations > 0:
             # the reference photo last: the keyframes' residual misregistration must not blur
             # the face the build is made from
