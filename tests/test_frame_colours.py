@@ -176,24 +176,32 @@ def test_fusion_selection_takes_the_bald_gaussians_on_the_regions_and_the_hair_i
     assert sel.all()
 
 
-def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
-    """`posed_frames` bakes the chosen rows alone (the fast path); the reference is the bake of
-    the whole clip: with the hair riding the head the poses are the same."""
-    from avatarkit.bake import BakeConfig, bake
+def _posing_case(seed: int, T: int):
+    """A small sample avatar, a random T-frame clip from `seed` and a 48 px camera, as a
+    TrackResult stand-in with frames 100.. (each image a flat grey of its row): -> (avatar,
+    clip, result, images, rng)."""
     from avatarkit.motion.clip import MotionClip
-    from avatarkit.sim.config import SimConfig
     from avatarkit.synthetic.sample_avatar import make_sample_avatar
-    from avatarkit.track.frame_colours import posed_frames
 
     avatar = make_sample_avatar(n_hair=800, n_bald=1000, cage_vertices=150, seed=5)
-    rng = np.random.default_rng(0)
-    T = 9
+    rng = np.random.default_rng(seed)
     clip = MotionClip(30.0, rng.normal(0, 0.1, (T, 3)), rng.normal(0, 0.01, (T, 3)), np.zeros((T, 3)),
                       np.abs(rng.normal(0, 0.1, (T, 3))), np.zeros((T, 6)), np.zeros((T, 0)))
     camera = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=48, height=48, fov_deg=40)
     result = SimpleNamespace(clip=clip, camera=camera, frame_index=np.arange(T) + 100)
-    rows = [1, 4, 8]
     images = {int(f): np.full((48, 48, 3), k, np.uint8) for k, f in enumerate(np.arange(T) + 100)}
+    return avatar, clip, result, images, rng
+
+
+def test_posed_frames_bake_only_their_rows_as_the_whole_clip_would():
+    """`posed_frames` bakes the chosen rows alone (the fast path); the reference is the bake of
+    the whole clip: with the hair riding the head the poses are the same."""
+    from avatarkit.bake import BakeConfig, bake
+    from avatarkit.sim.config import SimConfig
+    from avatarkit.track.frame_colours import posed_frames
+
+    avatar, clip, result, images, _ = _posing_case(0, 9)
+    rows = [1, 4, 8]
     views = posed_frames(avatar, result, rows, images)
     static, baked = bake(avatar, clip, BakeConfig(sim=SimConfig(static=True)))
     whole = list(baked)
@@ -321,19 +329,10 @@ def test_the_recessions_reposer_gives_the_bakes_frames_as_the_bald_moves():
     """`bald_reposer` (the head meshes and hair baked once, the bald Gaussians posed again on
     the current binding) gives what `posed_frames(masks=False)` gives, bit for bit, at its first
     call and after the bald Gaussians moved (as `recede` moves them) twice."""
-    from avatarkit.motion.clip import MotionClip
-    from avatarkit.synthetic.sample_avatar import make_sample_avatar
     from avatarkit.track.frame_colours import _set_bald_means, bald_reposer, posed_frames
 
-    avatar = make_sample_avatar(n_hair=800, n_bald=1000, cage_vertices=150, seed=5)
-    rng = np.random.default_rng(1)
-    T = 7
-    clip = MotionClip(30.0, rng.normal(0, 0.1, (T, 3)), rng.normal(0, 0.01, (T, 3)), np.zeros((T, 3)),
-                      np.abs(rng.normal(0, 0.1, (T, 3))), np.zeros((T, 6)), np.zeros((T, 0)))
-    camera = Camera.look_at((0.0, 0.0, 0.8), (0.0, 0.0, 0.0), width=48, height=48, fov_deg=40)
-    result = SimpleNamespace(clip=clip, camera=camera, frame_index=np.arange(T) + 100)
+    avatar, _, result, images, rng = _posing_case(1, 7)
     rows = np.array([0, 3, 6])
-    images = {int(f): np.full((48, 48, 3), k, np.uint8) for k, f in enumerate(np.arange(T) + 100)}
     pose = bald_reposer(avatar, result, rows, images)
     rest = np.asarray(avatar.bald.means, np.float64)
     moves = rng.normal(0, 0.002, rest.shape) * (rng.random(len(rest)) < 0.3)[:, None]
