@@ -53,7 +53,7 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--frame-colours/--no-frame-colours", default=None,
               help="PORTRAIT is a video whose head hardly turns (one keyframe, e.g. a talking head): "
               "colour the head from 24 of its frames, each registered by rendering the avatar "
-              "(default on; about 70 s of a 216-250-frame clip's build; docs/video-build.md). "
+              "(default on; about 50 s of a 216-250-frame clip's build; docs/video-build.md). "
               "--no-frame-colours: the keyframe's colours only.")
 @click.option("--frame-refine", type=click.Choice(("none", *REFINE_NAMES)), default=None,
               help="How the frame-colours stage registers its frames: refined by rendering the avatar "
