@@ -503,7 +503,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     # changes them: the masks and weights the colours need are made after it, once
     hull = frame_hull.CARVE if carve is None else carve
     views = posed_frames(saved, result, rows, images, masks=not hull)
-    carved = _carve(saved, avatar, views, carve)
+    carved = _carve(saved, avatar, views, hull)
     # the recession's rounds move only the bald Gaussians: the head meshes and the hair are baked once
     receded = _recede(saved, avatar, carved, bald_reposer(saved, result, rows, images))
     if (views[0].mask is None or (carved is not None and carved.cleared.any())
