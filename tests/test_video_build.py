@@ -240,3 +240,34 @@ def test_the_eased_turn_reaches_its_yaw_both_ways_slows_at_the_ends_and_nods_las
     assert speed[top - 1] < 0.25 * speed.max() and speed.max() < 10.0
     # the nod comes after the turn, with the head to the front
     assert np.all(np.abs(yp[np.abs(yp[:, 1]) > 1.0, 0]) < 1.0) and abs(yp[-1, 1]) > 15.0
+
+
+def test_the_stage_count_tells_one_total_with_the_extra_stages_in_their_places():
+    """The video build's progress: the registration before the portrait build's stages, the jaw
+    corrective and the frame colours after them, every line out of the same total and the
+    indices running 1..total in order (session 19's builds printed "[13/13] previews" and then
+    "[14/14] frame_colours")."""
+    from avatarkit.recon.pipeline import STAGES
+    from avatarkit.track.video_build import StageCount
+
+    told = []
+    count = StageCount(lambda *a: told.append(a), ("register",), ("jaw_corrective", "frame_colours"))
+    count.extra("register", None)
+    count.extra("register", 1.0)
+    for i, stage in enumerate(STAGES, 1):
+        count.portrait(stage, i, len(STAGES), None)
+        count.portrait(stage, i, len(STAGES), 0.5)
+    for stage in ("jaw_corrective", "frame_colours"):
+        count.extra(stage, None)
+        count.extra(stage, 2.0)
+    total = len(STAGES) + 3
+    assert {t[2] for t in told} == {total}
+    starts = [t for t in told if t[3] is None]
+    assert [t[1] for t in starts] == list(range(1, total + 1))
+    assert [t[0] for t in starts] == ["register", *STAGES, "jaw_corrective", "frame_colours"]
+    # no extra stage: the portrait build's own count, untouched
+    told.clear()
+    plain = StageCount(lambda *a: told.append(a))
+    plain.portrait(STAGES[-1], len(STAGES), len(STAGES), None)
+    assert told == [(STAGES[-1], len(STAGES), len(STAGES), None)]
+    StageCount(None, ("register",)).extra("register", None)   # no callback: nothing to tell

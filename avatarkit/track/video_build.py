@@ -198,6 +198,38 @@ def joint_identity(result, keyframes, size: tuple[int, int]):
                               result.raw["translation"][idx], np.asarray(result.clip.shape, np.float64)[:S])
 
 
+class StageCount:
+    """The video build's progress told as one count: the registration before the portrait
+    build's stages, the jaw corrective and the frame colours after them, so a progress line
+    never reads "[14/14]" after "[13/13]". progress(stage, index, total, seconds): the portrait
+    build's callback (seconds None when a stage starts); before / after: the extra stages'
+    names, in order, that this build will run."""
+
+    def __init__(self, progress, before: tuple[str, ...] = (), after: tuple[str, ...] = ()):
+        from avatarkit.recon.pipeline import STAGES
+
+        self.progress = progress
+        self.before, self.after = tuple(before), tuple(after)
+        self.total = len(self.before) + len(STAGES) + len(self.after)
+
+    def portrait(self, stage: str, index: int, total: int, seconds) -> None:
+        """The portrait build's callback, its index shifted past the stages told before it."""
+        if self.progress is not None:
+            self.progress(stage, index + len(self.before), self.total, seconds)
+
+    def extra(self, stage: str, seconds) -> None:
+        """One of the video build's own stages (`before` or `after`) starting or done."""
+        if self.progress is None:
+            return
+        from avatarkit.recon.pipeline import STAGES
+
+        if stage in self.before:
+            index = self.before.index(stage) + 1
+        else:
+            index = len(self.before) + len(STAGES) + self.after.index(stage) + 1
+        self.progress(stage, index, self.total, seconds)
+
+
 def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, int], None] | None = None):
     """The tracking the video build chooses its keyframes from (`BuildOptions`' head model)."""
     from avatarkit.track.tracker import TrackOptions
@@ -284,12 +316,14 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
         turned = []
         if views is not None and (REGISTER_TURNED if register is None else register):
             turned = turned_frames(result, yaw_pitch(clip_head_rotation(result.clip))[:, 0])
+        jaw = JAW_CORRECTIVE if jaw_corrective is None else jaw_corrective
+        fuse = (FRAME_COLOURS if frame_colours is None else frame_colours) and len(kf) == 1
+        # the registration (a first build and a few hundred renders) told before the portrait
+        # build's stages, the jaw corrective and the frame colours after them
+        count = StageCount(progress, ("register",) if turned else (),
+                           ("jaw_corrective",) * bool(jaw) + ("frame_colours",) * bool(fuse))
         if turned:
-            from avatarkit.recon.pipeline import STAGES
-
-            # told as a stage before the portrait build's (a first build and a few hundred renders)
-            if progress is not None:
-                progress("register", 0, len(STAGES), None)
+            count.extra("register", None)
             t0 = time.perf_counter()
             first = dataclasses.replace(options, n_bald=min(options.n_bald, FIRST_BUILD_COUNTS[0]),
                                         n_hair=min(options.n_hair, FIRST_BUILD_COUNTS[1]), preview=False)
@@ -323,44 +357,41 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                         views.info["untrusted_poses"] = [f["frame"] for f in refined if f["at_bound"]]
                 source["refined"] = refined
             timings["register"] = time.perf_counter() - t0
-            if progress is not None:
-                progress("register", 0, len(STAGES), timings["register"])
+            count.extra("register", timings["register"])
         elif views is not None and OUTLINE_POSES != "tracked" and _outline_on():
             # no draft to register the keyframes against (the tracker lost no turn): a keyframe
             # turned past REFINE_MIN_YAW keeps the joint fit's pose, which a fast turn reads a few
             # degrees short (the whip clip, unregistered: -0.98 dB at +45), so the hair's outline
             # does not measure with it
             views.info["untrusted_poses"] = unregistered_turned(views)
-        avatar = build_avatar(png, options, progress, views=views)
-    if JAW_CORRECTIVE if jaw_corrective is None else jaw_corrective:
+        avatar = build_avatar(png, options, count.portrait if progress is not None else None, views=views)
+    if jaw:
         from avatarkit.head.jaw_corrective import apply_jaw_corrective
         from avatarkit.track.jaw_corrective import fit_avatar_corrective
 
+        count.extra("jaw_corrective", None)
         t0 = time.perf_counter()
         # the frames the colours may come from: `evaluate` holds the clip's second half out
         learned = fit_avatar_corrective(avatar, video, result, span=colour_span)
         if learned.corrective is not None:
             avatar.head_model = apply_jaw_corrective(avatar.head_model, learned.corrective)
         timings["jaw_corrective"] = time.perf_counter() - t0
+        count.extra("jaw_corrective", timings["jaw_corrective"])
         source["jaw_corrective"] = learned.figures
-    if (FRAME_COLOURS if frame_colours is None else frame_colours) and len(kf) == 1:
+    if fuse:
         # only when the head does not turn: with turned keyframes the views colour the sides, and
         # refitting the neck and mouth to the near-frontal frames cost the synthetic turning
         # video's sides up to 0.21 dB (docs/video-build.md)
-        from avatarkit.recon.pipeline import STAGES
         from avatarkit.track.frame_colours import fuse_frame_colours
 
-        last = len(STAGES) + 1            # told as one more stage after the portrait build's
-        if progress is not None:
-            progress("frame_colours", last, last, None)
+        count.extra("frame_colours", None)
         t0 = time.perf_counter()
         if OPEN_MOUTH:
             avatar, source["open_mouth"] = _open_mouth(avatar, result, images[ref_frame], ref_frame)
         avatar, fused = fuse_frame_colours(avatar, video, result, ref_frame, span=colour_span, refine=colour_refine,
                                            carve=frame_hull)
         timings["frame_colours"] = time.perf_counter() - t0
-        if progress is not None:
-            progress("frame_colours", last, last, timings["frame_colours"])
+        count.extra("frame_colours", timings["frame_colours"])
         avatar.provenance["build"]["frame_colours"] = fused
         if options.preview:
             # the portrait build rendered its previews before the stage changed the colours
@@ -501,7 +532,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
+__all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
            "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND", "TURNED_EDGE",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
