@@ -176,8 +176,8 @@ def yaw_then_pattern_search(cost, start: np.ndarray, yaw_range: tuple[float, flo
     the yaw kept within the range). Returns (best parameters, their cost, coarse (n, 2): yaw,
     cost). shift_steps (2,) metres (None: not done): every grid yaw is tried a second time with
     the head moved to fit (a pattern search over tx, ty, start[3:5], from these steps, one
-    halving); the refinement then starts from that grid's best as well, and the lower of the two
-    ends is kept. A head turned far from the guess sits centimetres off the guess's position
+    halving); where that grid's best yaw is more than a grid step from the plain grid's, the
+    refinement starts from it as well, and the lower of the two ends is kept. A head turned far from the guess sits centimetres off the guess's position
     (the person turns about the neck, not the head's origin): at the guess's position the true
     yaw can cost more than a yaw short of it, and the refinement from there stops in that
     nearer minimum (the held-out bob's -80-degree frame: -61 from the plain grid's -53)."""
@@ -196,7 +196,11 @@ def yaw_then_pattern_search(cost, start: np.ndarray, yaw_range: tuple[float, flo
 
             q, e2 = pattern_search(shift_cost, p[3:5], float(e), shift_steps, 2)
             moved.append((np.concatenate([p[:3], q, p[5:]]), e2))
-        starts.append(min(moved, key=lambda m: m[1]))
+        other = min(moved, key=lambda m: m[1])
+        # a start a grid step or less from the plain grid's lies in the same basin: the
+        # refinement from there would only repeat the first (at three times the renders)
+        if abs(other[0][0] - starts[0][0][0]) > coarse_step + 1e-9:
+            starts.append(other)
     # the yaw stays within the range it was given
     ends = [pattern_search(cost, p, e, steps, rounds + 1, allowed=lambda p: lo <= p[0] <= hi) for p, e in starts]
     best, err = min(ends, key=lambda m: m[1])
