@@ -66,6 +66,14 @@ GROW_SHARE = 0.15
 ROUNDS = 3
 #: rendering for the missing pixels at most this large (pixels)
 RENDER_SIDE = 256
+#: the missing pixels' margin (share of the image, as `multiview.EDGE_MARGIN`) in the keyframes
+#: registered at the turns' ends (`track.video_build.register_turned`; None: `EDGE_MARGIN` there
+#: too). Those frames alone see the hair hanging off the back of the head and the nape from the
+#: side, strips a few pixels wide that EDGE_MARGIN's erosion (~3 px at 192) leaves no pixel of.
+TURNED_MARGIN = None
+#: TURNED_MARGIN thins only the hair labels' erosion; the covered pixels keep EDGE_MARGIN's
+#: dilation (a pose a few pixels off must not grow a rim)
+TURNED_KEEP_COVERED_MARGIN = True
 #: also grow over bare scalp: keyframe pixels labelled hair where the avatar shows its bald head
 #: (`bare_hair`). Off: on the synthetic turns it grew hair over the back of the head but not at
 #: the nape's outline that limits the profile, and added outline the truth lacks (the held-out
@@ -96,9 +104,12 @@ def _disc(r: int):
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
-def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> np.ndarray:
+def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN,
+                 hair_margin: float | None = None) -> np.ndarray:
     """(H, W) bool: the view's hair pixels (labels at alpha's size) the avatar leaves uncovered
-    (module docstring, step 1). alpha: (H, W) the avatar's render from the view."""
+    (module docstring, step 1). alpha: (H, W) the avatar's render from the view. The hair labels
+    are eroded by hair_margin (None: margin), the covered pixels dilated by margin (shares of
+    the image's longer side)."""
     import cv2
 
     from avatarkit.recon.segment import HAIR
@@ -110,7 +121,8 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> 
     hair = (labels == HAIR).astype(np.uint8)
     covered = (alpha > ALPHA_MIN).astype(np.uint8)
     e = max(1, int(round(margin * max(h, w))))
-    hair = cv2.erode(hair, _disc(e))
+    eh = e if hair_margin is None else max(1, int(round(hair_margin * max(h, w))))
+    hair = cv2.erode(hair, _disc(eh))
     covered = cv2.dilate(covered, _disc(e))
     return (hair > 0) & (covered == 0)
 
@@ -221,7 +233,13 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     for i, v in enumerate(labelled):
         if v.reference:
             continue
-        miss = missing_hair(v, alphas[i])
+        # the frames registered at the turns' ends (`View.info["turned_end"]`) with the thinner
+        # margin: the only views of the strands hanging off the back of the head
+        turned_end = TURNED_MARGIN is not None and v.info.get("turned_end", False)
+        if TURNED_KEEP_COVERED_MARGIN:
+            miss = missing_hair(v, alphas[i], EDGE_MARGIN, TURNED_MARGIN if turned_end else None)
+        else:
+            miss = missing_hair(v, alphas[i], TURNED_MARGIN if turned_end else EDGE_MARGIN)
         bare = np.zeros_like(miss) if hair_alphas[i] is None else bare_hair(v, alphas[i], hair_alphas[i], BARE_MARGIN) & ~miss
         ys, xs = np.nonzero(miss | bare)
         info["missing_px"].append(int(len(ys)))
@@ -313,4 +331,4 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     return grown, info["missing_px"]
 
 
-__all__ = ["BARE_BAND", "BARE_FILL", "BARE_MARGIN", "BARE_SHARE", "BARE_SHELL", "GROW_BARE", "GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "bare_hair", "grow_hull", "missing_hair"]
+__all__ = ["BARE_BAND", "BARE_FILL", "BARE_MARGIN", "BARE_SHARE", "BARE_SHELL", "GROW_BARE", "GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "TURNED_MARGIN", "bare_hair", "grow_hull", "missing_hair"]
