@@ -8,7 +8,9 @@ silhouette around the head; the keyframes then only remove hair outside their si
 1. missing pixels: in each labelled keyframe other than the reference, the pixels its
    segmentation calls hair (eroded by `multiview.EDGE_MARGIN` of the image) that the current
    avatar (bald + hair) leaves uncovered (rendered alpha < `multiview.ALPHA_MIN`, and at least
-   that margin from any covered pixel: a pose a few pixels off must not grow a rim);
+   that margin from any covered pixel: a pose a few pixels off must not grow a rim); in the
+   keyframes registered at the turns' ends the hair labels are eroded by `TURNED_MARGIN` only
+   (the strands hanging off the nape seen from the side, a few pixels wide);
 2. candidates along each missing pixel's ray, every `STEP` metres across the head's depth range,
    kept when they lie in the hair region (between `MIN_GAP` and `hair_strands.MAX_SHELL` above
    the scalp, within `REACH` of the existing hair) and inside the visual hull of the keyframes'
@@ -67,12 +69,17 @@ ROUNDS = 3
 #: rendering for the missing pixels at most this large (pixels)
 RENDER_SIDE = 256
 #: the missing pixels' margin (share of the image, as `multiview.EDGE_MARGIN`) in the keyframes
-#: registered at the turns' ends (`track.video_build.register_turned`; None: `EDGE_MARGIN` there
-#: too). Those frames alone see the hair hanging off the back of the head and the nape from the
-#: side, strips a few pixels wide that EDGE_MARGIN's erosion (~3 px at 192) leaves no pixel of.
-TURNED_MARGIN = None
+#: registered at the turns' ends (`track.video_build.register_turned`, marked
+#: `View.info["turned_end"]`; None: `EDGE_MARGIN` there too). Those frames alone see the hair
+#: hanging off the back of the head and the nape from the side, strips a few pixels wide that
+#: EDGE_MARGIN's erosion (~3 px at 192) leaves no pixel of. Measured (session 20, with
+#: `video_build.REGISTER_SHIFTED`): the held-out bob +0.41 / +0.67 dB at +90 / -90 (seed 0),
+#: +0.12 / +0.48 (seed 1), +0.46 / +0.65 at +45 (seeds 0 / 1); the sample avatar (seeds 0-2), the mesh subject
+#: and the whip's sample avatar within 0.02 (docs/video-build.md, "The bob's hair")
+TURNED_MARGIN = 0.005
 #: TURNED_MARGIN thins only the hair labels' erosion; the covered pixels keep EDGE_MARGIN's
-#: dilation (a pose a few pixels off must not grow a rim)
+#: dilation (a pose a few pixels off must not grow a rim: with both thinned the sample avatar
+#: lost 0.54 / 0.63 dB at +90 / -90)
 TURNED_KEEP_COVERED_MARGIN = True
 #: also grow over bare scalp: keyframe pixels labelled hair where the avatar shows its bald head
 #: (`bare_hair`). Off: on the synthetic turns it grew hair over the back of the head but not at

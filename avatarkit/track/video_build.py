@@ -88,7 +88,8 @@ REGISTER_MODE = "plain"
 #: basin short of the true yaw: the held-out bob's -80-degree frame registered at -61 (seed 0)
 #: against its draft, whose best error over the rest of the pose is at -76. Shifted: -74.6 (seed
 #: 1: -59.9 -> -67.6), the bob +0.53 / +0.24 dB at +90 (seeds 0 / 1), its worst view -0.06 (-90,
-#: seed 0); the sample avatar (seeds 0, 1), the mesh subject and the whip build as before (session
+#: seed 0); the sample avatar (seeds 0, 1), the mesh subject and the whip build as before, the
+#: sample avatar at seed 2 +0.13 at -45 and -0.10 at -90 (its +80 frame a degree further) (session
 #: 20, docs/video-build.md, "The bob's hair"). ~2-3x the renders of the turned frames' search
 REGISTER_SHIFTED = True
 #: the first build's Gaussian counts at most (it is only rendered, at `register.SIZE` pixels)
