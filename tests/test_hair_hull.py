@@ -189,7 +189,7 @@ def test_the_turned_end_frames_grow_the_thin_strip_the_edge_margin_hides(scene, 
     turn's end (`View.info["turned_end"]`) with `TURNED_MARGIN` (its hair labels eroded less,
     the covered pixels still dilated by EDGE_MARGIN) finds the strip's outer part and grows hair
     on the true cap's radius; unmarked, or with the switch off, nothing grows; with the covered
-    pixels' margin thinned too (`TURNED_KEEP_COVERED_MARGIN` False) the whole strip does."""
+    pixels' margin thinned too (`TURNED_COVERED_MARGIN`) the whole strip does."""
     import dataclasses
 
     import avatarkit.recon.hair_hull as hh
@@ -198,11 +198,12 @@ def test_the_turned_end_frames_grow_the_thin_strip_the_edge_margin_hides(scene, 
     thin = truth.replace(means=truth.means * 0.92)
     marked = views[:3] + [dataclasses.replace(views[3], info={"turned_end": True})]
     monkeypatch.setattr(hh, "TURNED_MARGIN", None)
+    monkeypatch.setattr(hh, "TURNED_COVERED_MARGIN", None)
     off, off_info = grow_hull(bald, thin, marked, sdf, budget=2000)
     monkeypatch.setattr(hh, "TURNED_MARGIN", 0.005)
     plain, plain_info = grow_hull(bald, thin, views, sdf, budget=2000)
     grown, info = grow_hull(bald, thin, marked, sdf, budget=2000)
-    monkeypatch.setattr(hh, "TURNED_KEEP_COVERED_MARGIN", False)
+    monkeypatch.setattr(hh, "TURNED_COVERED_MARGIN", 0.005)
     both, both_info = grow_hull(bald, thin, marked, sdf, budget=2000)
     # measured: nothing missing without the mark or the switch; the marked view 50 pixels (50
     # grown, radius 96.8-97.6 mm, 10-90 %); with both margins thinned 281
