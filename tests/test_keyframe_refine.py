@@ -206,3 +206,54 @@ def test_without_a_draft_the_turned_keyframes_are_not_trusted_by_the_outline():
     keys = [Keyframe(image, ref, 1.0, 0), key(deg - 3, 1), key(deg + 3, 2), key(-(deg + 10), 3), key(deg + 20, 4)]
     keys[4].outline_pose = keys[4].pose
     assert unregistered_turned(VideoViews(np.zeros(10), keys)) == [2, 3]
+
+
+@pytest.mark.parametrize("shifted", [False, True])
+def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, monkeypatch, shifted):
+    import avatarkit.track.keyframes as keyframes
+    import avatarkit.track.register as register
+    import avatarkit.track.video_build as vb
+
+    draft, camera, ref_pose, frame = scene
+    image = frame(0.0)[1]
+    seen = []
+
+    def spy(gaussians, image, reference_camera, reference_pose, guess, yaw_range, **kw):
+        seen.append(kw.get("shifted"))
+        return register.Registration(np.asarray(guess), 0.0, 1)
+
+    monkeypatch.setattr(register, "register_frame", spy)
+    monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
+    monkeypatch.setattr(vb, "REGISTER_SHIFTED", shifted)
+    result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
+    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
+    turned = [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))]
+    added, figures = vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
+    assert seen == [shifted] and [k.frame for k in added] == [9]
+
+
+def test_the_views_of_the_frames_registered_at_the_turns_ends_are_marked(monkeypatch):
+    """`VideoViews.register` marks the views of the frames `register_turned` added
+    (`View.info["turned_end"]`, read by `recon.hair_hull.TURNED_MARGIN`), and no other."""
+    import trimesh
+
+    import avatarkit.recon.multiview as mv
+    import avatarkit.recon.portrait as portrait
+    from avatarkit.errors import AvatarKitError
+    from avatarkit.render.camera import Camera
+
+    def no_face(*a, **k):
+        raise AvatarKitError("no face")
+
+    monkeypatch.setattr(portrait, "analyze_portrait", no_face)
+    monkeypatch.setattr(mv, "RELABEL_KEYFRAMES", False)
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.08)
+    camera = Camera.orbit(np.zeros(3), 0.0, 0.0, 0.5, 35.0, 32, 32)
+    fit = SimpleNamespace(camera=camera, rotation=np.zeros(3), translation=np.zeros(3),
+                          rest_vertices=np.asarray(mesh.vertices), model=SimpleNamespace(faces=np.asarray(mesh.faces)))
+    image = np.zeros((32, 32, 3), np.uint8)
+    poses = [pose_from_params([math.radians(y), 0, 0, 0, 0, -0.5]) for y in (0.0, 30.0, -80.0, 80.0)]
+    keys = [Keyframe(image, p, 1.0, f) for p, f in zip(poses, (10, 11, 55, 20))]
+    views = VideoViews(np.zeros(10), keys, {"registered": [{"frame": 55}, {"frame": 20}]})
+    made = views.register(fit, image, np.zeros((32, 32), np.int32))
+    assert [v.info.get("turned_end", False) for v in made] == [False, False, True, True]

@@ -124,3 +124,54 @@ def test_a_build_too_large_registers_at_the_frames_yaw_and_its_pose_lays_it_over
     a = render(big, cam).alpha > 0.5
     m = silhouette(target, background_colour(target))
     assert (a & m).sum() / (a | m).sum() > 0.9
+
+
+@pytest.fixture(scope="module")
+def moved_scene(scene):
+    """The scene's head turned 75 degrees and 3 cm to the side of where the guess has it (a
+    person turns about the neck, not the head's origin)."""
+    from avatarkit.render import render
+
+    gs, camera, ref_pose, _, _ = scene
+    truth = pose_from_params([math.radians(75.0), 0.0, 0.0, 0.03, -0.05, -0.5])
+    frame = render(gs, pose_camera(camera, ref_pose, truth), background=(1.0, 1.0, 1.0))
+    return truth, (np.clip(frame.rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def test_the_shifted_grid_registers_a_head_moved_off_the_guess_and_never_ends_higher(scene, moved_scene):
+    gs, camera, ref_pose, _, _ = scene
+    truth, image = moved_scene
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    plain = register_frame(gs, image, camera, ref_pose, guess, window)
+    shifted = register_frame(gs, image, camera, ref_pose, guess, window, shifted=True)
+    found = np.degrees(params_from_pose(shifted.pose)[:3])
+    assert abs(found[0] - 75.0) < 2.0 and abs(found[1]) < 2.0, found
+    assert np.linalg.norm(shifted.pose[:3, 3] - truth[:3, 3]) < 0.01
+    # the plain grid's refinement is one of the two the shifted search runs: it never ends lower
+    assert shifted.error <= plain.error + 1e-12
+    assert shifted.evaluations > plain.evaluations
+
+
+def test_the_shifted_grid_finds_the_yaw_whose_minimum_lies_off_the_guess_position():
+    """A known answer: two basins, a shallow one at the guess's position (yaw 55 degrees, tx 0)
+    and the true one at yaw 80, tx 3 cm. At tx 0 every yaw near 80 costs more than 55 does, so
+    the plain grid starts the refinement in the shallow basin, where it stays; moving each grid
+    yaw's head to fit finds the true basin."""
+    from avatarkit.track.register import yaw_then_pattern_search
+
+    def cost(p) -> float:
+        yaw, tx = math.degrees(p[0]), p[3]
+        shallow = 0.5 + ((yaw - 55.0) / 10.0) ** 2 + (tx / 0.02) ** 2
+        true = ((yaw - 80.0) / 5.0) ** 2 + ((tx - 0.03) / 0.02) ** 2
+        return min(shallow, true)
+
+    start = np.array([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    steps = (math.radians(2.0), math.radians(2.0), math.radians(2.0), 0.004, 0.004, 0.01)
+    plain, e_plain, _ = yaw_then_pattern_search(cost, start, window, math.radians(4.0), steps, 3)
+    shifted, e_shifted, _ = yaw_then_pattern_search(cost, start, window, math.radians(4.0), steps, 3,
+                                                    shift_steps=(0.008, 0.008))
+    assert abs(math.degrees(plain[0]) - 55.0) < 1.0 and e_plain == pytest.approx(0.5, abs=1e-3)
+    assert abs(math.degrees(shifted[0]) - 80.0) < 0.5 and abs(shifted[3] - 0.03) < 0.001
+    assert e_shifted < 1e-2

@@ -8,7 +8,9 @@ silhouette around the head; the keyframes then only remove hair outside their si
 1. missing pixels: in each labelled keyframe other than the reference, the pixels its
    segmentation calls hair (eroded by `multiview.EDGE_MARGIN` of the image) that the current
    avatar (bald + hair) leaves uncovered (rendered alpha < `multiview.ALPHA_MIN`, and at least
-   that margin from any covered pixel: a pose a few pixels off must not grow a rim);
+   that margin from any covered pixel: a pose a few pixels off must not grow a rim); in the
+   keyframes registered at the turns' ends the hair labels are eroded by `TURNED_MARGIN` only
+   (the strands hanging off the nape seen from the side, a few pixels wide);
 2. candidates along each missing pixel's ray, every `STEP` metres across the head's depth range,
    kept when they lie in the hair region (between `MIN_GAP` and `hair_strands.MAX_SHELL` above
    the scalp, within `REACH` of the existing hair) and inside the visual hull of the keyframes'
@@ -66,6 +68,22 @@ GROW_SHARE = 0.15
 ROUNDS = 3
 #: rendering for the missing pixels at most this large (pixels)
 RENDER_SIDE = 256
+#: the missing pixels' margin (share of the image, as `multiview.EDGE_MARGIN`) in the keyframes
+#: registered at the turns' ends (`track.video_build.register_turned`, marked
+#: `View.info["turned_end"]`; None: `EDGE_MARGIN` there too). Those frames alone see the hair
+#: hanging off the back of the head and the nape from the side, strips a few pixels wide that
+#: EDGE_MARGIN's erosion (~3 px at 192) leaves no pixel of. Measured (session 20, with
+#: `video_build.REGISTER_SHIFTED`, with `TURNED_COVERED_MARGIN`): the held-out bob +0.49 / +0.91
+#: dB at +90 / -90 (seed 0), +0.11 / +0.49 (seed 1), +0.52 / +0.63 at +45 (seeds 0 / 1); the
+#: sample avatar (seeds 0-2), the mesh subject and the whip's sample avatar within 0.03
+#: (docs/video-build.md, "The bob's hair")
+TURNED_MARGIN = 0.005
+#: TURNED_MARGIN thins the hair labels' erosion; the covered pixels in those frames are dilated
+#: by this share of the image (None: EDGE_MARGIN): a pose a few pixels off must not grow a rim
+#: (with TURNED_MARGIN's 1 px the sample avatar lost 0.54 / 0.63 dB at +90 / -90). 0.01 (2 px at
+#: 192) against EDGE_MARGIN's 3 px: the bob +0.08 / +0.24 dB at +90 / -90 (seed 0), seed 1 and the
+#: other subjects within 0.04 (session 20)
+TURNED_COVERED_MARGIN = 0.01
 #: also grow over bare scalp: keyframe pixels labelled hair where the avatar shows its bald head
 #: (`bare_hair`). Off: on the synthetic turns it grew hair over the back of the head but not at
 #: the nape's outline that limits the profile, and added outline the truth lacks (the held-out
@@ -96,9 +114,12 @@ def _disc(r: int):
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
-def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> np.ndarray:
+def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN,
+                 hair_margin: float | None = None) -> np.ndarray:
     """(H, W) bool: the view's hair pixels (labels at alpha's size) the avatar leaves uncovered
-    (module docstring, step 1). alpha: (H, W) the avatar's render from the view."""
+    (module docstring, step 1). alpha: (H, W) the avatar's render from the view. The hair labels
+    are eroded by hair_margin (None: margin), the covered pixels dilated by margin (shares of
+    the image's longer side)."""
     import cv2
 
     from avatarkit.recon.segment import HAIR
@@ -110,7 +131,8 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN) -> 
     hair = (labels == HAIR).astype(np.uint8)
     covered = (alpha > ALPHA_MIN).astype(np.uint8)
     e = max(1, int(round(margin * max(h, w))))
-    hair = cv2.erode(hair, _disc(e))
+    eh = e if hair_margin is None else max(1, int(round(hair_margin * max(h, w))))
+    hair = cv2.erode(hair, _disc(eh))
     covered = cv2.dilate(covered, _disc(e))
     return (hair > 0) & (covered == 0)
 
@@ -221,7 +243,14 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     for i, v in enumerate(labelled):
         if v.reference:
             continue
-        miss = missing_hair(v, alphas[i])
+        # the frames registered at the turns' ends (`View.info["turned_end"]`) with the thinner
+        # margin: the only views of the strands hanging off the back of the head
+        turned_end = TURNED_MARGIN is not None and v.info.get("turned_end", False)
+        if turned_end:
+            miss = missing_hair(v, alphas[i], EDGE_MARGIN if TURNED_COVERED_MARGIN is None else TURNED_COVERED_MARGIN,
+                                TURNED_MARGIN)
+        else:
+            miss = missing_hair(v, alphas[i])
         bare = np.zeros_like(miss) if hair_alphas[i] is None else bare_hair(v, alphas[i], hair_alphas[i], BARE_MARGIN) & ~miss
         ys, xs = np.nonzero(miss | bare)
         info["missing_px"].append(int(len(ys)))
@@ -313,4 +342,4 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     return grown, info["missing_px"]
 
 
-__all__ = ["BARE_BAND", "BARE_FILL", "BARE_MARGIN", "BARE_SHARE", "BARE_SHELL", "GROW_BARE", "GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "bare_hair", "grow_hull", "missing_hair"]
+__all__ = ["BARE_BAND", "BARE_FILL", "BARE_MARGIN", "BARE_SHARE", "BARE_SHELL", "GROW_BARE", "GROW_SHARE", "LAYER_TOL", "MIN_GAP", "NEIGHBOURS", "REACH", "RENDER_SIDE", "ROUNDS", "STEP", "TURNED_COVERED_MARGIN", "TURNED_MARGIN", "bare_hair", "grow_hull", "missing_hair"]

@@ -550,9 +550,13 @@ class VideoViews:
         colours = reference_colours(image, labels) if RELABEL_KEYFRAMES else None
         views = [View(image, fit.camera, np.asarray(labels, np.int32), ref.sharpness, ref.frame, True,
                       head=head_silhouette(fit.rest_vertices, faces, fit.camera))]
+        # the frames registered at the turns' ends (`track.video_build.register_turned`)
+        turned_end = {int(f["frame"]) for f in self.info.get("registered", [])}
         for k, cam in zip(self.keyframes[1:], cams[1:]):
             v = View(k.image, cam, None, k.sharpness, k.frame, False,
                      head=head_silhouette(fit.rest_vertices, faces, cam))
+            if k.frame in turned_end:
+                v.info["turned_end"] = True
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
