@@ -214,3 +214,29 @@ def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refin
     np.testing.assert_allclose(got, np.concatenate([expect[1:len(bald)], expect[len(bald):]]), atol=1e-5)
     assert n == int(pick[1:].sum())
     np.testing.assert_allclose(out_bald.colors[len(bald) - 1:], 0.9, atol=1e-5)
+
+
+def test_the_neck_the_reference_does_not_show_is_left_to_the_blend(planes):
+    """`neck_kept` (`NECK_SHOWN`): of the neck's rows, those the reference camera shows keep the
+    portrait's colour; those hidden behind the front plane do not; rows off the neck never do.
+    Then `blend_colours` gives the hidden ones the other view's colour and leaves the shown ones."""
+    from avatarkit.recon.multiview import Samples, neck_kept
+
+    back, front, both, normals = planes
+    nb = len(back)
+    head_on = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    neck = np.ones(len(both), bool)
+    bx = back.means[:, 0]
+    neck[:nb][bx > 0.05] = False                                     # part of the open back: not neck
+    kept = neck_kept(neck, both, head_on, 0.05)
+    assert kept[nb:].all()                                           # the front plane: shown
+    assert not kept[:nb][bx < -0.02].any()                           # behind the front plane: hidden
+    assert kept[:nb][(bx > 0.02) & (bx < 0.05) & (np.abs(back.means[:, 1]) < 0.08)].all()
+    assert not kept[~neck].any()
+    assert not neck_kept(np.zeros(len(both), bool), both, head_on, 0.05).any()
+    # the blend: every row seen by a view of colour 0.7; kept rows stay at 0.2
+    current = np.full((len(both), 3), 0.2, np.float32)
+    s = Samples(np.ones(len(both), bool), np.ones(len(both)), np.full((len(both), 3), 0.7, np.float32))
+    out, _ = blend_colours(current, [s], kept)
+    np.testing.assert_allclose(out[kept], 0.2)
+    np.testing.assert_allclose(out[~kept], 0.7, atol=1e-6)

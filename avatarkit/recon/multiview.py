@@ -89,6 +89,16 @@ BACKGROUND_COLOUR = 0.12
 
 #: relabel the keyframes' heads by the reference's colour models (`relabel_head`)
 RELABEL_KEYFRAMES = True
+#: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
+#: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
+#: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
+#: does. None: the whole neck keeps the portrait's colour (the rule before session 20: the
+#: tracked head turns, the neck need not, so a turned keyframe's view of the neck is not the
+#: rest avatar's; with the whole neck kept, its shadowed side is the single-frame fill, the lit
+#: front's colour). Session 20 (docs/video-build.md, "The back of the head on the mesh subject"):
+#: mesh subject +0.34 / +0.36 dB at +-90 (seed 1: +0.40 / +0.46), the front and +-45 within
+#: 0.08; the other synthetic subjects within 0.03; the real clips have one keyframe (no views)
+NECK_SHOWN: float | None = 0.02
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -180,6 +190,16 @@ def footprint_visibility(gaussians, camera: Camera, region: np.ndarray | None = 
     own = np.asarray(gaussians.opacities, np.float64) * 2.0 * np.pi / np.sqrt(np.maximum(det, 1e-30))
     vis = np.where((proj.radii > 0) & (det > 0), weights[:, 1] / np.maximum(own, 1e-30), 0.0)
     return np.clip(vis, 0.0, 1.0)
+
+
+def neck_kept(neck: np.ndarray, gaussians, reference: Camera, shown: float) -> np.ndarray:
+    """(N,) bool: the rows of `neck` (N,) bool whose footprint the reference camera shows at
+    least `shown` of (`footprint_visibility`): the neck's Gaussians that keep the portrait
+    build's colour under `NECK_SHOWN`; the neck the photo does not show is left to the blend."""
+    neck = np.asarray(neck, bool)
+    if not neck.any():
+        return neck.copy()
+    return neck & (footprint_visibility(gaussians, reference) >= float(shown))
 
 
 def reference_colours(image: np.ndarray, labels: np.ndarray):
@@ -642,13 +662,18 @@ class VideoViews:
         figures)."""
         _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
         keep = self.neck_rows(bald, hair, fit)
+        if NECK_SHOWN is not None and keep.any():
+            from avatarkit.gaussians.gaussian_set import GaussianSet
+
+            both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
+            keep = neck_kept(keep, both, views[0].camera, NECK_SHOWN)
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep)
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "person_weight", "pose_matrix",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
