@@ -36,8 +36,10 @@ colours, matched to the reference photo afterwards, keep priority on the face); 
 keyframe saw keeps the portrait build's colour (its fill), except hidden hair: hair no keyframe
 saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyframe did see
 (the back of the head is the colour of the hair around it; the single view's fill there is
-whatever the photo showed in front of it). Gaussians of the bald head bound to the neck are
-left alone: the tracked head turns, the neck and the clothes below it do not.
+whatever the photo showed in front of it). Gaussians of the bald head bound to the neck that
+the reference view shows are left alone (the tracked head turns, the neck and the clothes below
+it need not); the neck's sides and back, which the photo does not show, take the blend
+(`NECK_SHOWN`; None: the whole neck is left alone).
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
