@@ -214,3 +214,63 @@ def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refin
     np.testing.assert_allclose(got, np.concatenate([expect[1:len(bald)], expect[len(bald):]]), atol=1e-5)
     assert n == int(pick[1:].sum())
     np.testing.assert_allclose(out_bald.colors[len(bald) - 1:], 0.9, atol=1e-5)
+
+
+def test_the_neck_the_reference_does_not_show_is_left_to_the_blend(planes):
+    """`neck_kept` (`NECK_SHOWN`): of the neck's rows, those the reference camera shows keep the
+    portrait's colour; those hidden behind the front plane do not; rows off the neck never do.
+    Then `blend_colours` gives the hidden ones the other view's colour and leaves the shown ones."""
+    from avatarkit.recon.multiview import Samples, neck_kept
+
+    back, front, both, normals = planes
+    nb = len(back)
+    head_on = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    neck = np.ones(len(both), bool)
+    bx = back.means[:, 0]
+    neck[:nb][bx > 0.05] = False                                     # part of the open back: not neck
+    kept = neck_kept(neck, both, head_on, 0.05)
+    assert kept[nb:].all()                                           # the front plane: shown
+    assert not kept[:nb][bx < -0.02].any()                           # behind the front plane: hidden
+    assert kept[:nb][(bx > 0.02) & (bx < 0.05) & (np.abs(back.means[:, 1]) < 0.08)].all()
+    assert not kept[~neck].any()
+    assert not neck_kept(np.zeros(len(both), bool), both, head_on, 0.05).any()
+    # the blend: every row seen by a view of colour 0.7; kept rows stay at 0.2
+    current = np.full((len(both), 3), 0.2, np.float32)
+    s = Samples(np.ones(len(both), bool), np.ones(len(both)), np.full((len(both), 3), 0.7, np.float32))
+    out, _ = blend_colours(current, [s], kept)
+    np.testing.assert_allclose(out[kept], 0.2)
+    np.testing.assert_allclose(out[~kept], 0.7, atol=1e-6)
+
+
+def test_body_pixels_on_the_head_are_sampled_only_by_the_rows_allowed_and_not_in_the_reference(planes):
+    """`view_samples(body=)` (`SCALP_BODY`): a keyframe whose right half is labelled body (the
+    shadowed hair a portrait segmentation calls body) gives the bald Gaussians there no sample,
+    unless they are allowed the body pixels and the body lies on the view's fitted head; the
+    reference view never lends them; the samples are the body pixels' colour."""
+    from avatarkit.recon.segment import BODY, SKIN
+
+    back, _, _, _ = planes
+    normals = np.tile([0.0, 0.0, 1.0], (len(back), 1))
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    img = _image((0.8, 0.6, 0.5))
+    img[:, SIZE // 2:] = (np.array([0.2, 0.1, 0.05]) * 255).astype(np.uint8)
+    labels = np.full((SIZE, SIZE), SKIN, np.int32)
+    labels[:, SIZE // 2:] = BODY
+    head = np.ones((SIZE, SIZE), bool)
+    x = back.means[:, 0]
+    right = (x > 0.02) & (x < 0.08) & (np.abs(back.means[:, 1]) < 0.08)
+    allowed = np.ones(len(back), bool)
+    plain = view_samples(back, normals, View(img, cam, labels, 1.0, head=head))
+    assert not plain.seen[right].any()
+    with_body = view_samples(back, normals, View(img, cam, labels, 1.0, head=head), body=allowed)
+    assert with_body.seen[right].all()
+    np.testing.assert_allclose(with_body.colour[right], np.tile([0.2, 0.1, 0.05], (int(right.sum()), 1)), atol=0.01)
+    np.testing.assert_array_equal(with_body.seen[x < -0.02], plain.seen[x < -0.02])
+    # only the rows allowed; not where the body is off the fitted head; not in the reference
+    half = allowed & (back.means[:, 1] > 0)
+    some = view_samples(back, normals, View(img, cam, labels, 1.0, head=head), body=half)
+    assert some.seen[right & half].all() and not some.seen[right & ~half].any()
+    off_head = view_samples(back, normals, View(img, cam, labels, 1.0, head=np.zeros_like(head)), body=allowed)
+    assert not off_head.seen[right].any()
+    ref = view_samples(back, normals, View(img, cam, labels, 1.0, reference=True, head=head), body=allowed)
+    assert not ref.seen[right].any()

@@ -394,6 +394,13 @@ MUTATIONS = [
     M("recon.hairline_highest_edge", "avatarkit/recon/hair_strands.py",
       "        np.minimum.at(low, b, v[:, 1])", "        np.maximum.at(low, b, v[:, 1])",
       ["tests/test_recon_lift.py"], "the hairline read from the scalp's top instead of its lower edge"),
+    M("recon.neck_kept_unseen_too", "avatarkit/recon/multiview.py",
+      "    return neck & (footprint_visibility(gaussians, reference) >= float(shown))", "    return neck.copy()",
+      ["tests/test_multiview.py"], "NECK_SHOWN keeping the whole neck's portrait colours, the sides the photo never shows too"),
+    M("recon.scalp_body_off_the_head", "avatarkit/recon/multiview.py",
+      "            wide = region | ((np.asarray(view.labels) == BODY) & np.asarray(view.head, bool))",
+      "            wide = region | (np.asarray(view.labels) == BODY)",
+      ["tests/test_multiview.py"], "SCALP_BODY sampling body pixels anywhere in the keyframe (the clothes), not only on its head"),
 ]
 
 
