@@ -127,7 +127,13 @@ def trim_outline(bald: GaussianSet, hair: GaussianSet, fit, person: np.ndarray,
 
 
 #: sharpen the build's outline instead (`sharpen_outline`; `recon.pipeline`'s colours stage, in
-#: `trim_outline`'s place): the outline discs narrowed across the outline, their inner edge kept
+#: `trim_outline`'s place): the outline discs narrowed across the outline, their inner edge kept.
+#: Off (session 20, docs/building.md "A sharp outline"): the overshoot halves (the synthetic
+#: talking video's frame 62: 2.04 -> 1.10 px per outline px light, 2.19 -> 1.07 dark) with the
+#: last person pixel opaque, the portraits' head-mask figure ties (-0.02..+0.01 dB) and the whole
+#: frame gains 0.4-2.9 dB, every evaluate figure rises (grey 27.741 / 26.554 -> 27.785 / 26.795,
+#: glasses 28.715 / 27.294 -> 28.769 / 27.490); but the 35-degree render's head mask loses
+#: 0.16 dB, grey's #25 lead falls to +0.99 dB and the video builds' side views lose up to 0.15 dB
 SHARPEN_OUTLINE = False
 #: a disc's edge, in its projected sigmas (across the outline) from its centre
 EDGE_SIGMAS = 2.0
