@@ -279,6 +279,39 @@ def test_the_build_trims_its_outline_when_asked(monkeypatch):
     assert info["bald_moved"] > 0 and len(bald) == nb and len(hair) == nh - info["hair_dropped"]
 
 
+def test_the_build_sharpens_its_outline_when_asked(monkeypatch):
+    """With `outline_trim.SHARPEN_OUTLINE` the colours stage sharpens the outline (in the trim's
+    place: `TRIM_OUTLINE` on too does not trim) against the photo's person in the fit's camera;
+    the build is stopped after the colours stage (the hair rig raises)."""
+    from avatarkit.recon import hair_rig, outline_trim, pipeline
+
+    calls = []
+    real = outline_trim.sharpen_outline
+
+    def spy(bald, hair, fit, person, **kwargs):
+        out = real(bald, hair, fit, person, **kwargs)
+        calls.append((len(bald), len(hair), person.shape, (fit.camera.height, fit.camera.width), out))
+        return out
+
+    def stop(*args, **kwargs):
+        raise InputError("stopped after the colours stage (test)")
+
+    def no_trim(*args, **kwargs):
+        raise AssertionError("trimmed as well as sharpened")
+
+    monkeypatch.setattr(outline_trim, "SHARPEN_OUTLINE", True)
+    monkeypatch.setattr(outline_trim, "TRIM_OUTLINE", True)
+    monkeypatch.setattr(outline_trim, "sharpen_outline", spy)
+    monkeypatch.setattr(outline_trim, "trim_outline", no_trim)
+    monkeypatch.setattr(hair_rig, "rig_hair", stop)
+    with pytest.raises(InputError, match="test"):
+        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    assert len(calls) == 1
+    nb, nh, shape, view, (bald, hair, info) = calls[0]
+    assert shape == view and nb >= 2000 and nh > 0
+    assert info["bald_narrowed"] > 0 and len(bald) == nb and len(hair) == nh - info["hair_dropped"]
+
+
 def test_fast_end_to_end_build(tmp_path):
     """The whole pipeline on the sample portrait at low Gaussian counts: saved, loaded, checked."""
     from avatarkit.avatar import load_avatar
@@ -305,6 +338,7 @@ def test_fast_end_to_end_build(tmp_path):
     assert loaded.provenance["hair_mode"] in ("rigid", "cage")
     assert build["assemble"]["inside_after"] == 0
     assert "outline_trim" not in build                 # off by default (`recon.outline_trim`)
+    assert "outline_sharpen" not in build
     image = read_image(SAMPLE)
     analysis = analyze_portrait(image)
     m = front_view_metrics(loaded, image, segment_portrait(image, analysis))
@@ -312,6 +346,8 @@ def test_fast_end_to_end_build(tmp_path):
     # measured 25.06 dB (6 colour rounds, with the coverage fill); 24.46 after 3 rounds, 22.64
     # after 1, 15.95 with none (22.85 / 22.4 / 21.1 / 17.3 before the coverage fill)
     assert m["psnr_db"] > 24.0 and m["label_agreement"] > 0.8
+    # the whole frame: the wall the render leaves is the photo itself (no error there)
+    assert m["psnr_frame_db"] > m["psnr_db"]
 
 
 @pytest.mark.slow

@@ -459,7 +459,11 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             from avatarkit.recon.coverage import cover_silhouette
 
             bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels)
-        if outline_trim.TRIM_OUTLINE:
+        if outline_trim.SHARPEN_OUTLINE:
+            # before the colours are matched: the outline discs narrowed, not recoloured to hide on the wall
+            bald, hair, report.info["outline_sharpen"] = outline_trim.sharpen_outline(bald, hair, fit,
+                                                                                      segmentation.person)
+        elif outline_trim.TRIM_OUTLINE:
             # before the colours are matched: the discs moved in, not recoloured to hide on the wall
             bald, hair, report.info["outline_trim"] = outline_trim.trim_outline(bald, hair, fit, segmentation.person)
         if options.refine_iterations > 0:
@@ -527,10 +531,13 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 def front_view_metrics(avatar, image: np.ndarray, segmentation, camera=None) -> dict:
     """Quality of a built avatar seen from the photo's camera (the `camera` the build stored in
     its provenance unless given): PSNR (dB) and SSIM (skimage) of the render (on white) against
-    the photo inside the head mask (`head_mask`); the share of hair Gaussian centres inside the
-    rest head (exact signed distance); and hair/skin label agreement: over the head mask, the
-    share of pixels where the render's hair label (hair Gaussians dominate the pixel) equals
-    the 2D segmentation's, and the IoU of the two hair masks."""
+    the photo inside the head mask (`head_mask`); the PSNR over the whole frame of the render
+    composited over the photo (`psnr_frame_db`: the head mask ends on the photo's outline, so
+    it cannot see a render that stands past it over the wall, nor a soft edge's cost outside);
+    the share of hair Gaussian centres inside the rest head (exact signed distance); and
+    hair/skin label agreement: over the head mask, the share of pixels where the render's hair
+    label (hair Gaussians dominate the pixel) equals the 2D segmentation's, and the IoU of the
+    two hair masks."""
     from skimage.metrics import structural_similarity
 
     from avatarkit.recon.assemble import psnr
@@ -546,6 +553,8 @@ def front_view_metrics(avatar, image: np.ndarray, segmentation, camera=None) -> 
     target = np.asarray(image, np.float32) / 255.0
     rgb = np.clip(render(gs, camera, background=(1.0, 1.0, 1.0)).rgb, 0, 1)
     mask = head_mask(segmentation)
+    over = render(gs, camera, background=(0.0, 0.0, 0.0))
+    frame = np.clip(over.rgb + (1.0 - np.asarray(over.alpha))[..., None] * target, 0, 1)   # (H, W, 3)
     _, ssim_map = structural_similarity(target, rgb, channel_axis=2, data_range=1.0, full=True)
     sd = signed_distance(avatar.hair.means, avatar.rest_head_vertices, avatar.head_model.faces)
     part = np.where(gs.extras["part"] == 1, HAIR, SKIN).astype(np.int32)
@@ -556,6 +565,7 @@ def front_view_metrics(avatar, image: np.ndarray, segmentation, camera=None) -> 
     union = ((hair2d | hair3d) & mask).sum()
     return {"psnr_db": round(psnr(rgb, target, mask), 3),
             "ssim": round(float(ssim_map[mask].mean()), 4),
+            "psnr_frame_db": round(psnr(frame, target, np.ones(mask.shape, bool)), 3),
             "hair_inside_share": float((sd < 0).mean()) if len(sd) else 0.0,
             "label_agreement": round(float((hair2d == hair3d)[mask].mean()), 4),
             "hair_iou": round(float(inter / max(union, 1)), 4),
