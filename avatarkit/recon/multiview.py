@@ -569,6 +569,19 @@ def _row_keys(points) -> np.ndarray:
     return p.view(np.dtype((np.void, p.dtype.itemsize * 3))).ravel()
 
 
+def _region_rows(bald, hair, fit, region: str, every: bool) -> np.ndarray:
+    """(N_bald + N_hair,) bool: the bald Gaussians whose host face has every vertex (every) or
+    any vertex in the head model's `region`; none where the model has no such region or the
+    bald set no binding."""
+    rows = np.zeros(len(bald) + len(hair), bool)
+    model = fit.model
+    if region in model.regions and "binding" in bald.extras:
+        inside = model.region_mask(region)[model.faces]
+        faces = inside.all(axis=1) if every else inside.any(axis=1)
+        rows[:len(bald)] = faces[np.asarray(bald.extras["binding"], np.int64)]
+    return rows
+
+
 @dataclass
 class VideoViews:
     """What a video build passes to `build_avatar`: shape (S,) the joint identity (the shape the
@@ -680,23 +693,13 @@ class VideoViews:
         """(N_bald + N_hair,) bool: the bald Gaussians bound to the neck (every vertex of the
         host face in the head model's "neck" region): the tracked head turns, the neck does not,
         so the keyframes' views of it are not the rest avatar's."""
-        keep = np.zeros(len(bald) + len(hair), bool)
-        model = fit.model
-        if "neck" in model.regions and "binding" in bald.extras:
-            neck_faces = model.region_mask("neck")[model.faces].all(axis=1)
-            keep[:len(bald)] = neck_faces[np.asarray(bald.extras["binding"], np.int64)]
-        return keep
+        return _region_rows(bald, hair, fit, "neck", every=True)
 
     @staticmethod
     def scalp_rows(bald, hair, fit) -> np.ndarray:
         """(N_bald + N_hair,) bool: the bald Gaussians bound to a face of the head model with a
         vertex in its "scalp" region (`SCALP_BODY`)."""
-        rows = np.zeros(len(bald) + len(hair), bool)
-        model = fit.model
-        if "scalp" in model.regions and "binding" in bald.extras:
-            scalp_faces = model.region_mask("scalp")[model.faces].any(axis=1)
-            rows[:len(bald)] = scalp_faces[np.asarray(bald.extras["binding"], np.int64)]
-        return rows
+        return _region_rows(bald, hair, fit, "scalp", every=False)
 
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
