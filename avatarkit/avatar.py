@@ -250,8 +250,9 @@ class Avatar:
         """Bald and hair together at rest, with a `part` extra (uint8: 0 bald, 1 hair)."""
         return _join_parts(self.bald, self.hair)
 
-    def render_preview(self, size: int = PREVIEW_SIZE, background=(1.0, 1.0, 1.0)) -> np.ndarray:
+    def render_preview(self, size: int | None = None, background=(1.0, 1.0, 1.0)) -> np.ndarray:
         """A front view (size x size, uint8 RGB) of the avatar at rest."""
+        size = PREVIEW_SIZE if size is None else size
         from avatarkit.export.images import to_uint8
         from avatarkit.render import frame_camera, render
 

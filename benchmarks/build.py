@@ -7,7 +7,9 @@ For every sample portrait (samples/*.jpg, *.png), prints:
 - front-view PSNR (dB) and SSIM (skimage.metrics) of the avatar rendered from the fitted input
   camera (on white) against the photo, inside the head mask (skin + hair labels), next to a
   simple baseline made in the same process: the same avatar before the colour matching
-  against the photo (what projecting the photo alone gives);
+  against the photo (what projecting the photo alone gives); beside it the whole frame's PSNR
+  of the render composited over the photo (`front_view_metrics`' psnr_frame_db: it also sees a
+  render that stands past the photo's outline, which the head mask cannot);
 - the share of hair Gaussian centres inside the head (exact signed distance; must be 0);
 - hair/skin label agreement with the 2D segmentation over the head mask, and the hair IoU;
 Then the head fit alone on template heads rendered at known poses: rotation and distance
@@ -79,7 +81,8 @@ def report(name: str, path: Path, options: BuildOptions, truth=None, overlap: bo
         print(f"  {stage:<12s}    {build['timings_s'][stage]:7.2f} s   CPU {cpu.get(stage, 0.0):6.2f} s   "
               f"main thread {main.get(stage, 0.0):6.2f} s")
     colours = build.get("colours", {})
-    print(f"front-view PSNR    {m['psnr_db']:7.2f} dB  target >= 27 dB")
+    print(f"front-view PSNR    {m['psnr_db']:7.2f} dB  target >= 27 dB   (head mask; whole frame, the render "
+          f"over the photo: {m['psnr_frame_db']:.2f} dB)")
     if colours:
         print(f"  colour matching on the photo (refine's own background): "
               f"{colours['psnr_before']:.2f} -> {colours['psnr_after']:.2f} dB "

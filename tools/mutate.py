@@ -101,6 +101,11 @@ MUTATIONS = [
       more=(("avatarkit/render/_kernels.py", "T_MIN = 1e-4", "T_MIN = 0.0"),)),
     M("render.no_dilation", "avatarkit/render/_kernels.py", "DILATION = 0.3", "DILATION = 0.0",
       ["tests/test_render.py"], "the fast renderer forgets the 0.3 px low-pass dilation"),
+    M("render.reference_near_frozen", "avatarkit/render/reference.py",
+      "def project_reference(gaussians: GaussianSet, camera: Camera, near: float | None = None) -> Projection:",
+      "def project_reference(gaussians: GaussianSet, camera: Camera, near: float = _pipeline.NEAR_PLANE) -> Projection:",
+      ["tests/test_call_time_defaults.py"],
+      "the reference renderer's near plane frozen at import (setting pipeline.NEAR_PLANE leaves it behind)"),
     # --- export ---------------------------------------------------------------------------------
     M("export.manifest_unlinked", "avatarkit/export/usd_stage.py",
       '                clips.SetClipManifestAssetPath(Sdf.AssetPath(f"./{self._clips_name}/{manifest_name}"))',
@@ -370,6 +375,20 @@ MUTATIONS = [
       "    movable = np.ones(nb, bool) if regions is None else fusion_selection(saved, tuple(regions))[:nb]",
       "    movable = np.ones(nb, bool)",
       ["tests/test_frame_hull.py"], "every bald disc receding whatever RECEDE_REGIONS asks"),
+    M("track.fusion_regions_default_none", "avatarkit/track/frame_colours.py",
+      "def fusion_selection(avatar, regions=_UNSET, hair: bool = False) -> np.ndarray:",
+      "def fusion_selection(avatar, regions=None, hair: bool = False) -> np.ndarray:",
+      ["tests/test_call_time_defaults.py"],
+      "fusion_selection's default made None, which means every bald Gaussian, not REGIONS"),
+    M("track.frame_hull_min_frames_hard_coded", "avatarkit/track/frame_hull.py",
+      "    rounds = ROUNDS if rounds is None else rounds\n    share = SHARE if share is None else share\n"
+      "    quorum = QUORUM if quorum is None else quorum\n    min_frames = MIN_FRAMES if min_frames is None else min_frames\n"
+      "    if len(views) != len(walls):",
+      "    rounds = ROUNDS if rounds is None else rounds\n    share = SHARE if share is None else share\n"
+      "    quorum = QUORUM if quorum is None else quorum\n    min_frames = 3 if min_frames is None else min_frames\n"
+      "    if len(views) != len(walls):",
+      ["tests/test_call_time_defaults.py"],
+      "carve's minimum of frames written as its value, not read from frame_hull.MIN_FRAMES"),
     M("track.frame_colours_hidden_unweighted", "avatarkit/track/frame_colours.py",
       "                delta = delta * p[\"damp\"]",
       "                pass",

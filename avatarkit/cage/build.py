@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from avatarkit.cage import points as _points
 from avatarkit.cage.mesh import Cage, check_cage
-from avatarkit.cage.points import AXIS_SIGMA, cage_points
+from avatarkit.cage.points import cage_points
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 
@@ -119,7 +120,7 @@ def _surface_area(field: np.ndarray, g: float) -> float:
 
 
 def build_cage(gaussians: GaussianSet, target_vertices: int = 500, margin: float | None = None,
-               voxel_size: float | None = None, *, axis_sigma: float = AXIS_SIGMA,
+               voxel_size: float | None = None, *, axis_sigma: float | None = None,
                smoothing: int = 10) -> Cage:
     """A closed cage (<= target_vertices vertices) around the Gaussians' centres and axis ends.
 
@@ -130,6 +131,7 @@ def build_cage(gaussians: GaussianSet, target_vertices: int = 500, margin: float
     in `deformation_points`). smoothing: Taubin iterations. The cage's `info` records the attempt
     used, the coarse cell size and the measured depth of the shallowest point.
     """
+    axis_sigma = _points.AXIS_SIGMA if axis_sigma is None else axis_sigma
     if not isinstance(gaussians, GaussianSet):
         raise InputError("build_cage needs a GaussianSet")
     if len(gaussians) == 0:

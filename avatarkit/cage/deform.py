@@ -34,6 +34,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from avatarkit.cage import points as _points
 from avatarkit.cage.mesh import Cage
 from avatarkit.cage.mvc import mvc_weights
 from avatarkit.cage.points import AXIS_SIGMA, METHODS, axis_vectors, deformation_points, principal_axis_index
@@ -111,20 +112,22 @@ class CageDeformer:
     # --- construction -----------------------------------------------------------------------
     @classmethod
     def build(cls, gaussians: GaussianSet, cage: Cage, method: str = "principal_axis",
-              axis_sigma: float = AXIS_SIGMA,
+              axis_sigma: float | None = None,
               progress: Callable[[int, int], None] | None = None) -> "CageDeformer":
         """Compute the weights of the points `method` needs (2 or 7 per Gaussian) and precompute."""
+        axis_sigma = _points.AXIS_SIGMA if axis_sigma is None else axis_sigma
         points = deformation_points(gaussians, method, axis_sigma)
         wt = mvc_weights(points, cage.vertices, cage.faces, transposed=True, progress=progress)
         return cls(gaussians, cage, wt, method, float(axis_sigma))
 
     @classmethod
     def deferred(cls, gaussians: GaussianSet, cage: Cage, method: str = "principal_axis",
-                 axis_sigma: float = AXIS_SIGMA) -> "CageDeformer":
+                 axis_sigma: float | None = None) -> "CageDeformer":
         """A deformer whose weights are computed (as `build` does) the first time they are
         needed: by a deformation, or by reading `weights_t`/`weights`. Loading an avatar uses
         this, so tools that never move its hair (rendering at rest, hair transfer, inspection)
         do not pay for the MVC weights (~2 s per 50k hair Gaussians)."""
+        axis_sigma = _points.AXIS_SIGMA if axis_sigma is None else axis_sigma
         if method not in METHODS:
             raise InputError(f"unknown deformation method {method!r}; choose one of {', '.join(METHODS)}")
         if not (np.isfinite(axis_sigma) and axis_sigma > 0):

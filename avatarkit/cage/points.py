@@ -26,15 +26,17 @@ def principal_axis_index(scales: np.ndarray) -> np.ndarray:
     return np.argmax(scales, axis=1).astype(np.int32)
 
 
-def axis_vectors(gaussians: GaussianSet, axis_sigma: float = AXIS_SIGMA) -> np.ndarray:
+def axis_vectors(gaussians: GaussianSet, axis_sigma: float | None = None) -> np.ndarray:
     """Half-axis vectors (N, 3, 3) float64: [:, :, i] = axis_sigma * s_i * R e_i."""
+    axis_sigma = AXIS_SIGMA if axis_sigma is None else axis_sigma
     r = quat_to_matrix(gaussians.quats.astype(np.float64))
     return r * (axis_sigma * gaussians.scales.astype(np.float64))[:, None, :]
 
 
 def deformation_points(gaussians: GaussianSet, method: str = "principal_axis",
-                       axis_sigma: float = AXIS_SIGMA) -> np.ndarray:
+                       axis_sigma: float | None = None) -> np.ndarray:
     """The points (2N or 7N, 3) float64 whose weights a `CageDeformer` needs (layout above)."""
+    axis_sigma = AXIS_SIGMA if axis_sigma is None else axis_sigma
     if method not in METHODS:
         raise InputError(f"unknown deformation method {method!r}; choose one of {', '.join(METHODS)}")
     if not (np.isfinite(axis_sigma) and axis_sigma > 0):
@@ -51,8 +53,9 @@ def deformation_points(gaussians: GaussianSet, method: str = "principal_axis",
     return np.concatenate(blocks)
 
 
-def cage_points(gaussians: GaussianSet, axis_sigma: float = AXIS_SIGMA) -> np.ndarray:
+def cage_points(gaussians: GaussianSet, axis_sigma: float | None = None) -> np.ndarray:
     """Every point a cage must hold: centres and all six axis endpoints, (7N, 3) float64.
 
     A superset of both deformation layouts, so one cage serves either method."""
+    axis_sigma = AXIS_SIGMA if axis_sigma is None else axis_sigma
     return deformation_points(gaussians, "seven_point", axis_sigma)

@@ -189,8 +189,10 @@ class VideoWriter:
     size in the file (even for H.264, see `pad_to_even`).
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float = 24.0, crf: int = DEFAULT_CRF,
-                 preset: str = DEFAULT_PRESET):
+    def __init__(self, path: str | os.PathLike, fps: float = 24.0, crf: int | None = None,
+                 preset: str | None = None):
+        crf = DEFAULT_CRF if crf is None else crf
+        preset = DEFAULT_PRESET if preset is None else preset
         self.path = Path(path)
         self.format = video_format(path)
         try:
@@ -370,8 +372,9 @@ def _count_cv2_frames(path: Path) -> int:
 
 
 def write_video(path: str | os.PathLike, frames: Iterable[np.ndarray], fps: float = 24.0,
-                crf: int = DEFAULT_CRF) -> int:
+                crf: int | None = None) -> int:
     """Write all `frames` (an iterable: rendered lazily, one at a time) -> number of frames."""
+    crf = DEFAULT_CRF if crf is None else crf
     with VideoWriter(path, fps, crf=crf) as video:
         video.extend(frames)
     return video.frame_count

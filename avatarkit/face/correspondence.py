@@ -171,8 +171,8 @@ def embedding_for(model, path: str | os.PathLike | None = None, mirror: bool = F
     return None
 
 
-def carried_by_jaw(embedding: LandmarkEmbedding, model, mesh_points=LOWER_INNER_LIP,
-                   min_weight: float = JAW_CARRIED) -> LandmarkEmbedding:
+def carried_by_jaw(embedding: LandmarkEmbedding, model, mesh_points=None,
+                   min_weight: float | None = None) -> LandmarkEmbedding:
     """The same landmarks with those of `mesh_points` that sit where the jaw does not reach
     re-hosted on the nearest vertex of the head model's lips that the jaw carries (skinning
     weight >= `min_weight`), with the offset that keeps each one's rest position.
@@ -184,6 +184,8 @@ def carried_by_jaw(embedding: LandmarkEmbedding, model, mesh_points=LOWER_INNER_
     pixel of the video's). At rest nothing moves; with the jaw open the points follow the lower
     lip. Rows whose host already has the jaw's weight, and other models' embeddings, are left
     as they are."""
+    mesh_points = LOWER_INNER_LIP if mesh_points is None else mesh_points
+    min_weight = JAW_CARRIED if min_weight is None else min_weight
     from avatarkit.face.fit import JAW_JOINT
 
     faces = np.asarray(model.faces)
@@ -298,13 +300,15 @@ def _ray_through(frontal, cameras, xy, hits_f, oval):
     return pixel_rays(frontal, px)
 
 
-def make_template_embedding(views=TEMPLATE_VIEWS, size: int = 512, n_gaussians: int = 80000,
-                            seed: int = 0, max_residual: float = MAX_RESIDUAL,
+def make_template_embedding(views=None, size: int = 512, n_gaussians: int = 80000,
+                            seed: int = 0, max_residual: float | None = None,
                             mirror: bool = False) -> tuple[LandmarkEmbedding, dict]:
     """The template's embedding (module docstring) and a report: per view, the detection score,
     the face-mesh presence and the share of landmarks whose ray hit the head. mirror: from the
     mirror-averaged face mesh (`MIRROR_TEMPLATE_FILE` is made with it and
     `MIRROR_TEMPLATE_VIEWS`); the views are (yaw, pitch) degrees, the frontal one first."""
+    views = TEMPLATE_VIEWS if views is None else views
+    max_residual = MAX_RESIDUAL if max_residual is None else max_residual
     import math
 
     from avatarkit.face.detect import detect_faces

@@ -153,12 +153,13 @@ def iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
 
 
 def weighted_nms(boxes: np.ndarray, keypoints: np.ndarray, scores: np.ndarray,
-                 threshold: float = NMS_IOU) -> list[int | np.ndarray]:
+                 threshold: float | None = None) -> list[int | np.ndarray]:
     """MediaPipe's WEIGHTED non-maximum suppression. boxes (K, 4), keypoints (K, P, 2), scores
     (K,) -> a list of (box (4,), keypoints (P, 2), score, index of the group's best box),
     best first. Each group is the best remaining box and every remaining box whose IoU with it
     is above `threshold`; its box and keypoints are the score-weighted means over the group,
     its score the best box's."""
+    threshold = NMS_IOU if threshold is None else threshold
     order = list(np.argsort(-scores, kind="stable"))
     out = []
     while order:

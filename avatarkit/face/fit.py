@@ -222,9 +222,10 @@ def project_torch(points, rotation, translation, focal: float, size):
     return torch.stack([focal * c[:, 0] / z + w / 2, focal * c[:, 1] / z + h / 2], dim=1), z
 
 
-def landmark_loss(px, depth, targets: LandmarkTargets, focal: float, depth_weight: float = DEPTH_WEIGHT):
+def landmark_loss(px, depth, targets: LandmarkTargets, focal: float, depth_weight: float | None = None):
     """The image terms of the objective (module docstring) as a dict of torch scalars.
     px: (K, 2) projected model landmarks; depth: (K,) their camera depths."""
+    depth_weight = DEPTH_WEIGHT if depth_weight is None else depth_weight
     import torch
 
     t = lambda a: torch.from_numpy(np.asarray(a, np.float64))
@@ -277,14 +278,17 @@ def initial_pose(points: np.ndarray, targets: LandmarkTargets, focal: float) -> 
     return rotation, (_CV @ tvec.reshape(3))
 
 
+_UNSET = object()  # view_correction's default: FIT_VIEW_CORRECTION read at call time (None is a value: off)
+
+
 def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets, focal: float, *,
                   shape=None, fit_shape: bool = True, shape_components: int | None = None,
                   expr_components: int = 0, fit_jaw: bool = False, start: LandmarkFit | None = None,
-                  iterations: int = 60, depth_weight: float = FIT_DEPTH_WEIGHT,
-                  outline_weight: float = OUTLINE_WEIGHT, shape_prior: float = SHAPE_PRIOR,
-                  expr_prior: float = EXPR_PRIOR, jaw_prior: float = JAW_PRIOR,
+                  iterations: int = 60, depth_weight: float | None = None,
+                  outline_weight: float | None = None, shape_prior: float | None = None,
+                  expr_prior: float | None = None, jaw_prior: float | None = None,
                   landmark_model: LandmarkModel | None = None,
-                  view_correction=FIT_VIEW_CORRECTION) -> LandmarkFit:
+                  view_correction=_UNSET) -> LandmarkFit:
     """Pose (and shape / expression / jaw, as asked) of `model` from landmark targets.
 
     shape: (S,) identity to start from (fit_shape=True) or keep (False); shape_components:
@@ -300,6 +304,12 @@ def fit_landmarks(model, embedding: LandmarkEmbedding, targets: LandmarkTargets,
     this view.
     Returns a `LandmarkFit` (its errors: every point, the outline's across it, unweighted).
     """
+    depth_weight = FIT_DEPTH_WEIGHT if depth_weight is None else depth_weight
+    outline_weight = OUTLINE_WEIGHT if outline_weight is None else outline_weight
+    shape_prior = SHAPE_PRIOR if shape_prior is None else shape_prior
+    expr_prior = EXPR_PRIOR if expr_prior is None else expr_prior
+    jaw_prior = JAW_PRIOR if jaw_prior is None else jaw_prior
+    view_correction = FIT_VIEW_CORRECTION if view_correction is _UNSET else view_correction
     import torch
 
     from avatarkit.lbfgs import LBFGS

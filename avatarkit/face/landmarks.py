@@ -228,9 +228,11 @@ def _mesh(image: np.ndarray, roi: Roi, mirror: bool = False) -> tuple[np.ndarray
     return points, logit
 
 
-def augmented_rois(roi: Roi, scales=AUGMENT_SCALES, angles_deg=AUGMENT_ANGLES_DEG) -> list[Roi]:
+def augmented_rois(roi: Roi, scales=None, angles_deg=None) -> list[Roi]:
     """The regions test-time augmentation reads: `roi` scaled by each of `scales` and turned
     by each of `angles_deg` about its centre (len(scales) * len(angles_deg) regions)."""
+    scales = AUGMENT_SCALES if scales is None else scales
+    angles_deg = AUGMENT_ANGLES_DEG if angles_deg is None else angles_deg
     return [Roi(roi.center, roi.side * k, roi.angle + math.radians(a)) for k in scales for a in angles_deg]
 
 

@@ -247,12 +247,13 @@ def _solve(s: Samples, phi: np.ndarray, r: np.ndarray, ridge: float) -> np.ndarr
     return coef
 
 
-def solve_coefficients(s: Samples, ridge: float = RIDGE) -> tuple[np.ndarray, np.ndarray]:
+def solve_coefficients(s: Samples, ridge: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(coef (K, B, 3), static (K, 3)): the best fixed offset per landmark over all views
     first (the static misfit), then all the basis terms on what it leaves; coef's constant
     column holds both constants. Solved in one go, a depth offset and a yaw-linear sideways one
     trade against each other (both move the point with sin(yaw)) and the ridge alone would
     decide the split; this way the constant term holds the best fixed offset first."""
+    ridge = RIDGE if ridge is None else ridge
     assert BASIS[0] == (0, 0, 0)
     static = _solve(s, s.phi[:, :1], s.r, ridge)[:, 0]
     left = s.r - np.einsum("nkij,kj->nki", s.A, static)
@@ -309,7 +310,7 @@ def _solve_rigid(s: Samples, phi: np.ndarray, r: np.ndarray, L: np.ndarray, weig
 
 
 def solve_rigid(s: Samples, points: np.ndarray, weight: np.ndarray | None = None,
-                ridge: float = RIGID_RIDGE) -> tuple[np.ndarray, np.ndarray]:
+                ridge: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """`solve_coefficients` restricted to a rigid motion of the whole face: per basis term one
     small turn and shift (`rigid_basis`) that every landmark follows, fitted to the samples'
     residuals of all landmarks together (weight (K,): each landmark's, default 1), the constant
@@ -317,6 +318,7 @@ def solve_rigid(s: Samples, points: np.ndarray, weight: np.ndarray | None = None
     landmark read off its neighbours, a mouth corner read wide - is left out: only the part of
     the bias that moves the face as a whole, the part that moves the fitted pose (a constant
     nod, a yaw read short). -> (coef (K, B, 3), static (K, 3)) in `solve_coefficients`' form."""
+    ridge = RIGID_RIDGE if ridge is None else ridge
     assert BASIS[0] == (0, 0, 0)
     L = rigid_basis(points)
     w = np.ones(len(L)) if weight is None else np.asarray(weight, np.float64)

@@ -302,9 +302,12 @@ def _quantize_sh(x: np.ndarray, bits: int) -> np.ndarray:
     return np.clip(q, 0, 255).astype(np.uint8)
 
 
-def encode_streams(gs: GaussianSet, version: int = DEFAULT_VERSION, sh1_bits: int = DEFAULT_SH1_BITS,
-                   sh_rest_bits: int = DEFAULT_SH_REST_BITS) -> list[bytes]:
+def encode_streams(gs: GaussianSet, version: int | None = None, sh1_bits: int | None = None,
+                   sh_rest_bits: int | None = None) -> list[bytes]:
     """The six attribute byte streams (positions, alphas, colours, scales, rotations, SH)."""
+    version = DEFAULT_VERSION if version is None else version
+    sh1_bits = DEFAULT_SH1_BITS if sh1_bits is None else sh1_bits
+    sh_rest_bits = DEFAULT_SH_REST_BITS if sh_rest_bits is None else sh_rest_bits
     n = len(gs)
     scale = np.float32(1 << FRACTIONAL_BITS)
     fixed = _round(gs.means * scale)
@@ -336,9 +339,12 @@ def _check_write_args(version: int, sh1_bits: int, sh_rest_bits: int):
             raise InputError(f"{name} must be an integer 1..8, got {bits!r}")
 
 
-def spz_bytes(gs: GaussianSet, version: int = DEFAULT_VERSION, sh1_bits: int = DEFAULT_SH1_BITS,
-              sh_rest_bits: int = DEFAULT_SH_REST_BITS, antialiased: bool = False) -> bytes:
+def spz_bytes(gs: GaussianSet, version: int | None = None, sh1_bits: int | None = None,
+              sh_rest_bits: int | None = None, antialiased: bool = False) -> bytes:
     """The bytes of an SPZ file holding `gs` (version 2, 3 or 4)."""
+    version = DEFAULT_VERSION if version is None else version
+    sh1_bits = DEFAULT_SH1_BITS if sh1_bits is None else sh1_bits
+    sh_rest_bits = DEFAULT_SH_REST_BITS if sh_rest_bits is None else sh_rest_bits
     _check_write_args(version, sh1_bits, sh_rest_bits)
     if len(gs) == 0:
         raise InputError("SPZ cannot hold an empty set (its readers reject 0 points)")
@@ -361,9 +367,12 @@ def spz_bytes(gs: GaussianSet, version: int = DEFAULT_VERSION, sh1_bits: int = D
     return header + toc + b"".join(c for c, _ in chunks)
 
 
-def write_spz(path: str | os.PathLike, gs: GaussianSet, version: int = DEFAULT_VERSION,
-              sh1_bits: int = DEFAULT_SH1_BITS, sh_rest_bits: int = DEFAULT_SH_REST_BITS) -> None:
+def write_spz(path: str | os.PathLike, gs: GaussianSet, version: int | None = None,
+              sh1_bits: int | None = None, sh_rest_bits: int | None = None) -> None:
     """Write `gs` as an SPZ file (default version 3, the gzip layout every SPZ reader knows), atomically."""
+    version = DEFAULT_VERSION if version is None else version
+    sh1_bits = DEFAULT_SH1_BITS if sh1_bits is None else sh1_bits
+    sh_rest_bits = DEFAULT_SH_REST_BITS if sh_rest_bits is None else sh_rest_bits
     path = Path(path)
     if path.suffix.lower() != ".spz":
         raise OutputError(f"an SPZ file must end in .spz, not {path.suffix!r}", path)

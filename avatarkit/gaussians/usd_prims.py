@@ -131,8 +131,10 @@ class SplatPrimWriter:
     ancestor if it has none.
     """
 
-    def __init__(self, stage: Usd.Stage, prim_path: str = DEFAULT_PRIM_PATH, *, half: bool = False,
-                 animated: tuple[str, ...] = ANIMATED_FIELDS):
+    def __init__(self, stage: Usd.Stage, prim_path: str | None = None, *, half: bool = False,
+                 animated: tuple[str, ...] | None = None):
+        prim_path = DEFAULT_PRIM_PATH if prim_path is None else prim_path
+        animated = ANIMATED_FIELDS if animated is None else animated
         path = check_prim_path(prim_path)
         unknown = set(animated) - set(_FIELDS)
         if unknown:

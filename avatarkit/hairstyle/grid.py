@@ -14,7 +14,7 @@ import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
-from avatarkit.hairstyle.transfer import MARGIN
+from avatarkit.hairstyle import transfer as _transfer
 
 #: named views: (azimuth, elevation) in degrees for `Camera.orbit` (azimuth 0 faces the face)
 VIEWS: dict[str, tuple[float, float]] = {
@@ -61,8 +61,8 @@ def _cell_label(row: str, view: str, r: int, c: int) -> str:
     return view if r == 0 else ""
 
 
-def hair_grid(head, hairstyles: Sequence, views: Sequence[str] = DEFAULT_VIEWS, size: int = 384, *,
-              include_own: bool = False, margin: float = MARGIN, cleanup=True,
+def hair_grid(head, hairstyles: Sequence, views: Sequence[str] | None = None, size: int = 384, *,
+              include_own: bool = False, margin: float | None = None, cleanup=True,
               background=(1.0, 1.0, 1.0), labels: bool = True, names: Sequence[str] | None = None,
               progress: Callable[[int, int], None] | None = None) -> HairGrid:
     """Avatar `head` wearing the hair of each avatar in `hairstyles` (and, with include_own, its
@@ -71,6 +71,8 @@ def hair_grid(head, hairstyles: Sequence, views: Sequence[str] = DEFAULT_VIEWS, 
     labels: write each row's name on its first cell and the view names on the first row;
     names: the rows' names (one per hairstyle; default the avatars' names).
     progress(done, total) counts rendered cells."""
+    views = DEFAULT_VIEWS if views is None else views
+    margin = _transfer.MARGIN if margin is None else margin
     from avatarkit.export.images import contact_sheet, to_uint8
     from avatarkit.hairstyle.transfer import reseat_hair
     from avatarkit.render import frame_camera, render, scene_bounds

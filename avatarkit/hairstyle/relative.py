@@ -147,9 +147,10 @@ class ScalpHair:
 
     @classmethod
     def bind(cls, hair: GaussianSet, head_model, rest_vertices: np.ndarray, cage=None,
-             neighbours: int = NEIGHBOURS) -> "ScalpHair":
+             neighbours: int | None = None) -> "ScalpHair":
         """Express `hair` (and the `cage` around it, if given) relative to the scalp of
         `head_model` posed as `rest_vertices` (V, 3) (the avatar's rest head)."""
+        neighbours = NEIGHBOURS if neighbours is None else neighbours
         if not isinstance(hair, GaussianSet):
             raise InputError("hair must be a GaussianSet")
         if len(hair) == 0:

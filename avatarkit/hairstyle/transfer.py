@@ -34,7 +34,8 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.hairstyle.cleanup import SkinCleanup, skin_in_hair
-from avatarkit.hairstyle.relative import NEIGHBOURS, ScalpHair, check_same_topology
+from avatarkit.hairstyle import relative as _relative
+from avatarkit.hairstyle.relative import ScalpHair, check_same_topology
 from avatarkit.recon.assemble import HAIR_MARGIN
 
 #: pushed hair centres land this far (metres) outside the target head, and none stays closer
@@ -94,7 +95,7 @@ def _head_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return abs(float(signed_volume(np.asarray(vertices, np.float64), faces)))
 
 
-def reseat_hair(source, target, margin: float = MARGIN, *, neighbours: int = NEIGHBOURS,
+def reseat_hair(source, target, margin: float | None = None, *, neighbours: int | None = None,
                 cleanup: SkinCleanup | bool = True) -> Reseated:
     """The hair of avatar `source` seated on the head of avatar `target` (steps 1-4 of the
     module docstring): no cage or rig is built (fast; what a hair library view needs).
@@ -105,6 +106,8 @@ def reseat_hair(source, target, margin: float = MARGIN, *, neighbours: int = NEI
     InputError for a source without hair, heads of different topology, a head without a scalp
     region, or hair left with no Gaussian after the clean-up.
     """
+    margin = MARGIN if margin is None else margin
+    neighbours = _relative.NEIGHBOURS if neighbours is None else neighbours
     from avatarkit.cage.mesh import Cage
     from avatarkit.recon.assemble import push_out
 
@@ -173,9 +176,9 @@ def _rest_sdf(avatar):
     return sdf if float(np.abs(d).max()) <= 2.0 * sdf.spacing else None
 
 
-def transfer_hair(source, target, margin: float = MARGIN, *, neighbours: int = NEIGHBOURS,
+def transfer_hair(source, target, margin: float | None = None, *, neighbours: int | None = None,
                   cleanup: SkinCleanup | bool = True, cage: str = "rebuild",
-                  cage_vertices: int = CAGE_VERTICES, name: str | None = None,
+                  cage_vertices: int | None = None, name: str | None = None,
                   progress: Callable[[int, int], None] | None = None):
     """`target`'s head and identity with `source`'s hair -> a new `Avatar` (module docstring).
 
@@ -186,6 +189,9 @@ def transfer_hair(source, target, margin: float = MARGIN, *, neighbours: int = N
     progress(done, total) follows the cage weights, the slow step.
     The report is in `result.provenance["transfer"]`.
     """
+    margin = MARGIN if margin is None else margin
+    neighbours = _relative.NEIGHBOURS if neighbours is None else neighbours
+    cage_vertices = CAGE_VERTICES if cage_vertices is None else cage_vertices
     import datetime
 
     from avatarkit import __version__

@@ -140,13 +140,14 @@ def _array(data: dict, key: str, path: Path, ndim: int, dtype=np.float32, sparse
     return a
 
 
-def load_flame(path: str | os.PathLike, num_shape: int = FLAME_NUM_SHAPE) -> HeadModel:
+def load_flame(path: str | os.PathLike, num_shape: int | None = None) -> HeadModel:
     """Read a FLAME 2020/2023 model pickle into a HeadModel (no chumpy needed).
 
     `shapedirs` (V, 3, 400) is split into `num_shape` identity components and the rest as
     expression components. Errors (unreadable file, missing key, wrong shape) are FormatError
     naming the file and the key.
     """
+    num_shape = FLAME_NUM_SHAPE if num_shape is None else num_shape
     path = Path(path)
     if not path.is_file():
         raise InputError("FLAME model file not found", path)

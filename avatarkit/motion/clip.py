@@ -97,9 +97,10 @@ class MotionClip:
 
     # --- construction -------------------------------------------------------------------
     @classmethod
-    def rest(cls, n_frames: int, fps: float = DEFAULT_FPS, expr_dims: int = 0, shape_dims: int = 0,
+    def rest(cls, n_frames: int, fps: float | None = None, expr_dims: int = 0, shape_dims: int = 0,
              name: str = "rest") -> "MotionClip":
         """Every parameter zero (the template pose) for `n_frames` frames."""
+        fps = DEFAULT_FPS if fps is None else fps
         z = lambda w: np.zeros((n_frames, w), np.float32)  # noqa: E731
         return cls(fps, z(3), z(3), z(3), z(3), z(6), z(expr_dims), np.zeros(shape_dims, np.float32), name)
 

@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from avatarkit.errors import InputError
-from avatarkit.motion.clip import DEFAULT_FPS, MotionClip, check_fps
+from avatarkit.motion import clip as _clip
+from avatarkit.motion.clip import MotionClip, check_fps
 
 KINDS = ("nod", "shake", "tilt", "turn", "talk", "idle", "whip")
 #: degrees: nod pitch, shake yaw, tilt roll, turn yaw, talk jaw opening, idle sway yaw, whip yaw
@@ -73,8 +74,8 @@ def _smooth_noise(u: np.ndarray, rng: np.random.Generator, n_waves: int, max_cyc
     return (weights * np.sin(2 * np.pi * np.outer(u, cycles) + phases)).sum(1) / weights.sum()
 
 
-def make_clip(kind: str, frames: int | None = None, fps: float = DEFAULT_FPS,
-              amplitude: float | None = None, expr_dims: int = DEFAULT_EXPR_DIMS,
+def make_clip(kind: str, frames: int | None = None, fps: float | None = None,
+              amplitude: float | None = None, expr_dims: int | None = None,
               seed: int = 0) -> MotionClip:
     """A procedural clip of `kind` (one of KINDS).
 
@@ -83,6 +84,8 @@ def make_clip(kind: str, frames: int | None = None, fps: float = DEFAULT_FPS,
     0..180); expr_dims: expression coefficients per frame (only `talk` sets any);
     seed: varies the random-looking parts of `talk` and `idle`.
     """
+    fps = _clip.DEFAULT_FPS if fps is None else fps
+    expr_dims = DEFAULT_EXPR_DIMS if expr_dims is None else expr_dims
     if kind not in KINDS:
         raise InputError(f"unknown motion kind {kind!r}; choose one of {', '.join(KINDS)}")
     fps = check_fps(fps)

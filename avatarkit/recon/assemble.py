@@ -119,7 +119,7 @@ class AssemblyResult:
 
 
 def assemble(fit: HeadFit, binding: TriangleBinding, hair: GaussianSet, analysis, *,
-             margin: float = HAIR_MARGIN, rounds: int = 3, iterations: int = 25,
+             margin: float | None = None, rounds: int = 3, iterations: int = 25,
              shape_components: int | None = None, adjust_shape: bool = True,
              screen=None) -> AssemblyResult:
     """Push the hair out of the head with a small joint head-shape adjustment (module docstring).
@@ -128,6 +128,7 @@ def assemble(fit: HeadFit, binding: TriangleBinding, hair: GaussianSet, analysis
     extra (uint8, optional) marks hair the camera saw; analysis: the `PortraitAnalysis`
     (landmarks for the head's image term). screen: a `HeadSDF` of about this head (a coarse
     one is built if not given) that spares the exact distance test for hair far from it."""
+    margin = HAIR_MARGIN if margin is None else margin
     import torch
 
     from avatarkit.head.lbs import axis_angle_to_matrix_torch

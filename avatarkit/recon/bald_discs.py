@@ -142,10 +142,11 @@ def _face_weights(model) -> np.ndarray:
     return dense
 
 
-def _eye_area_faces(model, vertices: np.ndarray, reach: float = EYE_AREA_REACH) -> np.ndarray:
+def _eye_area_faces(model, vertices: np.ndarray, reach: float | None = None) -> np.ndarray:
     """(F,) bool: the faces whose centroid lies within `reach` (metres) of an eyeball's centre
     and in front of it (+Z, where the face looks) on the rest head `vertices` (V, 3): the
     eyeballs' fronts, the lids, the lash lines, the corners (the eyeballs' backs are hidden)."""
+    reach = EYE_AREA_REACH if reach is None else reach
     v = np.asarray(vertices, np.float64)
     faces = np.asarray(model.faces)
     if model.weights.shape[1] < 5:
@@ -245,7 +246,7 @@ def _eye_colours(image: np.ndarray, analysis) -> np.ndarray:
     return np.array(out)
 
 
-def sclera_colour(seen: np.ndarray, least: int = SCLERA_SAMPLES) -> np.ndarray:
+def sclera_colour(seen: np.ndarray, least: int | None = None) -> np.ndarray:
     """(3,) the colour the eyeballs' unseen sclera takes: the median of the brighter half of
     `seen` (K, 3), the photo's colours of the eyeball discs it sees outside the irises (the
     sclera between the lids, with the lids' edges and lashes in the darker half), never
@@ -253,6 +254,7 @@ def sclera_colour(seen: np.ndarray, least: int = SCLERA_SAMPLES) -> np.ndarray:
 
     A fixed bright white showed as a glaring crescent where a raised lid or a turned eye
     uncovered sclera the photo did not see: the photo's sclera is in the face's light."""
+    least = SCLERA_SAMPLES if least is None else least
     seen = np.asarray(seen, np.float64).reshape(-1, 3)
     if len(seen) < least:
         return np.asarray(SCLERA_RGB, np.float64)

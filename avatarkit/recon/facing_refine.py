@@ -55,12 +55,13 @@ MASK_ERODE = 2
 MIN_WEIGHT = 0.05
 
 
-def facing_weights(gaussians, normals: np.ndarray, is_hair: np.ndarray, view, power: float = POWER,
+def facing_weights(gaussians, normals: np.ndarray, is_hair: np.ndarray, view, power: float | None = None,
                    render_result=None, person: np.ndarray | None = None) -> np.ndarray:
     """(N,) float64 >= 0: how squarely `view` (a `multiview.View`) sees each Gaussian (module
     docstring). normals: (N, 3) unit outward normals (the head SDF's gradient); is_hair (N,)
     bool; render_result: the view's render of `gaussians` (None: rendered here); person (H, W)
     bool: the pixels a hair Gaussian's footprint counts on (None: the whole image)."""
+    power = POWER if power is None else power
     from avatarkit.recon.multiview import (ALPHA_MIN, DEPTH_TOLERANCE, HAIR_VISIBLE, MIN_COS, REFERENCE_WEIGHT,
                                            footprint_visibility)
     from avatarkit.recon.visibility import seen_from
@@ -86,11 +87,12 @@ def facing_weights(gaussians, normals: np.ndarray, is_hair: np.ndarray, view, po
     return w * float(view.sharpness) * (REFERENCE_WEIGHT if view.reference else 1.0)
 
 
-def facing_weights_reference(gaussians, normals: np.ndarray, is_hair: np.ndarray, view, power: float = POWER,
+def facing_weights_reference(gaussians, normals: np.ndarray, is_hair: np.ndarray, view, power: float | None = None,
                              person: np.ndarray | None = None) -> np.ndarray:
     """The slow, obvious twin of `facing_weights` (tests only): one Gaussian at a time, its
     camera-space depth against the render's depth at its pixel, its facing from its own
     normal, its hair visibility from `footprint_visibility`."""
+    power = POWER if power is None else power
     from avatarkit.recon.multiview import (ALPHA_MIN, DEPTH_TOLERANCE, HAIR_VISIBLE, MIN_COS, REFERENCE_WEIGHT,
                                            footprint_visibility)
     from avatarkit.recon.image_sampling import lookup
@@ -125,9 +127,10 @@ def facing_weights_reference(gaussians, normals: np.ndarray, is_hair: np.ndarray
     return out
 
 
-def residual_mask(view, erode: int = MASK_ERODE) -> np.ndarray:
+def residual_mask(view, erode: int | None = None) -> np.ndarray:
     """(H, W) bool: the view's skin + hair pixels (its labels, the background-coloured halo of
     `multiview.soft_person` removed), eroded by `erode` pixels."""
+    erode = MASK_ERODE if erode is None else erode
     import cv2
 
     from avatarkit.recon.multiview import soft_person
@@ -140,7 +143,7 @@ def residual_mask(view, erode: int = MASK_ERODE) -> np.ndarray:
     return m
 
 
-def refine_weighted(gaussians, views: list[dict], select: np.ndarray, iterations: int = ITERATIONS,
+def refine_weighted(gaussians, views: list[dict], select: np.ndarray, iterations: int | None = None,
                     step: float = 1.0):
     """Colours (N, 3) float32 after `iterations` rounds: each round renders every view (dicts
     with camera, target (H, W, 3) float32, mask (H, W) bool, background (3,), weight (N,),
@@ -148,6 +151,7 @@ def refine_weighted(gaussians, views: list[dict], select: np.ndarray, iterations
     Gaussian's footprint (`assemble.footprint_residuals`), and moves each selected Gaussian by
     `step` x the weighted mean of its views' residuals (weights `weight` where `shows`).
     Returns (colours, updated (N,) bool, (PSNR per view before, after))."""
+    iterations = ITERATIONS if iterations is None else iterations
     from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
@@ -183,12 +187,14 @@ def refine_weighted(gaussians, views: list[dict], select: np.ndarray, iterations
 
 
 def refine_facing(bald, hair, views, normals: np.ndarray, keep: np.ndarray | None = None,
-                  iterations: int = ITERATIONS, power: float = POWER):
+                  iterations: int | None = None, power: float | None = None):
     """Bald and hair (GaussianSets of the rest avatar) with their colours matched to every
     labelled view (`multiview.View`s: the keyframes in the avatar's rest frame) at once, each
     view weighted per Gaussian by `facing_weights`. normals: (N_bald + N_hair, 3) outward
     normals; keep: (N,) bool rows left as they are (the neck); the rows the reference view (if
     any) sees are left too. Returns (bald, hair, figures)."""
+    iterations = ITERATIONS if iterations is None else iterations
+    power = POWER if power is None else power
     from avatarkit.gaussians.gaussian_set import GaussianSet
     from avatarkit.recon.label_lifting import accumulate_weights
     from avatarkit.recon.multiview import soft_person

@@ -231,9 +231,10 @@ def _signed_distance_px(mask: np.ndarray) -> np.ndarray:
     return (outside - inside).astype(np.float32)
 
 
-def face_width_targets(skin: np.ndarray, analysis, rows=WIDTH_ROWS) -> np.ndarray:
+def face_width_targets(skin: np.ndarray, analysis, rows=None) -> np.ndarray:
     """(R, 3) rows (v, u_left, u_right) in eye-frame IOD units: the edges of the skin run that
     contains the face's midline at each height v (NaN edges where the midline is not skin)."""
+    rows = WIDTH_ROWS if rows is None else rows
     h, w = skin.shape
     us = np.arange(-2.0, 2.0 + 1e-9, 0.5 / max(analysis.eye_distance, 1.0))
     out = []

@@ -58,10 +58,11 @@ def direction_planes(points: np.ndarray, flow2d: np.ndarray, camera) -> np.ndarr
 
 
 def solve_directions(planes: np.ndarray, weights: np.ndarray, prior: np.ndarray,
-                     prior_weight: float = PRIOR_WEIGHT) -> np.ndarray:
+                     prior_weight: float | None = None) -> np.ndarray:
     """Unit directions (N, 3) from plane normals (V, N, 3) with weights (V, N) >= 0 and the
     prior directions (N, 3) (module docstring); the sense of each follows its prior. Rows
     without weight return the prior."""
+    prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     n = np.asarray(planes, np.float64)
     w = np.asarray(weights, np.float64)
     d0 = unit_vectors(np.asarray(prior, np.float64))
@@ -84,9 +85,10 @@ def fibonacci_sphere(count: int) -> np.ndarray:
 
 
 def solve_directions_reference(planes: np.ndarray, weights: np.ndarray, prior: np.ndarray,
-                               prior_weight: float = PRIOR_WEIGHT, samples: int = 60_000) -> np.ndarray:
+                               prior_weight: float | None = None, samples: int = 60_000) -> np.ndarray:
     """`solve_directions` by brute force: per Gaussian, the objective at `samples` directions
     over the sphere (about 0.9 degrees apart at 60k), the best one taken. Slow; for tests."""
+    prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     cand = fibonacci_sphere(samples)
     out = np.empty((planes.shape[1], 3))
     for i in range(planes.shape[1]):
@@ -113,12 +115,14 @@ def view_flow(view: View, scale_px: float) -> tuple[np.ndarray, np.ndarray] | No
 
 
 def strand_directions(union: GaussianSet, normals: np.ndarray, hair_rows: np.ndarray, current: np.ndarray,
-                      views: list[View], scale_px: float, min_views: int = MIN_VIEWS,
-                      prior_weight: float = PRIOR_WEIGHT):
+                      views: list[View], scale_px: float, min_views: int | None = None,
+                      prior_weight: float | None = None):
     """Directions of the hair Gaussians `union[hair_rows]` from the views (module docstring).
     union: everything that occludes (bald + hair); normals (len(union), 3) outward; current
     (H, 3): today's directions of those hair Gaussians. Returns (directions (H, 3), used (H,)
     bool: at least min_views views constrained it, info)."""
+    min_views = MIN_VIEWS if min_views is None else min_views
+    prior_weight = PRIOR_WEIGHT if prior_weight is None else prior_weight
     from avatarkit.recon.segment import HAIR
 
     hair_rows = np.asarray(hair_rows, bool)

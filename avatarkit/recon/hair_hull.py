@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon import multiview as _multiview
 from avatarkit.recon.hair_strands import HAIR_THICKNESS, MAX_SHELL, unit_vectors
 from avatarkit.recon.image_sampling import lookup, sample_image
 from avatarkit.recon.multiview import ALPHA_MIN, EDGE_MARGIN, View
@@ -103,7 +104,8 @@ BARE_BAND = 0.03
 BARE_SHARE = 0.2
 
 
-def _shrunk(camera, side: int = RENDER_SIDE):
+def _shrunk(camera, side: int | None = None):
+    side = RENDER_SIDE if side is None else side
     k = min(1.0, side / max(camera.width, camera.height))
     return camera if k >= 1 else camera.with_size(max(1, round(camera.width * k)), max(1, round(camera.height * k)))
 
@@ -114,12 +116,13 @@ def _disc(r: int):
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
 
-def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN,
+def missing_hair(view: View, alpha: np.ndarray, margin: float | None = None,
                  hair_margin: float | None = None) -> np.ndarray:
     """(H, W) bool: the view's hair pixels (labels at alpha's size) the avatar leaves uncovered
     (module docstring, step 1). alpha: (H, W) the avatar's render from the view. The hair labels
     are eroded by hair_margin (None: margin), the covered pixels dilated by margin (shares of
     the image's longer side)."""
+    margin = _multiview.EDGE_MARGIN if margin is None else margin
     import cv2
 
     from avatarkit.recon.segment import HAIR
@@ -137,13 +140,14 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float = EDGE_MARGIN,
     return (hair > 0) & (covered == 0)
 
 
-def bare_hair(view: View, alpha: np.ndarray, hair_alpha: np.ndarray, margin: float = EDGE_MARGIN) -> np.ndarray:
+def bare_hair(view: View, alpha: np.ndarray, hair_alpha: np.ndarray, margin: float | None = None) -> np.ndarray:
     """(H, W) bool: the view's hair pixels (labels at alpha's size, eroded by margin) where the
     avatar shows its bald head: covered (alpha > `ALPHA_MIN`) with the hair's share of what is
     rendered (hair_alpha: (H, W) the avatar rendered with hair white, bald black) below
     `BARE_SHARE`, at least margin from any pixel the hair shows on. The hair there lies on the
     scalp beneath the view's outline: the back of a head whose reference photo shows no hair
     there, seen in a profile frame."""
+    margin = _multiview.EDGE_MARGIN if margin is None else margin
     import cv2
 
     from avatarkit.recon.segment import HAIR
@@ -182,13 +186,14 @@ def _contradicted(points: np.ndarray, labels: list[np.ndarray], depths: list[np.
 
 
 def grow_hull(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, budget: int | None = None,
-              rounds: int = ROUNDS):
+              rounds: int | None = None):
     """Hair Gaussians for what the keyframes show beyond the current shell (module docstring),
     in `rounds` rounds (each grows from the hair so far, at most `REACH` at a time).
     bald, hair: the avatar so far (hair with the lifter's `strand` / `seen` extras); views: the
     keyframes, the reference among them (`View.reference`); sdf: the rest head's `HeadSDF`;
     budget: at most this many (default `GROW_SHARE` of the hair). Returns (grown hair
     GaussianSet with the same extras, info: missing pixels per keyframe before and after)."""
+    rounds = ROUNDS if rounds is None else rounds
     budget = int(GROW_SHARE * len(hair)) if budget is None else int(budget)
     grown = hair.subset(np.zeros(len(hair), bool))
     info = {"missing_px_before": None, "missing_px_after": None, "grown": 0, "rounds": 0}

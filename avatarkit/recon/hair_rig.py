@@ -91,7 +91,7 @@ class HairRigResult:
     info: dict = field(default_factory=dict)
 
 
-def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int = CAGE_VERTICES,
+def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int | None = None,
              progress=None, threads: int = 2) -> HairRigResult:
     """Build the hair's cage and rig over the fitted rest head (`fit.rest_vertices`).
 
@@ -99,6 +99,7 @@ def rig_hair(fit, hair: GaussianSet, mode: str, *, sdf=None, cage_vertices: int 
     already built (`rig_sdf`), or a `recon.background.Background` computing it.
     progress(done, total): follows the cage weights. threads=1: everything on this thread, one
     step after the other (the reference the second thread must equal)."""
+    cage_vertices = CAGE_VERTICES if cage_vertices is None else cage_vertices
     from avatarkit.hair_rig import HairRig
     from avatarkit.cage.build import build_cage
     from avatarkit.recon.background import Background

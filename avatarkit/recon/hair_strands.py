@@ -227,8 +227,9 @@ class Hairline:
     heights: np.ndarray
 
     @classmethod
-    def from_scalp(cls, vertices: np.ndarray, centre: np.ndarray, bins: int = HAIRLINE_BINS) -> "Hairline":
+    def from_scalp(cls, vertices: np.ndarray, centre: np.ndarray, bins: int | None = None) -> "Hairline":
         """vertices (S, 3): the scalp region's rest vertices."""
+        bins = HAIRLINE_BINS if bins is None else bins
         v = np.asarray(vertices, np.float64)
         centre = np.asarray(centre, np.float64)
         b = _azimuth_bin(v, centre, bins)
@@ -337,10 +338,11 @@ def flow_to_tangent(g: GrowthContext, f2: np.ndarray, normal: np.ndarray) -> np.
 
 
 def grow_strands(g: GrowthContext, roots: np.ndarray, layer: np.ndarray, max_steps: int,
-                 segment: float = SEGMENT) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 segment: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Grow strands from roots (S, 3) with layer fractions (S,) in [0, 1].
 
     Returns points (S, K+1, 3), alive (S, K) bool (segment k exists), seen (S, K) bool."""
+    segment = SEGMENT if segment is None else segment
     cam = g.fit.camera
     s_count = len(roots)
     dist, grad = g.sdf.query(roots)

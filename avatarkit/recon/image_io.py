@@ -95,12 +95,13 @@ def _area_resize(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(a, size, interpolation=cv2.INTER_AREA)
 
 
-def load_image(path: str | os.PathLike, max_side: int = MAX_SIDE) -> LoadedImage:
+def load_image(path: str | os.PathLike, max_side: int | None = None) -> LoadedImage:
     """Read an image file; see the module docstring for the conventions.
 
     Raises InputError (missing file, folder) or FormatError (not an image, corrupt or
     truncated data), both naming the file.
     """
+    max_side = MAX_SIDE if max_side is None else max_side
     from PIL import ImageOps
 
     path = Path(path)
@@ -150,9 +151,10 @@ def _oriented_size(img, size: tuple[int, int]) -> tuple[int, int]:
     return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
 
 
-def read_image(path: str | os.PathLike, max_side: int = MAX_SIDE) -> np.ndarray:
+def read_image(path: str | os.PathLike, max_side: int | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB of an image file: EXIF-oriented, transparency composited on white,
     downscaled so the longer side is at most `max_side` (0 = never downscale)."""
+    max_side = MAX_SIDE if max_side is None else max_side
     return load_image(path, max_side).rgb
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
-from avatarkit.recon.segment import BACKGROUND, LABEL_NAMES
+from avatarkit.recon import segment as _segment
+from avatarkit.recon.segment import LABEL_NAMES
 from avatarkit.render.camera import Camera
 
 UNSEEN = -1
@@ -226,11 +227,12 @@ def lift_labels(gaussians: GaussianSet, cameras: list[Camera], label_images: lis
 # --- label images of a labelled set, and the views -------------------------------------------
 
 def render_label_images(gaussians: GaussianSet, labels: np.ndarray, cameras: list[Camera],
-                        n_labels: int | None = None, background_label: int = BACKGROUND,
+                        n_labels: int | None = None, background_label: int | None = None,
                         min_alpha: float = 0.5) -> list[np.ndarray]:
     """Exact label images of a set with known per-Gaussian labels (N,) int in [0, n_labels):
     per pixel the label with the largest summed blending weight, or `background_label` where
     the rendered alpha is below `min_alpha`. K x (H, W) int32."""
+    background_label = _segment.BACKGROUND if background_label is None else background_label
     from avatarkit.render import bin_gaussians, project_gaussians, rasterize
 
     check_gaussians(gaussians)

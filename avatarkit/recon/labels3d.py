@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.recon import segment as _segment
 from avatarkit.recon.hair_reassign import ReassignConfig, Reassignment, reassign_boundary
 from avatarkit.recon.label_lifting import LabelLift, lift_labels
-from avatarkit.recon.segment import HAIR
 from avatarkit.render.camera import Camera
 
 
@@ -53,7 +53,7 @@ class HairSplitReport:
 
 
 def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list[np.ndarray],
-               hair_label: int = HAIR, n_labels: int | None = None, min_weight: float = 0.01,
+               hair_label: int | None = None, n_labels: int | None = None, min_weight: float = 0.01,
                config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
                **overrides) -> tuple[GaussianSet, GaussianSet, HairSplitReport]:
     """Lift, reassign, cut: (bald GaussianSet, hair GaussianSet, report).
@@ -63,6 +63,7 @@ def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list
     Gaussians whose final label is `hair_label` form the hair set; every other one (skin,
     body, background floaters, and any left unseen) the bald set. Extras travel with them.
     """
+    hair_label = _segment.HAIR if hair_label is None else hair_label
     t0 = time.perf_counter()
     lift = lift_labels(gaussians, cameras, label_images, n_labels, min_weight)
     t1 = time.perf_counter()

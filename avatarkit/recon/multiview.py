@@ -228,7 +228,7 @@ def reference_colours(image: np.ndarray, labels: np.ndarray):
 
 
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
-                 reach: float = RELABEL_REACH) -> np.ndarray:
+                 reach: float | None = None) -> np.ndarray:
     """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
     reference view's colour models. A portrait segmentation finds hair in a zone laid out
     around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
@@ -243,6 +243,7 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
     background's (away from the head) are the person's too: body at least (shadowed hair on
     the turned side may match neither model), hair or skin when they match.
     labels: (H, W) int; image: (H, W, 3) uint8."""
+    reach = RELABEL_REACH if reach is None else reach
     import cv2
 
     from avatarkit.recon.segment import BACKGROUND, BODY, HAIR, MATCH_D2, SKIN, ColourModel, rgb_to_lab
@@ -275,13 +276,14 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
     return labels
 
 
-def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float = SOFT_MASK_SIGMA) -> np.ndarray:
+def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float | None = None) -> np.ndarray:
     """(H, W) float32 in [0, 1]: the segmentation's person mask (label != background) blurred
     by sigma x the longer side: ~0.5 on the silhouette, 1 well inside, 0 well outside.
     With the image (H, W, 3) uint8, person pixels within `EDGE_BAND` of the silhouette whose
     colour is within `BACKGROUND_COLOUR` of the nearest background pixel's count as background
     first: a segmentation whose edge sits a few pixels out in the background (a halo labelled
     hair) would otherwise pass background colour off as the person's."""
+    sigma = SOFT_MASK_SIGMA if sigma is None else sigma
     import cv2
     from scipy import ndimage
 
@@ -327,7 +329,7 @@ def _person_weight(soft: np.ndarray, px: np.ndarray) -> np.ndarray:
 
 
 def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
-                 depth_tolerance: float = DEPTH_TOLERANCE, render_result=None, min_cos: float = MIN_COS,
+                 depth_tolerance: float | None = None, render_result=None, min_cos: float | None = None,
                  hair: np.ndarray | None = None, body: np.ndarray | None = None) -> Samples:
     """Visibility, weight and colour of every Gaussian in one view (module docstring).
     normals: (N, 3) unit outward normals. sample_labels: labels whose pixels may be sampled
@@ -340,6 +342,8 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     silhouette, half background, gives nothing) and a zero weight is no sample. body: (N,) bool,
     the Gaussians that may also sample body-labelled pixels inside the view's fitted head
     (`View.head`) when the view is not the reference (`SCALP_BODY`)."""
+    depth_tolerance = DEPTH_TOLERANCE if depth_tolerance is None else depth_tolerance
+    min_cos = MIN_COS if min_cos is None else min_cos
     from avatarkit.recon.image_sampling import sample_image
     from avatarkit.recon.segment import HAIR, SKIN
     from avatarkit.recon.visibility import seen_from
@@ -473,9 +477,10 @@ def refine_colours_views(gaussians, normals: np.ndarray, views: list[View], iter
 
 
 def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray, target: np.ndarray,
-                     k: int = HAIR_NEIGHBOURS) -> tuple[np.ndarray, int]:
+                     k: int | None = None) -> tuple[np.ndarray, int]:
     """colours (N, 3) with rows `target` (N,) bool replaced by the mean colour of their k nearest
     `source` (N,) bool rows (by centre). Returns (colours, rows filled)."""
+    k = HAIR_NEIGHBOURS if k is None else k
     from scipy.spatial import cKDTree
 
     out = np.asarray(colours, np.float32).copy()
@@ -488,10 +493,11 @@ def fill_hidden_hair(means: np.ndarray, colours: np.ndarray, source: np.ndarray,
     return out, int(target.sum())
 
 
-def silhouette_outside(points: np.ndarray, views: list[View], margin: float = SILHOUETTE_MARGIN) -> np.ndarray:
+def silhouette_outside(points: np.ndarray, views: list[View], margin: float | None = None) -> np.ndarray:
     """(P,) int: in how many labelled views the point projects inside the image but outside
     the dilated person mask (module docstring; the mask is `soft_person` >= 0.5, without the
     background-coloured halo a segmentation may take in, joined with the view's `head`)."""
+    margin = SILHOUETTE_MARGIN if margin is None else margin
     import cv2
 
     count = np.zeros(len(points), np.int64)

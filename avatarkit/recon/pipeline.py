@@ -214,8 +214,9 @@ class _Stage:
         return False
 
 
-def _labels_for(labels: np.ndarray, camera, side: int = LABEL_SIDE):
+def _labels_for(labels: np.ndarray, camera, side: int | None = None):
     """Labels (H, W) and the camera shrunk (nearest neighbour) so the longer side is <= side."""
+    side = LABEL_SIDE if side is None else side
     import cv2
 
     h, w = labels.shape

@@ -147,8 +147,9 @@ class PortraitAnalysis:
         """(2,) pixel position of a landmark."""
         return self.landmarks[name].xy
 
-    def points(self, names=LANDMARK_NAMES) -> np.ndarray:
+    def points(self, names=None) -> np.ndarray:
         """(K, 2) pixel positions of the named landmarks."""
+        names = LANDMARK_NAMES if names is None else names
         return np.stack([self.landmarks[n].xy for n in names])
 
     # -- the canonical crop --------------------------------------------------------------
@@ -433,7 +434,7 @@ def _as_image(image, path):
 
 
 def analyze_portrait(image, face_index: int | None = None, *, path: str | os.PathLike | None = None,
-                     min_face: int = MIN_FACE, detector: str = "cascade") -> PortraitAnalysis:
+                     min_face: int | None = None, detector: str = "cascade") -> PortraitAnalysis:
     """Find exactly one face in a portrait and describe it.
 
     image: (H, W, 3) uint8 RGB, or an image file path (read with `read_image`).
@@ -449,6 +450,7 @@ def analyze_portrait(image, face_index: int | None = None, *, path: str | os.Pat
     `face_index` out of range; face narrower than `min_face` pixels. A strongly non-frontal
     face, or one whose eyes were not found, is reported in `warnings`, not raised.
     """
+    min_face = MIN_FACE if min_face is None else min_face
     if detector not in FACE_DETECTORS:
         raise InputError(f"face detector must be one of {', '.join(FACE_DETECTORS)}, got {detector!r}")
     image, path = _as_image(image, path)

@@ -424,7 +424,7 @@ def _working_copy(image: np.ndarray, analysis: PortraitAnalysis, work_size: int)
 
 
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
-                     work_size: int = WORK_SIZE, iterations: int = 3, boundary: bool = True,
+                     work_size: int | None = None, iterations: int = 3, boundary: bool = True,
                      path: str | os.PathLike | None = None) -> Segmentation:
     """Label every pixel of a portrait as background, skin/face, hair or body.
 
@@ -436,6 +436,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     boundary: False gives GrabCut's own person outline on the image as it is (no re-noised
         flat pixels, no boundary step): the behaviour before them, the benchmark's baseline.
     """
+    work_size = WORK_SIZE if work_size is None else work_size
     image = _checked_image(image, analysis, path)
     H, W = image.shape[:2]
     imported = _load_hair_mask(hair_mask, (H, W), path) if hair_mask is not None else None
@@ -481,12 +482,13 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     return Segmentation(labels=labels, skin_model=skin, hair_model=hair_model, hair_source=source)
 
 
-def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: int = WORK_SIZE,
+def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: int | None = None,
                    iterations: int = 3) -> np.ndarray:
     """(H, W) bool: the person of `segment_portrait` (its labels other than background) without
     the skin and hair models and the hair's GrabCut, which it does not need (step 1 and the face
     core, upsampled as the labels are). For a caller that wants only the silhouette
     (`track.frame_hull`)."""
+    work_size = WORK_SIZE if work_size is None else work_size
     image = _checked_image(image, analysis)
     H, W = image.shape[:2]
     img, a, k = _working_copy(image, analysis, work_size)

@@ -26,11 +26,15 @@ class SyntheticPortrait:
 
 
 def synthetic_portrait(size: int = 256, hair: bool = True, seed: int = 0, noise: float = 3.0,
-                       hair_rgb=HAIR_RGB, skin_rgb=SKIN_RGB, background_rgb=BACKGROUND_RGB,
-                       body_rgb=BODY_RGB, blur: float = 0.0) -> SyntheticPortrait:
+                       hair_rgb=None, skin_rgb=None, background_rgb=None,
+                       body_rgb=None, blur: float = 0.0) -> SyntheticPortrait:
     """A frontal "portrait": background, shaded skin ellipse with eyes and mouth, a hair cap
     (optional), a neck and shoulders. Eye midpoint at (size/2, 0.43 size), IOD = 0.156 size.
     `blur` (Gaussian sigma, pixels) softens the edges the way a camera does; noise comes after."""
+    hair_rgb = HAIR_RGB if hair_rgb is None else hair_rgb
+    skin_rgb = SKIN_RGB if skin_rgb is None else skin_rgb
+    background_rgb = BACKGROUND_RGB if background_rgb is None else background_rgb
+    body_rgb = BODY_RGB if body_rgb is None else body_rgb
     rng = np.random.default_rng(seed)
     s = size / 256.0
     y, x = np.mgrid[0:size, 0:size].astype(np.float32) + 0.5  # pixel centres

@@ -26,9 +26,11 @@ def depth_map(gaussians: GaussianSet, camera, max_side: int = 512):
 
 
 def seen_from(points: np.ndarray, normals: np.ndarray | None, camera, depth: np.ndarray,
-              depth_camera, tol: float = DEPTH_TOL, min_facing: float = MIN_FACING):
+              depth_camera, tol: float | None = None, min_facing: float | None = None):
     """(seen (N,) bool, pixels (N, 2) in `camera`, facing (N,)): points within `tol` of the
     rendered depth (from `depth_camera`) and, with normals (N, 3), facing the camera."""
+    tol = DEPTH_TOL if tol is None else tol
+    min_facing = MIN_FACING if min_facing is None else min_facing
     px, z = camera.project(points)
     dpx, dz = depth_camera.project(points)
     d = lookup(depth, dpx)

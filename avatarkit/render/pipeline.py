@@ -132,7 +132,8 @@ def check_background(background) -> np.ndarray:
     return bg.astype(np.float32)
 
 
-def _check(gaussians, camera, near: float = NEAR_PLANE) -> None:
+def _check(gaussians, camera, near: float | None = None) -> None:
+    near = NEAR_PLANE if near is None else near
     if not isinstance(gaussians, GaussianSet):
         raise InputError(f"render needs a GaussianSet, got {type(gaussians).__name__}")
     if not isinstance(camera, Camera):
@@ -190,8 +191,9 @@ def _scratch_array(name: str, shape: tuple, dtype) -> np.ndarray:
     return buf[:nbytes].view(dtype).reshape(shape)
 
 
-def project_gaussians(gaussians: GaussianSet, camera: Camera, near: float = NEAR_PLANE) -> Projection:
+def project_gaussians(gaussians: GaussianSet, camera: Camera, near: float | None = None) -> Projection:
     """Stage 1 (see the module docstring)."""
+    near = NEAR_PLANE if near is None else near
     _check(gaussians, camera, near)
     n = len(gaussians)
     proj = Projection(np.zeros((n, 2), np.float32), np.zeros(n, np.float32),
@@ -309,7 +311,7 @@ def rasterize(proj: Projection, colors: np.ndarray, opacities: np.ndarray, bins:
 
 
 def render(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0),
-           near: float = NEAR_PLANE) -> RenderResult:
+           near: float | None = None) -> RenderResult:
     """Render splats with the standard 3DGS image formation (module docstring), on the CPU.
 
     background: (r, g, b) in linear [0, 1] units, composited under the splats.
@@ -317,6 +319,7 @@ def render(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0),
     tile_offsets, gaussian_ids, tile_counts (tiles_y, tiles_x), n_visible, n_pairs (stage 3),
     timings {project, sh, bin, rasterize, total} in seconds.
     """
+    near = NEAR_PLANE if near is None else near
     _check(gaussians, camera, near)
     bg = check_background(background)
     t0 = time.perf_counter()

@@ -12,15 +12,17 @@ import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.gaussians.sh import eval_sh
+from avatarkit.render import pipeline as _pipeline
 from avatarkit.render.camera import Camera
-from avatarkit.render.pipeline import (ALPHA_MAX, ALPHA_MIN, DILATION, NEAR_PLANE, TILE_SIZE,
+from avatarkit.render.pipeline import (ALPHA_MAX, ALPHA_MIN, DILATION, TILE_SIZE,
                                        TRANSMITTANCE_MIN, Projection, RenderResult,
                                        check_background, tile_grid)
 from avatarkit.rotations import quat_to_matrix
 
 
-def project_reference(gaussians: GaussianSet, camera: Camera, near: float = NEAR_PLANE) -> Projection:
+def project_reference(gaussians: GaussianSet, camera: Camera, near: float | None = None) -> Projection:
     """Stage 1 in float64 (fields kept float64; radii and tile rects int)."""
+    near = _pipeline.NEAR_PLANE if near is None else near
     n = len(gaussians)
     w = camera.rotation
     pc = camera.to_camera(gaussians.means)                       # (N, 3)
@@ -142,8 +144,9 @@ def rasterize_reference(proj: Projection, colors: np.ndarray, opacities: np.ndar
 
 
 def render_reference(gaussians: GaussianSet, camera: Camera, background=(0.0, 0.0, 0.0),
-                     near: float = NEAR_PLANE) -> RenderResult:
+                     near: float | None = None) -> RenderResult:
     """The whole reference pipeline; float64 arrays; meta holds the projection and colours."""
+    near = _pipeline.NEAR_PLANE if near is None else near
     proj = project_reference(gaussians, camera, near)
     colors = sh_colors_reference(gaussians, camera)
     rgb, alpha, depth = rasterize_reference(proj, colors, gaussians.opacities.astype(np.float64),

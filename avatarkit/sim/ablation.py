@@ -53,7 +53,7 @@ def layer_gap(means: np.ndarray, sdf: HeadSDF, transform: np.ndarray, skin=None)
     return float(np.mean(np.maximum(d, 0.0))) if len(d) else 0.0
 
 
-def run_ablation(head_model, hair, cage, clips: dict, *, modes=MODES, config: SimConfig | None = None,
+def run_ablation(head_model, hair, cage, clips: dict, *, modes=None, config: SimConfig | None = None,
                  rest_vertices: np.ndarray | None = None, contact_band: float = 0.01,
                  warmup: float | None = None, progress=None, **build_options) -> list[AblationRow]:
     """Simulate every clip (name -> MotionClip) in every mode; one row per (mode, clip).
@@ -61,6 +61,7 @@ def run_ablation(head_model, hair, cage, clips: dict, *, modes=MODES, config: Si
     The cage model (`CageModel.build(..., **build_options)`) and the hair's cage deformer are
     built once and shared by all runs. progress(done, total) is called after each run.
     """
+    modes = MODES if modes is None else modes
     from avatarkit.cage.deform import CageDeformer
     from avatarkit.sim.driver import HairDriver
 

@@ -292,7 +292,7 @@ class CageModel:
     def from_arrays(cls, rest_positions: np.ndarray, faces: np.ndarray, roots: np.ndarray,
                     head_vertices: np.ndarray, head_faces: np.ndarray, *,
                     proxy_points: np.ndarray | None = None, proxy_weights: np.ndarray | None = None,
-                    proxy_k: int = PROXY_K, attach_faces: np.ndarray | None = None,
+                    proxy_k: int | None = None, attach_faces: np.ndarray | None = None,
                     sdf: HeadSDF | None = None, sdf_spacing: float = 0.0025,
                     tether_slack: float = 0.0) -> "CageModel":
         """Derive every table from a closed cage mesh and a rest head.
@@ -305,6 +305,7 @@ class CageModel:
         proxy. attach_faces (Fa,): the head
         faces roots may attach to (default all: the nearest point of the whole head).
         """
+        proxy_k = PROXY_K if proxy_k is None else proxy_k
         import scipy.sparse
         from scipy.sparse.csgraph import dijkstra
         import trimesh
@@ -384,7 +385,7 @@ class CageModel:
     @classmethod
     def build(cls, cage, hair, head_model, rest_head_vertices: np.ndarray | None = None, *,
               roots: np.ndarray | None = None, root_distance: float = 0.015, min_roots: int = 3,
-              root_region: str = "scalp", proxy_k: int = PROXY_K, sdf: HeadSDF | None = None,
+              root_region: str = "scalp", proxy_k: int | None = None, sdf: HeadSDF | None = None,
               sdf_spacing: float = 0.0025, tether_slack: float = 0.0) -> "CageModel":
         """A model for a hair cage over a head.
 
@@ -396,6 +397,7 @@ class CageModel:
         faces that, or whose nearest hair Gaussian, lie within `root_distance` of the head);
         they attach to those faces.
         """
+        proxy_k = PROXY_K if proxy_k is None else proxy_k
         from scipy.spatial import cKDTree
 
         from avatarkit.cage.mvc import mvc_weights

@@ -48,7 +48,7 @@ def _pose_buffer(sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray) -> np.nda
 
 
 def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,
-             clearance: float = CLEARANCE, rounds: int = ROUNDS, screen: bool = True) -> np.ndarray:
+             clearance: float | None = None, rounds: int | None = None, screen: bool = True) -> np.ndarray:
     """Points (N, 3) (a float32 copy is returned) moved out of the head posed by the transforms
     (J, 4, 4) of the skin's joints (J = 1: the head joint only).
 
@@ -59,6 +59,8 @@ def push_out(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.nd
     they are: the full lookup would too, so the result is the same bit
     for bit (most hair centres lie millimetres to centimetres off the scalp); False: the full
     lookup for every point (the reference the tests compare with)."""
+    clearance = CLEARANCE if clearance is None else clearance
+    rounds = ROUNDS if rounds is None else rounds
     from avatarkit.sim import _kernels
 
     out = np.array(points, dtype=np.float32, copy=True, order="C").reshape(-1, 3)
@@ -89,8 +91,10 @@ def _push_out_call():
 
 
 def push_out_reference(points: np.ndarray, sdf: HeadSDF, skin: HeadSkin, transforms: np.ndarray,
-                       clearance: float = CLEARANCE, rounds: int = ROUNDS) -> np.ndarray:
+                       clearance: float | None = None, rounds: int | None = None) -> np.ndarray:
     """The obvious numpy twin of `push_out` (float64)."""
+    clearance = CLEARANCE if clearance is None else clearance
+    rounds = ROUNDS if rounds is None else rounds
     t = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)
     nj = min(len(t), len(skin.joints))
     sk = HeadSkin(skin.weights, skin.joints[:nj], skin.origin.astype(np.float32), skin.spacing)

@@ -67,8 +67,9 @@ class HeadEllipsoid:
         q = (np.asarray(points, np.float64) - self.center) / np.asarray(self.radii)
         return np.linalg.norm(q, axis=-1)
 
-    def push_out(self, points: np.ndarray, clearance: float = CLEARANCE) -> np.ndarray:
+    def push_out(self, points: np.ndarray, clearance: float | None = None) -> np.ndarray:
         """points: (..., 3) -> the same with those closer than ~`clearance` moved out radially."""
+        clearance = CLEARANCE if clearance is None else clearance
         c = np.asarray(self.center)
         big = np.asarray(self.radii) + clearance
         q = (points - c) / big

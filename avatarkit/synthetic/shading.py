@@ -44,26 +44,29 @@ def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
 
 
-def light_in_world(camera, light=LIGHT) -> np.ndarray:
+def light_in_world(camera, light=None) -> np.ndarray:
     """(3,) unit direction toward the light in world coordinates, for `light` (3,) given in the
     frame of `camera` (a render.Camera: world -> camera rotation `camera.rotation`)."""
+    light = LIGHT if light is None else light
     d = np.asarray(light, np.float64)
     return np.asarray(camera.rotation, np.float64).T @ (d / np.linalg.norm(d))
 
 
-def lambert(colors: np.ndarray, normals: np.ndarray, to_light: np.ndarray, ambient: float = AMBIENT
+def lambert(colors: np.ndarray, normals: np.ndarray, to_light: np.ndarray, ambient: float | None = None
             ) -> np.ndarray:
     """colors (N, 3) in [0, 1] scaled by ambient + (1 - ambient) max(0, n . l); normals (N, 3)
     unit, to_light (3,) unit, both in one frame. Returns (N, 3) float32."""
+    ambient = AMBIENT if ambient is None else ambient
     shade = ambient + (1.0 - ambient) * np.clip(np.asarray(normals, np.float64) @ np.asarray(to_light, np.float64),
                                                 0.0, None)
     return np.clip(np.asarray(colors, np.float64) * shade[:, None], 0.0, 1.0).astype(np.float32)
 
 
 def shade_gaussians(gaussians, vertices: np.ndarray, faces: np.ndarray, to_light: np.ndarray,
-                    ambient: float = AMBIENT):
+                    ambient: float | None = None):
     """A GaussianSet bound to faces (its `binding` extra: host face per Gaussian) with its
     colours Lambert-shaded by its host triangle's normal on the posed vertices (V, 3)."""
+    ambient = AMBIENT if ambient is None else ambient
     n = face_normals(vertices, faces)[np.asarray(gaussians.extras["binding"], np.int64)]
     return gaussians.with_colors(lambert(gaussians.colors, n, to_light, ambient))
 

@@ -81,11 +81,12 @@ def write_turning_video(avatar, path, size: int = 192, frames: int = 32, distanc
     return clip
 
 
-def novel_view_psnr(built, truth, size: int = 192, azimuths=VIEW_AZIMUTHS,
+def novel_view_psnr(built, truth, size: int = 192, azimuths=None,
                     background=(1.0, 1.0, 1.0)) -> dict[float, float]:
     """Azimuth (degrees) -> PSNR (dB) of `built` rendered at rest against `truth`, over the
     pixels either render covers (alpha > 0.5 in either), both on `background`. The cameras
     frame the truth's head (its bald Gaussians' bounds) from 0.6 m."""
+    azimuths = VIEW_AZIMUTHS if azimuths is None else azimuths
     from avatarkit.recon.assemble import psnr
     from avatarkit.render import render
     from avatarkit.render.views import frame_camera, scene_bounds

@@ -157,9 +157,10 @@ def frame_weights(view: FrameView) -> np.ndarray:
     return accumulate_weights(view.gaussians, view.camera, np.asarray(view.mask, np.int32), 2)[:, 1]
 
 
-def frame_shows(view: FrameView, min_weight: float = MIN_WEIGHT) -> np.ndarray:
+def frame_shows(view: FrameView, min_weight: float | None = None) -> np.ndarray:
     """(N,) bool: the Gaussians whose blending weight summed over the frame's mask is at least
     `min_weight` pixels (the renderer's compositing, `label_lifting.accumulate_weights`)."""
+    min_weight = MIN_WEIGHT if min_weight is None else min_weight
     return frame_weights(view) >= min_weight
 
 
@@ -177,8 +178,8 @@ class FusedColours:
     info: dict = field(default_factory=dict)
 
 
-def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int = ITERATIONS,
-                          step: float = 1.0, min_weight: float = MIN_WEIGHT,
+def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations: int | None = None,
+                          step: float = 1.0, min_weight: float | None = None,
                           background=None, hidden: float | None = None,
                           depth: float | None = None) -> FusedColours:
     """`recon.assemble.refine_colours` over several posed frames of the same Gaussians: each
@@ -191,6 +192,8 @@ def refine_colours_frames(views: list[FrameView], select: np.ndarray, iterations
     where a Gaussian lies more than depth behind the render's depth at its projection gives it
     no update (and no count, with `HIDDEN_COUNT`). With one frame, every Gaussian selected,
     hidden and depth 0 this is refine_colours."""
+    iterations = ITERATIONS if iterations is None else iterations
+    min_weight = MIN_WEIGHT if min_weight is None else min_weight
     from avatarkit.recon.assemble import footprint_residuals, psnr
     from avatarkit.render import render
 
@@ -335,10 +338,14 @@ def stage_settings(refine: str | None) -> StageSettings:
                          REGISTERED_ITERATIONS if registered else ITERATIONS)
 
 
-def fusion_selection(avatar, regions=REGIONS, hair: bool = False) -> np.ndarray:
+_UNSET = object()  # regions' default: REGIONS read at call time (None is a value: every Gaussian)
+
+
+def fusion_selection(avatar, regions=_UNSET, hair: bool = False) -> np.ndarray:
     """(N_bald + N_hair,) bool: the bald Gaussians whose host triangle has at least two vertices
     in one of the head model's `regions` (None: every bald Gaussian), and with `hair` every hair
     Gaussian (`FUSE_HAIR`)."""
+    regions = REGIONS if regions is _UNSET else regions
     nb = len(avatar.bald)
     sel = np.zeros(nb + len(avatar.hair), bool)
     sel[nb:] = hair
@@ -353,9 +360,10 @@ def fusion_selection(avatar, regions=REGIONS, hair: bool = False) -> np.ndarray:
     return sel
 
 
-def outline_band(person: np.ndarray, band: float = OUTLINE_BAND) -> np.ndarray:
+def outline_band(person: np.ndarray, band: float | None = None) -> np.ndarray:
     """(H, W) bool: the pixels of `person` (H, W) bool within `band` of the image's larger side
     of its outline (a square erosion: max(|dx|, |dy|) <= r)."""
+    band = OUTLINE_BAND if band is None else band
     import cv2
 
     r = max(1, int(round(band * max(person.shape))))
@@ -364,12 +372,14 @@ def outline_band(person: np.ndarray, band: float = OUTLINE_BAND) -> np.ndarray:
     return person & ~inner
 
 
-def outline_selection(views: list[FrameView], share: float = OUTLINE_SHARE,
-                      min_weight: float = MIN_WEIGHT) -> np.ndarray:
+def outline_selection(views: list[FrameView], share: float | None = None,
+                      min_weight: float | None = None) -> np.ndarray:
     """(N,) bool: the Gaussians whose projected centre lies in a frame's `outline` band in at
     least `share` of the frames where they show (blending weight summed over the frame's mask
     >= min_weight pixels). A head that moves by a pixel or two between frames swaps the wall
     and the hair / skin under these: the build frame's colour there is one sample of that."""
+    share = OUTLINE_SHARE if share is None else share
+    min_weight = MIN_WEIGHT if min_weight is None else min_weight
     n = len(views[0].gaussians)
     hits = np.zeros(n)
     seen = np.zeros(n)
@@ -461,7 +471,7 @@ def bald_reposer(avatar, result, rows, images: dict):
 
 
 def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_frame: int,
-                       span: tuple[int, int] | None = None, count: int = FRAMES, outline: bool = OUTLINE,
+                       span: tuple[int, int] | None = None, count: int | None = None, outline: bool | None = None,
                        refine: str | None = None, carve: bool | None = None):
     """The stage (module docstring) on a built `Avatar` of `video`: tracking is the template
     tracking the build chose its keyframes from (its face meshes are reused), reference_frame
@@ -474,6 +484,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
     None: `frame_hull.CARVE`).
     Returns (the avatar with the fused colours, info). The video build runs it only when it has
     one keyframe (`track.video_build`)."""
+    count = FRAMES if count is None else count
+    outline = OUTLINE if outline is None else outline
     from avatarkit.avatar import load_avatar
     from avatarkit.track.build_pose import align_to_build
     from avatarkit.track.video import tracked_with_built_avatar

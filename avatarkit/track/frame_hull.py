@@ -109,9 +109,10 @@ class Carved:
     labels: list | None = None
 
 
-def wall_image(person: np.ndarray, margin: int = MARGIN) -> np.ndarray:
+def wall_image(person: np.ndarray, margin: int | None = None) -> np.ndarray:
     """(H, W) int32: 1 where the frame shows no person (`person` (H, W) bool dilated by `margin`
     px, an elliptic disc), 0 elsewhere: the label image `accumulate_weights` bins by."""
+    margin = MARGIN if margin is None else margin
     import cv2
 
     p = np.asarray(person, np.uint8)
@@ -120,11 +121,13 @@ def wall_image(person: np.ndarray, margin: int = MARGIN) -> np.ndarray:
     return (p == 0).astype(np.int32)
 
 
-def wall_votes(gaussians, camera, wall: np.ndarray, share: float = SHARE,
-               min_weight: float = MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray]:
+def wall_votes(gaussians, camera, wall: np.ndarray, share: float | None = None,
+               min_weight: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One frame's votes: (shows (N,) bool: blending weight summed over the frame >= min_weight
     pixels, outside (N,) bool: shows, and at least `share` of that weight on the `wall` (H, W)
     int32 label image's 1s)."""
+    share = SHARE if share is None else share
+    min_weight = MIN_WEIGHT if min_weight is None else min_weight
     from avatarkit.recon.label_lifting import accumulate_weights
 
     return _votes(accumulate_weights(gaussians, camera, wall, 2), share, min_weight)
@@ -138,14 +141,16 @@ def _votes(w: np.ndarray, share: float, min_weight: float) -> tuple[np.ndarray, 
     return shows, shows & (w[:, 1] >= share * total)
 
 
-def wall_votes_pair(gaussians, camera, wall: np.ndarray, other: np.ndarray, share: float = SHARE,
-                    min_weight: float = MIN_WEIGHT) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def wall_votes_pair(gaussians, camera, wall: np.ndarray, other: np.ndarray, share: float | None = None,
+                    min_weight: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`wall_votes` with `wall` and with `other` (both (H, W) int32 0 / 1) from one compositing
     pass (4 labels: wall + 2 other; each wall's two weights are the sums of two of them, in
     float64 before the cast to float32 as `accumulate_weights` casts): (shows, outside,
     shows_other, outside_other). The weights are the same sums of the same pixels' terms as
     two passes give, added in another order (float64; the kernel's atomics add in no fixed
     order either)."""
+    share = SHARE if share is None else share
+    min_weight = MIN_WEIGHT if min_weight is None else min_weight
     from avatarkit.recon.label_lifting import accumulate_view, check_label_image
 
     both = check_label_image(np.asarray(wall, np.int32) + 2 * np.asarray(other, np.int32), camera, 4)
@@ -155,12 +160,16 @@ def wall_votes_pair(gaussians, camera, wall: np.ndarray, other: np.ndarray, shar
     return (*_votes(mine, share, min_weight), *_votes(theirs, share, min_weight))
 
 
-def carve(views, walls: list, rounds: int = ROUNDS, share: float = SHARE, quorum: float = QUORUM,
-          min_frames: int = MIN_FRAMES, allowed: np.ndarray | None = None) -> Carved:
+def carve(views, walls: list, rounds: int | None = None, share: float | None = None, quorum: float | None = None,
+          min_frames: int | None = None, allowed: np.ndarray | None = None) -> Carved:
     """The Gaussians the frames show over the wall (module docstring). views: posed frames with
     `.gaussians` (N, the same order in each) and `.camera` (`frame_colours.FrameView`); walls:
     per view an (H, W) int32 `wall_image`, or None (that frame does not vote); allowed: (N,)
     bool, the Gaussians that may be cleared (None: all)."""
+    rounds = ROUNDS if rounds is None else rounds
+    share = SHARE if share is None else share
+    quorum = QUORUM if quorum is None else quorum
+    min_frames = MIN_FRAMES if min_frames is None else min_frames
     if len(views) != len(walls):
         raise ValueError("one wall image per view")
     n = len(views[0].gaussians) if views else 0
@@ -250,8 +259,8 @@ def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray
 
 
 def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float | None = None,
-           rounds: int | None = None, share: float = SHARE, quorum: float = QUORUM,
-           min_frames: int = MIN_FRAMES, other_walls: list | None = None,
+           rounds: int | None = None, share: float | None = None, quorum: float | None = None,
+           min_frames: int | None = None, other_walls: list | None = None,
            other: np.ndarray | None = None) -> Receded:
     """The movable Gaussians the frames show over the wall moved inward (module docstring):
     pose(offsets (M, 3)) -> the views (as `carve`'s, their first M Gaussians the movable set's
@@ -261,6 +270,9 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     Each round the views are posed with the moves so far and vote as in `carve`; a Gaussian
     voted outside moves `step` (None: `STEP`) further along its normal, `rounds` (None:
     `RECEDE_ROUNDS`) times at most."""
+    share = SHARE if share is None else share
+    quorum = QUORUM if quorum is None else quorum
+    min_frames = MIN_FRAMES if min_frames is None else min_frames
     step = STEP if step is None else float(step)
     rounds = RECEDE_ROUNDS if rounds is None else int(rounds)
     normals = np.asarray(normals, np.float64)
@@ -364,18 +376,20 @@ def _each_segmented_serial(images: list, segment) -> list:
     return out
 
 
-def neck_walls(labels: list, margin: int = MARGIN) -> list:
+def neck_walls(labels: list, margin: int | None = None) -> list:
     """Per view (labels (H, W) uint8 or None) the wall the neck recedes from (`CLOTHES_NECK`):
     everything but skin and hair, as `wall_image` makes it (the skin and hair dilated by
     `margin`), or None."""
+    margin = MARGIN if margin is None else margin
     from avatarkit.recon.segment import HAIR, SKIN
 
     return [None if lab is None else wall_image(np.isin(lab, (SKIN, HAIR)), margin) for lab in labels]
 
 
-def carve_frames(views, margin: int = MARGIN, labels: bool = False, **kwargs) -> Carved:
+def carve_frames(views, margin: int | None = None, labels: bool = False, **kwargs) -> Carved:
     """`carve` with each view's wall from its own image's segmentation (`person_masks`; with
     labels, `person_labels`' non-background, the same masks, kept in the result)."""
+    margin = MARGIN if margin is None else margin
     images = [v.image for v in views]
     labs = person_labels(images) if labels else None
     masks = person_masks(images) if labs is None else [None if lab is None else lab != 0 for lab in labs]

@@ -41,9 +41,10 @@ def _gaze_point(centre: np.ndarray, ray: np.ndarray, radius: float) -> np.ndarra
     return (b - np.sqrt(radius ** 2 - d2)) * ray
 
 
-def eye_rotation(gaze_head: np.ndarray, max_angle: float = MAX_ANGLE) -> np.ndarray:
+def eye_rotation(gaze_head: np.ndarray, max_angle: float | None = None) -> np.ndarray:
     """(3,) axis-angle of the shortest rotation taking +Z to unit `gaze_head` (head frame),
     its angle clamped to max_angle."""
+    max_angle = MAX_ANGLE if max_angle is None else max_angle
     z = np.array([0.0, 0.0, 1.0])
     g = gaze_head / max(np.linalg.norm(gaze_head), 1e-12)
     axis = np.cross(z, g)
@@ -56,13 +57,14 @@ def eye_rotation(gaze_head: np.ndarray, max_angle: float = MAX_ANGLE) -> np.ndar
 
 def eyes_pose(iris_px: np.ndarray, eye_centres_head: np.ndarray, rotation: np.ndarray,
               translation: np.ndarray, focal: float, principal: tuple[float, float],
-              radius: float = EYE_RADIUS) -> np.ndarray:
+              radius: float | None = None) -> np.ndarray:
     """FLAME eyes_pose (6,) float64.
 
     iris_px: (2, 2) pixel centres of the irises (face mesh order: subject's right, then left);
     eye_centres_head: (2, 3) eye joint positions in the head's rest frame (joint 3 left, joint 4
     right: FLAME order); rotation (3,) axis-angle, translation (3,): the head's view-frame pose.
     """
+    radius = EYE_RADIUS if radius is None else radius
     R = axis_angle_to_matrix(np.asarray(rotation, np.float64)).astype(np.float64)
     t = np.asarray(translation, np.float64)
     out = np.zeros(6)
@@ -79,9 +81,10 @@ def eyes_pose(iris_px: np.ndarray, eye_centres_head: np.ndarray, rotation: np.nd
 
 def project_gaze(eyes: np.ndarray, eye_centres_head: np.ndarray, rotation: np.ndarray,
                  translation: np.ndarray, focal: float, principal: tuple[float, float],
-                 radius: float = EYE_RADIUS) -> np.ndarray:
+                 radius: float | None = None) -> np.ndarray:
     """Inverse of `eyes_pose` for tests and overlays: (2, 2) pixels of the iris centres
     (mesh order: subject's right, then left) of eyes turned by `eyes` (6,)."""
+    radius = EYE_RADIUS if radius is None else radius
     R = axis_angle_to_matrix(np.asarray(rotation, np.float64)).astype(np.float64)
     t = np.asarray(translation, np.float64)
     out = np.zeros((2, 2))

@@ -96,9 +96,10 @@ class CorrectiveFit:
     figures: dict = field(default_factory=dict)
 
 
-def mouth_rows(embedding, rest_points: np.ndarray, radius: float = MOUTH_RADIUS) -> np.ndarray:
+def mouth_rows(embedding, rest_points: np.ndarray, radius: float | None = None) -> np.ndarray:
     """Indices of the embedding's rows fitted (module docstring): not on the face outline and
     within `radius` of the outer lips' centre; rest_points (K, 3)."""
+    radius = MOUTH_RADIUS if radius is None else radius
     from avatarkit.face.correspondence import FACE_OVAL, LIPS_OUTER
 
     idx = np.asarray(embedding.mesh_index)
@@ -139,15 +140,16 @@ def view_residuals(problem, fit, targets, focal: float) -> tuple[np.ndarray, np.
 
 
 def landmark_slopes(residuals: np.ndarray, planes: np.ndarray, opening: np.ndarray, jaw: np.ndarray,
-                    jaw_weight: np.ndarray, ridge: float = SLOPE_RIDGE, pose: np.ndarray | None = None
+                    jaw_weight: np.ndarray, ridge: float | None = None, pose: np.ndarray | None = None
                     ) -> np.ndarray:
     """(K, 3) each landmark's motion per unit of opening beyond the model (module docstring,
     step 2); the arguments as `supported_slopes`', untested."""
+    ridge = SLOPE_RIDGE if ridge is None else ridge
     return supported_slopes(residuals, planes, opening, jaw, jaw_weight, ridge, pose)[0]
 
 
 def supported_slopes(residuals: np.ndarray, planes: np.ndarray, opening: np.ndarray, jaw: np.ndarray,
-                     jaw_weight: np.ndarray, ridge: float = SLOPE_RIDGE, pose: np.ndarray | None = None,
+                     jaw_weight: np.ndarray, ridge: float | None = None, pose: np.ndarray | None = None,
                      blocks: np.ndarray | None = None, level: float | None = None
                      ) -> tuple[np.ndarray, np.ndarray, float]:
     """(K, 3) each landmark's motion per unit of opening beyond the model (module docstring,
@@ -167,6 +169,7 @@ def supported_slopes(residuals: np.ndarray, planes: np.ndarray, opening: np.ndar
     at `level` (None: `SLOPE_LEVEL`). Returns the slopes (K, 3), each landmark's statistic (K,)
     (zeros untested) and the threshold it had to pass (inf untested: fewer than 5 blocks tests
     nothing)."""
+    ridge = SLOPE_RIDGE if ridge is None else ridge
     from avatarkit.track.solve import _rodrigues
 
     T, K, _ = residuals.shape
@@ -228,8 +231,8 @@ def slope_threshold(blocks: int, level: float | None = None) -> float:
 
 
 def spread(rest_vertices: np.ndarray, faces: np.ndarray, vertex_jaw: np.ndarray, bary_rows: np.ndarray,
-           values: np.ndarray, reach: float = SPREAD_REACH, jaw_width: float = SPREAD_JAW,
-           smooth: float = SPREAD_SMOOTH) -> tuple[np.ndarray, np.ndarray]:
+           values: np.ndarray, reach: float | None = None, jaw_width: float | None = None,
+           smooth: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The vertex field the landmarks' `values` make (module docstring, step 3): over the
     vertices within `reach` of a landmark, the field D minimising
         sum_k |(B D)_k - values_k|^2 + smooth sum_edges w_ab |D_a - D_b|^2
@@ -243,6 +246,9 @@ def spread(rest_vertices: np.ndarray, faces: np.ndarray, vertex_jaw: np.ndarray,
 
     rest_vertices (V, 3); faces (F, 3); vertex_jaw (V,) jaw weights; bary_rows (K, V) the
     landmarks as mixes of vertices; values (K, 3). Returns (vertex_index (n,), field (n, 3))."""
+    reach = SPREAD_REACH if reach is None else reach
+    jaw_width = SPREAD_JAW if jaw_width is None else jaw_width
+    smooth = SPREAD_SMOOTH if smooth is None else smooth
     import scipy.sparse as sp
     from scipy.sparse.linalg import spsolve
 
@@ -286,11 +292,12 @@ def _bary_matrix(lm, num_vertices: int, rows: np.ndarray) -> np.ndarray:
 
 
 def fit_corrective(model, shape: np.ndarray, embedding, targets: list, focal: float, options=None,
-                   rounds: int = ROUNDS) -> CorrectiveFit:
+                   rounds: int | None = None) -> CorrectiveFit:
     """The corrective learned from `targets` (one `face.fit.LandmarkTargets` per frame with a
     face, in the video's order; a None entry is a frame without one) for `model` (without a
     corrective) with identity `shape` and the tracker's `embedding` (its calibrated offsets
     included); focal: the tracker's. options: the `TrackOptions` the frames are fitted with."""
+    rounds = ROUNDS if rounds is None else rounds
     from avatarkit.face.correspondence import LIPS_INNER, LIPS_OUTER
     from avatarkit.face.fit import LandmarkModel
     from avatarkit.head.model import HeadParams
@@ -357,11 +364,12 @@ def fit_corrective(model, shape: np.ndarray, embedding, targets: list, focal: fl
     return CorrectiveFit(corrective, figures)
 
 
-def fit_jaw_corrective(result, rounds: int = ROUNDS, span: tuple[int, int] | None = None) -> CorrectiveFit:
+def fit_jaw_corrective(result, rounds: int | None = None, span: tuple[int, int] | None = None) -> CorrectiveFit:
     """`fit_corrective` over a `TrackResult`'s frames with a face (its model, identity, calibrated
     embedding, focal; the face meshes when it kept them, else its stored 2-D points); span:
     [start, end) video frames it may learn from (None: all; `avatarkit evaluate` keeps the
     clip's second half out of the build)."""
+    rounds = ROUNDS if rounds is None else rounds
     from avatarkit.face.fit import LandmarkTargets
     from avatarkit.track.joint_identity import targets_from_points
     from avatarkit.track.tracker import TrackOptions
@@ -382,7 +390,7 @@ def fit_jaw_corrective(result, rounds: int = ROUNDS, span: tuple[int, int] | Non
                           float(result.camera.fx), options, rounds)
 
 
-def fit_avatar_corrective(avatar, video, tracking, rounds: int = ROUNDS,
+def fit_avatar_corrective(avatar, video, tracking, rounds: int | None = None,
                           span: tuple[int, int] | None = None) -> CorrectiveFit:
     """The corrective for `avatar` (built without one) learned from `video`: the video tracked
     with the avatar's own head model and identity (`track_video(avatar=)`, the face meshes of
@@ -391,6 +399,7 @@ def fit_avatar_corrective(avatar, video, tracking, rounds: int = ROUNDS,
     on the build's own tracking (the template with the tracking's identity) instead, the
     avatar's tracking read the grey clip's jaw 0.21 rad open at the widest frames where that
     one read 0.17, and took back part of the drop (docs/video-build.md)."""
+    rounds = ROUNDS if rounds is None else rounds
     from avatarkit.track.video import tracked_with_built_avatar
 
     with tracked_with_built_avatar(avatar, video, tracking.meshes) as (_, result):

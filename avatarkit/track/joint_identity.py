@@ -80,11 +80,12 @@ def _cost_parts(problem, P, shape, targets, focal, prior):
 
 def fit_joint_identity(problem: FrameProblem, targets: list[LandmarkTargets], focal: float,
                        rotation: np.ndarray, translation: np.ndarray, shape: np.ndarray | None = None,
-                       iterations: int = 30, shape_prior: float = JOINT_SHAPE_PRIOR) -> JointFit:
+                       iterations: int = 30, shape_prior: float | None = None) -> JointFit:
     """Fit (module docstring). problem: built with a zero base shape and `shape_components`
     F > 0 (`FrameProblem.from_landmark_model(lm, zeros, E, shape_components=F)`); targets: one
     per view; rotation, translation (K, 3): starting poses (e.g. the tracker's); shape: (F,)
     starting identity (default 0)."""
+    shape_prior = JOINT_SHAPE_PRIOR if shape_prior is None else shape_prior
     E, C = problem.num_expr, problem.num_coefficients
     F = C - E
     K = len(targets)
@@ -148,9 +149,10 @@ def _result(problem, P, s, cost, targets, focal, prior) -> JointFit:
 
 def fit_identity_reference(problem: FrameProblem, targets: list[LandmarkTargets], focal: float,
                            rotation: np.ndarray, translation: np.ndarray, shape: np.ndarray | None = None,
-                           shape_prior: float = JOINT_SHAPE_PRIOR) -> JointFit:
+                           shape_prior: float | None = None) -> JointFit:
     """The same objective minimised by scipy.optimize.least_squares over all parameters at once
     (slow: a dense finite-difference Jacobian of the whole problem)."""
+    shape_prior = JOINT_SHAPE_PRIOR if shape_prior is None else shape_prior
     from scipy.optimize import least_squares
 
     E, C = problem.num_expr, problem.num_coefficients

@@ -163,10 +163,13 @@ def tracking_edge(result) -> np.ndarray:
     return edge
 
 
-def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int = KEYFRAMES,
-                     min_spread: float = MIN_SPREAD, min_gap: int = MIN_GAP) -> Keyframes:
+def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int | None = None,
+                     min_spread: float | None = None, min_gap: int | None = None) -> Keyframes:
     """Keyframes of a `TrackResult` (module docstring). sharpness: (T,) raw face sharpness per
     clip frame (`face_sharpness`; None: all equal)."""
+    count = KEYFRAMES if count is None else count
+    min_spread = MIN_SPREAD if min_spread is None else min_spread
+    min_gap = MIN_GAP if min_gap is None else min_gap
     from avatarkit.track.build_frame import frame_costs
 
     T = result.num_frames

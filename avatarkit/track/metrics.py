@@ -30,8 +30,9 @@ ALPHA_THRESHOLD = 0.5
 SSIM_SETTINGS = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False, "data_range": 1.0}
 
 
-def person_mask(alpha: np.ndarray, threshold: float = ALPHA_THRESHOLD) -> np.ndarray:
+def person_mask(alpha: np.ndarray, threshold: float | None = None) -> np.ndarray:
     """(H, W) bool: where the render's alpha (H, W) (or (H, W, 1)) exceeds `threshold`."""
+    threshold = ALPHA_THRESHOLD if threshold is None else threshold
     a = np.asarray(alpha, np.float64)
     if a.ndim == 3:
         a = a[..., 0]

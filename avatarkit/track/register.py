@@ -142,8 +142,8 @@ def head_rows(vertices: np.ndarray, neck: np.ndarray | None, camera: Camera) -> 
 
 
 def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
-                   yaw_range: tuple[float, float], size: int = SIZE, coarse_step: float = COARSE_STEP,
-                   steps=REFINE_STEPS, rounds: int = REFINE_ROUNDS, above: float = 1.0,
+                   yaw_range: tuple[float, float], size: int | None = None, coarse_step: float | None = None,
+                   steps=None, rounds: int | None = None, above: float = 1.0,
                    shifted: bool = False) -> Registration:
     """The head pose at which `gaussians` (the avatar at rest) best reproduce `image` (H, W, 3)
     uint8 (module docstring). guess (4, 4): the starting pose (its pitch, roll and translation
@@ -153,6 +153,10 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
     shifted: the coarse grid also searched with each yaw's head shifted to fit
     (`yaw_then_pattern_search`'s `shift_steps`: `SHIFT_STEPS`), the refinement run from both
     grids' best and the lower error kept."""
+    size = SIZE if size is None else size
+    coarse_step = COARSE_STEP if coarse_step is None else coarse_step
+    steps = REFINE_STEPS if steps is None else steps
+    rounds = REFINE_ROUNDS if rounds is None else rounds
     target = _target(image, size)
     bg = background_colour(target)
     cam0 = reference_camera.with_size(target.shape[1], target.shape[0])
@@ -272,12 +276,14 @@ def _similarity(scale: float, dx: float, dy: float, width: int, height: int) -> 
     return np.float32([[scale, 0, (1 - scale) * width / 2 + dx], [0, scale, (1 - scale) * height / 2 + dy]])
 
 
-def align_silhouette(alpha: np.ndarray, mask: np.ndarray, rows: int, scales=ALIGN_SCALES,
-                     shift: int = ALIGN_SHIFT) -> tuple[float, int, int, float]:
+def align_silhouette(alpha: np.ndarray, mask: np.ndarray, rows: int, scales=None,
+                     shift: int | None = None) -> tuple[float, int, int, float]:
     """The image similarity (scale about the centre, whole-pixel shift) that best lays a
     render's silhouette (alpha (H, W) > 0.5) over a frame's (mask (H, W) bool), by
     intersection over union over the rows above `rows`: (scale, dx, dy, iou). Every grid
     point is tried (the grid is small at `SIZE` pixels)."""
+    scales = ALIGN_SCALES if scales is None else scales
+    shift = ALIGN_SHIFT if shift is None else shift
     import cv2
 
     a = np.asarray(alpha, np.float32)
@@ -357,8 +363,8 @@ def pose_with_alignment(pose, camera: Camera, reference_pose, centre, alignment)
 
 
 def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
-                     yaw_range: tuple[float, float], centre, size: int = SIZE, coarse_step: float = COARSE_STEP,
-                     steps=REFINE_STEPS[:3], rounds: int = REFINE_ROUNDS, above: float = 1.0) -> Registration:
+                     yaw_range: tuple[float, float], centre, size: int | None = None, coarse_step: float | None = None,
+                     steps=None, rounds: int | None = None, above: float = 1.0) -> Registration:
     """The head pose at which `gaussians` best reproduce `image` by `aligned_error` (each
     candidate's render laid over the frame's silhouette first): yaw every `coarse_step` over
     yaw_range (pitch and roll the guess's), then a pattern search over yaw, pitch and roll with
@@ -366,6 +372,10 @@ def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, ref
     the alignment stands for it (and for a head of the wrong size); the pose returned is the
     guess's moved by the best pose's alignment (`pose_with_alignment`; centre: the head's
     centre in the rest frame)."""
+    size = SIZE if size is None else size
+    coarse_step = COARSE_STEP if coarse_step is None else coarse_step
+    steps = REFINE_STEPS[:3] if steps is None else steps
+    rounds = REFINE_ROUNDS if rounds is None else rounds
     target = _target(image, size)
     bg = background_colour(target)
     cam0 = reference_camera.with_size(target.shape[1], target.shape[0])

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avatarkit.face.fit import DEPTH_WEIGHT, EXPR_PRIOR, JAW_PRIOR, SHAPE_PRIOR, LandmarkFit, pixel_errors
+from avatarkit.face import fit as _face_fit
+from avatarkit.face.fit import LandmarkFit, pixel_errors
 
 _C = np.diag([1.0, -1.0, -1.0])
 _STEP = 1e-6
@@ -139,10 +140,11 @@ def _unpack(p: np.ndarray, E: int):
 
 
 def residuals(problem: FrameProblem, p: np.ndarray, targets, focal: float, depth_weight: float,
-              expr_prior: float, jaw_prior: float, shape_prior: float = SHAPE_PRIOR
+              expr_prior: float, jaw_prior: float, shape_prior: float | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
     """p (B, 9 + E) -> residual vectors (B, M) whose squared sum is the objective, and the
     projected landmarks (B, K, 2)."""
+    shape_prior = _face_fit.SHAPE_PRIOR if shape_prior is None else shape_prior
     E = problem.num_expr
     rot, trans, jaw, expr = _unpack(p, problem.num_coefficients)
     R = _rodrigues(rot)
@@ -192,13 +194,17 @@ def rest_points(problem: FrameProblem) -> np.ndarray:
 
 def fit_frame(problem: FrameProblem, targets, focal: float, start: LandmarkFit | None = None,
               initial: tuple[np.ndarray, np.ndarray] | None = None, iterations: int = 8,
-              depth_weight: float = DEPTH_WEIGHT, expr_prior: float = EXPR_PRIOR,
-              jaw_prior: float = JAW_PRIOR, shape: np.ndarray | None = None,
-              shape_prior: float = SHAPE_PRIOR) -> LandmarkFit:
+              depth_weight: float | None = None, expr_prior: float | None = None,
+              jaw_prior: float | None = None, shape: np.ndarray | None = None,
+              shape_prior: float | None = None) -> LandmarkFit:
     """Minimise the objective from `start` (the previous frame) or `initial` (rotation,
     translation) with zero expression and jaw. `shape` (S,) is the identity the problem was
     built on; fitted shape coefficients (if the problem has them) are added to it. Returns a
     `LandmarkFit` like `fit_landmarks`."""
+    depth_weight = _face_fit.DEPTH_WEIGHT if depth_weight is None else depth_weight
+    expr_prior = _face_fit.EXPR_PRIOR if expr_prior is None else expr_prior
+    jaw_prior = _face_fit.JAW_PRIOR if jaw_prior is None else jaw_prior
+    shape_prior = _face_fit.SHAPE_PRIOR if shape_prior is None else shape_prior
     E, C = problem.num_expr, problem.num_coefficients
     p = np.zeros(9 + C)
     if start is not None:
