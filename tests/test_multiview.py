@@ -323,3 +323,19 @@ def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_refe
     only_turned[:nb] = turned
     _, _, f2 = colour_from_views(bald, hair, views, normals, scalp=only_turned)
     assert f2["hidden_scalp_filled"] == 0
+
+
+def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
+    """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
+    registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    monkeypatch.setattr(multiview, "SCALP_FILL", True)
+    monkeypatch.setattr(multiview, "DRAFT_SCALP_FILL", False)
+    assert final.fills_scalp() and not draft.fills_scalp()
+    monkeypatch.setattr(multiview, "DRAFT_SCALP_FILL", True)
+    assert final.fills_scalp() and draft.fills_scalp()
+    monkeypatch.setattr(multiview, "SCALP_FILL", False)
+    assert not final.fills_scalp() and not draft.fills_scalp()

@@ -437,6 +437,9 @@ MUTATIONS = [
     M("recon.scalp_fill_every_bald_row", "avatarkit/recon/multiview.py",
       "        scalp = np.asarray(scalp, bool) & ~is_hair", "        scalp = np.ones(len(both), bool) & ~is_hair",
       ["tests/test_multiview.py"], "SCALP_FILL filling every unseen bald Gaussian, not the scalp's alone"),
+    M("recon.scalp_fill_in_the_drafts", "avatarkit/recon/multiview.py",
+      '(DRAFT_SCALP_FILL or not self.info.get("draft", False))', "(DRAFT_SCALP_FILL or True)",
+      ["tests/test_multiview.py"], "SCALP_FILL in the registration drafts too, whatever DRAFT_SCALP_FILL says"),
 ]
 
 

@@ -36,7 +36,9 @@ colours, matched to the reference photo afterwards, keep priority on the face); 
 keyframe saw keeps the portrait build's colour (its fill), except hidden hair: hair no keyframe
 saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyframe did see
 (the back of the head is the colour of the hair around it; the single view's fill there is
-whatever the photo showed in front of it). Gaussians of the bald head bound to the neck that
+whatever the photo showed in front of it), and the hidden scalp: bald Gaussians of the scalp no
+keyframe saw, where the reference view looks away from them, take the mean colour of the
+nearest scalp Gaussians a keyframe did see (`SCALP_FILL`). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
 (`NECK_SHOWN`; None: the whole neck is left alone).
@@ -119,6 +121,13 @@ SCALP_BODY = True
 #: pose, or at a grazing angle) stayed skin. Session 21 (docs/video-build.md, "The scalp and the
 #: neck on the mesh subject"); the sample avatar's and the bob's scalp lies under their hair
 SCALP_FILL = True
+#: ... and so do the drafts a video build registers its turned keyframes against
+#: (`track.video_build`; their views carry info["draft"]). Off: the drafts keep the portrait's
+#: fill there, so the colours the fill guesses from the poses read so far do not steer the
+#: registration (the held-out bob at seed 1: its -80-degree frame registered at -58.4 instead of
+#: -67.6 with it, -0.21 dB at the front; the mesh subject's turned frames came 2-5 degrees nearer
+#: their true +-80, +0.05 dB of profile gain)
+DRAFT_SCALP_FILL = False
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -723,6 +732,12 @@ class VideoViews:
         vertex in its "scalp" region (`SCALP_BODY`)."""
         return _region_rows(bald, hair, fit, "scalp", every=False)
 
+    def fills_scalp(self) -> bool:
+        """Whether `colour` fills the scalp no keyframe saw (`SCALP_FILL`): not in a draft the
+        video build registers its turned keyframes against (info["draft"]) unless
+        `DRAFT_SCALP_FILL`."""
+        return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
+
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
         figures)."""
@@ -734,13 +749,13 @@ class VideoViews:
             both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
             keep = neck_kept(keep, both, views[0].camera, NECK_SHOWN)
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
-        scalp = self.scalp_rows(bald, hair, fit) if SCALP_FILL else None
+        scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp)
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures
 
 
-__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_MARGIN",
            "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "neck_kept", "person_weight", "pose_matrix",
