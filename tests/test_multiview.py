@@ -274,3 +274,68 @@ def test_body_pixels_on_the_head_are_sampled_only_by_the_rows_allowed_and_not_in
     assert not off_head.seen[right].any()
     ref = view_samples(back, normals, View(img, cam, labels, 1.0, reference=True, head=head), body=allowed)
     assert not ref.seen[right].any()
+
+
+def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_reference_looks_away(planes):
+    """`colour_from_views(scalp=)` (`SCALP_FILL`): the back plane is scalp, the front plane (its
+    left half's cover) is not. Two views on +Z, grey reference and a dark keyframe: the back
+    plane's open strip facing +Z is seen (their blend); its right part, turned to face +X, no
+    view sees and the reference looks away from it: it takes the seen scalp's blend instead of
+    keeping the portrait's fill. The back plane behind the front one faces the reference (only
+    hidden) keeps the fill, and so does the turned part off the scalp, as every row does without
+    `scalp`."""
+    from avatarkit.recon.multiview import colour_from_views
+
+    back, front, _, _ = planes
+    fill = (0.8, 0.6, 0.5)
+    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
+    hair = front.subset(np.zeros(len(front), bool))
+    nb = len(back)
+    x = back.means[:, 0]
+    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
+    turned = x > 0.035
+    normals[:nb][turned] = [1.0, 0.0, 0.0]
+    open_strip = (x > 0.015) & (x < 0.035)
+    behind = x < -0.02
+    off_scalp = turned & (back.means[:, 1] > 0.045)                  # turned away too, but not scalp
+    turned &= ~off_scalp
+    scalp = np.zeros(len(bald), bool)
+    scalp[:nb] = ~off_scalp
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    dark = (0.2, 0.1, 0.05)
+    views = [View(_image((0.5, 0.5, 0.5)), cam, None, 1.0, reference=True), View(_image(dark), cam, None, 1.0)]
+    blend = (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
+
+    plain, _, _ = colour_from_views(bald, hair, views, normals)
+    filled, _, figures = colour_from_views(bald, hair, views, normals, scalp=scalp)
+    pc, fc = plain.colors[:nb], filled.colors[:nb]
+    np.testing.assert_allclose(fc[open_strip], np.tile(blend, (int(open_strip.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(pc[open_strip], fc[open_strip])
+    np.testing.assert_allclose(pc[turned], np.tile(fill, (int(turned.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[turned], np.tile(blend, (int(turned.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(fc[behind], np.tile(fill, (int(behind.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[off_scalp], np.tile(fill, (int(off_scalp.sum()), 1)), atol=1e-3)
+    assert figures["hidden_scalp_filled"] == int(turned.sum())
+    # rows off the scalp are never filled: the front plane is seen and blended the same either way
+    np.testing.assert_allclose(filled.colors[nb:], plain.colors[nb:])
+    # none of it without seen scalp to fill from
+    only_turned = np.zeros(len(bald), bool)
+    only_turned[:nb] = turned
+    _, _, f2 = colour_from_views(bald, hair, views, normals, scalp=only_turned)
+    assert f2["hidden_scalp_filled"] == 0
+
+
+def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
+    """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
+    registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    monkeypatch.setattr(multiview, "SCALP_FILL", True)
+    monkeypatch.setattr(multiview, "DRAFT_SCALP_FILL", False)
+    assert final.fills_scalp() and not draft.fills_scalp()
+    monkeypatch.setattr(multiview, "DRAFT_SCALP_FILL", True)
+    assert final.fills_scalp() and draft.fills_scalp()
+    monkeypatch.setattr(multiview, "SCALP_FILL", False)
+    assert not final.fills_scalp() and not draft.fills_scalp()

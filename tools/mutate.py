@@ -450,6 +450,15 @@ MUTATIONS = [
       "            wide = region | ((np.asarray(view.labels) == BODY) & np.asarray(view.head, bool))",
       "            wide = region | (np.asarray(view.labels) == BODY)",
       ["tests/test_multiview.py"], "SCALP_BODY sampling body pixels anywhere in the keyframe (the clothes), not only on its head"),
+    M("recon.scalp_fill_faces_reference", "avatarkit/recon/multiview.py",
+      "        hidden = scalp & ~seen & away", "        hidden = scalp & ~seen",
+      ["tests/test_multiview.py"], "SCALP_FILL filling the scalp the reference faces but does not see (hidden), not only what it looks away from"),
+    M("recon.scalp_fill_every_bald_row", "avatarkit/recon/multiview.py",
+      "        scalp = np.asarray(scalp, bool) & ~is_hair", "        scalp = np.ones(len(both), bool) & ~is_hair",
+      ["tests/test_multiview.py"], "SCALP_FILL filling every unseen bald Gaussian, not the scalp's alone"),
+    M("recon.scalp_fill_in_the_drafts", "avatarkit/recon/multiview.py",
+      '(DRAFT_SCALP_FILL or not self.info.get("draft", False))', "(DRAFT_SCALP_FILL or True)",
+      ["tests/test_multiview.py"], "SCALP_FILL in the registration drafts too, whatever DRAFT_SCALP_FILL says"),
 ]
 
 

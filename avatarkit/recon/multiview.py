@@ -36,7 +36,9 @@ colours, matched to the reference photo afterwards, keep priority on the face); 
 keyframe saw keeps the portrait build's colour (its fill), except hidden hair: hair no keyframe
 saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyframe did see
 (the back of the head is the colour of the hair around it; the single view's fill there is
-whatever the photo showed in front of it). Gaussians of the bald head bound to the neck that
+whatever the photo showed in front of it), and the hidden scalp: bald Gaussians of the scalp no
+keyframe saw, where the reference view looks away from them, take the mean colour of the
+nearest scalp Gaussians a keyframe did see (`SCALP_FILL`). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
 (`NECK_SHOWN`; None: the whole neck is left alone).
@@ -110,6 +112,25 @@ NECK_SHOWN: float | None = 0.02
 #: within 0.01 (their scalp lies under their hair); every bald Gaussian so: the sample avatar -0.24
 #: at -45
 SCALP_BODY = True
+#: the bald Gaussians of the scalp (as `SCALP_BODY` picks them) that no keyframe saw take the mean
+#: colour of the `HAIR_NEIGHBOURS` nearest scalp Gaussians a keyframe did see, as hidden hair does
+#: (`fill_hidden_hair`), instead of keeping the portrait build's fill: the scalp is where hair
+#: grows, and the single view's fill there is the bald image's skin guess. On the mesh subject the
+#: cap comes down behind the ear below the hair shell's level end, and the scalp's discs there
+#: that the turned keyframes do not pass as seen (behind the build's own hair at the registered
+#: pose, or at a grazing angle) stayed skin. Only where the reference view looks away (cos <
+#: `MIN_COS`): what the photo faces keeps its fill. Session 21 (docs/video-build.md, "The hidden
+#: scalp on the mesh subject"), eased clip, profile gain over the single-frame build: mesh
+#: subject +1.73 -> +2.31 (seeds 1 / 2: +1.75 -> +2.44, +1.65 -> +2.28), sample avatar +3.20 ->
+#: +3.44, bob +2.73 -> +2.97; whip clip +1.83 -> +2.34 / +0.85 -> +1.75; no view loses > 0.01 dB
+SCALP_FILL = True
+#: ... and so do the drafts a video build registers its turned keyframes against
+#: (`track.video_build`; their views carry info["draft"]). Off: the drafts keep the portrait's
+#: fill there, so the colours the fill guesses from the poses read so far do not steer the
+#: registration (the held-out bob at seed 1: its -80-degree frame registered at -58.4 instead of
+#: -67.6 with it, -0.21 dB at the front; the mesh subject's turned frames came 2-5 degrees nearer
+#: their true +-80, +0.05 dB of profile gain)
+DRAFT_SCALP_FILL = False
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -524,13 +545,15 @@ def silhouette_outside(points: np.ndarray, views: list[View], margin: float | No
 
 
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
-                      body: np.ndarray | None = None):
+                      body: np.ndarray | None = None, scalp: np.ndarray | None = None):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
     (`fill_hidden_hair`). normals: (N_bald + N_hair, 3) outward normals; keep: (N,) bool rows
     left as they are (the neck); body: (N,) bool rows that may sample a turned keyframe's body
-    pixels on its head (`view_samples(body=)`, `SCALP_BODY`). Returns (bald, hair, figures)."""
+    pixels on its head (`view_samples(body=)`, `SCALP_BODY`); scalp: (N,) bool bald rows that no
+    view saw are filled from the nearest seen ones of them (`SCALP_FILL`). Returns (bald, hair,
+    figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
@@ -539,15 +562,26 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     samples = [view_samples(both, normals, v, hair=is_hair, body=body) for v in views]
     colours, seen = blend_colours(both.colors, samples, keep)
     colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
+    # where the reference view looks at a grazing angle or from behind
+    to_ref = camera_centre(views[0].camera)[None] - np.asarray(both.means, np.float64)
+    to_ref /= np.maximum(np.linalg.norm(to_ref, axis=1, keepdims=True), 1e-12)
+    away = np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_ref) < MIN_COS
+    scalp_filled = 0
+    if scalp is not None:
+        # the scalp no view saw, from the scalp the views did see (`SCALP_FILL`), where the
+        # reference view does not face it: what it faces keeps the photo's fill
+        scalp = np.asarray(scalp, bool) & ~is_hair
+        if keep is not None:
+            scalp &= ~np.asarray(keep, bool)
+        hidden = scalp & ~seen & away
+        colours, scalp_filled = fill_hidden_hair(both.means, colours, scalp & seen, hidden)
     seen_by = np.stack([s.seen for s in samples])                  # (V, N)
     # ... and only where the reference view looks at a grazing angle or from behind: what it
     # faces (the brows, say) the reference photo's matching colours best
-    to_ref = camera_centre(views[0].camera)[None] - np.asarray(both.means, np.float64)
-    to_ref /= np.maximum(np.linalg.norm(to_ref, axis=1, keepdims=True), 1e-12)
-    only_others = seen & ~seen_by[0] & (np.einsum("ij,ij->i", np.asarray(normals, np.float64), to_ref) < MIN_COS)
+    only_others = seen & ~seen_by[0] & away
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
-               "hidden_hair_filled": int(filled),
+               "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
     both = both.with_colors(colours)
@@ -707,6 +741,12 @@ class VideoViews:
         vertex in its "scalp" region (`SCALP_BODY`)."""
         return _region_rows(bald, hair, fit, "scalp", every=False)
 
+    def fills_scalp(self) -> bool:
+        """Whether `colour` fills the scalp no keyframe saw (`SCALP_FILL`): not in a draft the
+        video build registers its turned keyframes against (info["draft"]) unless
+        `DRAFT_SCALP_FILL`."""
+        return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
+
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
         figures)."""
@@ -718,13 +758,14 @@ class VideoViews:
             both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
             keep = neck_kept(keep, both, views[0].camera, NECK_SHOWN)
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
-        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body)
+        scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
+        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp)
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures
 
 
-__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "EDGE_BAND", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_MARGIN",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]

@@ -342,9 +342,10 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             # registered against it: fitted to a keyframe read a few degrees short, its outline
             # matches that pose, and the registration confirms it (the whip clip)
             refine = OUTLINE_POSES != "tracked" and _outline_on()
+            # the drafts' views carry info["draft"] (`multiview.DRAFT_SCALP_FILL`)
             draft = build_avatar(png, first, None,
-                                 views=dataclasses.replace(views, info={**views.info, "fit_outline": False})
-                                 if refine and DRAFT_OUTLINE is False else views)
+                                 views=dataclasses.replace(views, info={**views.info, "draft": True,
+                                                                        **({"fit_outline": False} if refine and DRAFT_OUTLINE is False else {})}))
             # no face crop to measure a registered frame's sharpness on: the keyframes' median
             added, figures = register_turned(draft, result, turned, views, video, float(np.median(kf.sharpness)))
             views.keyframes.extend(added)
@@ -361,7 +362,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                 # fitted, and every pose registered again against it at that many pixels
                 for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
                     if size is not None:
-                        draft = build_avatar(png, first, None, views=views)
+                        draft = build_avatar(png, first, None, views=dataclasses.replace(views, info={**views.info, "draft": True}))
                     refined = refine_keyframes(draft, views, tracked, everywhere=everywhere, size=size)
                     views.info["refined"] = refined
                     if SKIP_AT_BOUND:
