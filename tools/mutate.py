@@ -450,6 +450,19 @@ MUTATIONS = [
       "            wide = region | ((np.asarray(view.labels) == BODY) & np.asarray(view.head, bool))",
       "            wide = region | (np.asarray(view.labels) == BODY)",
       ["tests/test_multiview.py"], "SCALP_BODY sampling body pixels anywhere in the keyframe (the clothes), not only on its head"),
+    M("recon.relabel_connected_dropped", "avatarkit/recon/multiview.py",
+      "            lost |= _connected_lost(labels, full, head, near, zone | lost, model, connected)", "            pass",
+      ["tests/test_multiview.py", "-k", "connected"],
+      "RELABEL_CONNECTED handed over but the strands beyond RELABEL_REACH never relabelled"),
+    M("recon.relabel_connected_unconnected", "avatarkit/recon/multiview.py",
+      "    return out & np.isin(comp, keep[keep > 0])", "    return out",
+      ["tests/test_multiview.py", "-k", "connected"],
+      "RELABEL_CONNECTED taking every non-background-coloured pixel within its reach, connected to the head or not"),
+    M("recon.relabel_connected_every_keyframe", "avatarkit/recon/multiview.py",
+      '            connected = RELABEL_CONNECTED if (RELABEL_CONNECTED_IN == "all" or k.frame in turned_end) else None',
+      "            connected = RELABEL_CONNECTED",
+      ["tests/test_keyframe_refine.py", "-k", "relabel"],
+      "RELABEL_CONNECTED applied to every keyframe whatever RELABEL_CONNECTED_IN says"),
 ]
 
 
