@@ -96,10 +96,18 @@ RELABEL_KEYFRAMES = True
 #: person's too (`relabel_head`) when they connect through such pixels to the person pixels by
 #: the head (None: not). A keyframe turned to the profile has no face for the portrait
 #: segmentation: its person is only what `relabel_head` finds within RELABEL_REACH of the
-#: fitted head, and the strands hanging off a bob's nape lie beyond it
+#: fitted head, and the strands hanging off a bob's nape lie beyond it (labelled background, the
+#: hull growth never saw them missing). Session 21 (docs/video-build.md, "The bob's strand tips"):
+#: the held-out bob +1.61 / +2.39 dB at +90 / -90 (seed 0; seeds 1, 2: +1.49 / +3.04, +1.59 /
+#: +2.39), its front within 0.06; the sample avatar (seeds 0-2), the mesh subject and the whip
+#: clip build the same to the digit. 0.10: the bob 0.02-0.23 dB less at +-45 / +-90 (front
+#: +0.05); 0.20: the same build as 0.15
 RELABEL_CONNECTED: float | None = 0.15
 #: which keyframes RELABEL_CONNECTED applies to: "turned_end" (those registered at the turns'
-#: ends, `View.info["turned_end"]`) or "all"
+#: ends, `View.info["turned_end"]`) or "all". "turned_end": with "all" the bob's keyframes
+#: turned 15-45 degrees take in strands too, the first draft changes and its -80-degree frame
+#: registers at -66 (-74.6): against the default before, front -0.35 / -45 -0.33 / -90 +1.73
+#: dB ("turned_end": -0.06 / +0.58 / +2.39)
 RELABEL_CONNECTED_IN = "turned_end"
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
