@@ -100,7 +100,8 @@ RELABEL_KEYFRAMES = True
 #: hull growth never saw them missing). Session 21 (docs/video-build.md, "The bob's strand tips"):
 #: the held-out bob +1.61 / +2.39 dB at +90 / -90 (seed 0; seeds 1, 2: +1.49 / +3.04, +1.59 /
 #: +2.39), its front within 0.06; the sample avatar (seeds 0-2), the mesh subject and the whip
-#: clip build the same to the digit. 0.10: the bob 0.02-0.23 dB less at +-45 / +-90 (front
+#: clip build the same to the digit; the held-out long_straight and ponytail styles +1.81 / +0.76
+#: and +0.30 / +0.13 at +90 / -90, nothing lost over 0.03. 0.10: the bob 0.02-0.23 dB less at +-45 / +-90 (front
 #: +0.05); 0.20: the same build as 0.15
 RELABEL_CONNECTED: float | None = 0.15
 #: which keyframes RELABEL_CONNECTED applies to: "turned_end" (those registered at the turns'
