@@ -102,7 +102,7 @@ RELABEL_KEYFRAMES = True
 #: +2.39), its front within 0.06; the sample avatar (seeds 0-2), the mesh subject and the whip
 #: clip build the same to the digit; the held-out long_straight and ponytail styles +1.81 / +0.76
 #: and +0.30 / +0.13 at +90 / -90, nothing lost over 0.03. 0.10: the bob 0.02-0.23 dB less at +-45 / +-90 (front
-#: +0.05); 0.20: the same build as 0.15
+#: +0.05); 0.20: the same build as 0.15; the bob on the whip clip +0.12..+2.84 at every view
 RELABEL_CONNECTED: float | None = 0.15
 #: which keyframes RELABEL_CONNECTED applies to: "turned_end" (those registered at the turns'
 #: ends, `View.info["turned_end"]`) or "all". "turned_end": with "all" the bob's keyframes
