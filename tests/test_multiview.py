@@ -186,6 +186,41 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     np.testing.assert_array_equal(relabel_head(labels, img, head, None), labels)
 
 
+def test_strands_hanging_beyond_the_reach_are_relabelled_when_connected():
+    """`relabel_head(connected=)` (`RELABEL_CONNECTED`): a strand two pixels wide hanging from
+    the hair 12 px beyond the fitted head (past `RELABEL_REACH`, 6 px at 96) is the person's
+    hair when it connects to the head's person pixels, up to `connected` of the image (14 px
+    at 0.15) and no further; a dark patch as far out that touches nothing stays background,
+    and without `connected` the strand is cut at the reach."""
+    from avatarkit.recon.multiview import reference_colours, relabel_head
+    from avatarkit.recon.segment import BACKGROUND, HAIR, SKIN
+
+    rng = np.random.default_rng(1)
+    skin_rgb, hair_rgb, wall_rgb = (220, 170, 140), (40, 30, 25), (245, 245, 245)
+    n = 96
+    ref = _noisy((n, n), wall_rgb, rng)
+    ref_labels = np.full((n, n), BACKGROUND)
+    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
+    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    # a profile frame without a face for the segmentation: every pixel background
+    img = _noisy((n, n), wall_rgb, rng)
+    img[20:50, 20:45] = _noisy((30, 25), skin_rgb, rng)
+    img[20:50, 45:60] = _noisy((30, 15), hair_rgb, rng)
+    img[50:70, 56:58] = _noisy((20, 2), hair_rgb, rng)        # the strand: rows 50..69, 0..19 px below the head
+    img[56:62, 30:36] = _noisy((6, 6), hair_rgb, rng)         # a detached patch 6..11 px below the head
+    labels = np.full((n, n), BACKGROUND)
+    head = np.zeros((n, n), bool)
+    head[20:50, 20:60] = True
+    colours = reference_colours(ref, ref_labels)
+    cut = relabel_head(labels, img, head, colours)
+    assert (cut[50:55, 56:58] == HAIR).all() and (cut[58:70, 56:58] == BACKGROUND).all()
+    out = relabel_head(labels, img, head, colours, connected=0.15)
+    assert (out[50:63, 56:58] == HAIR).all()                  # to 12 px below the head
+    assert (out[65:70, 56:58] == BACKGROUND).all()            # beyond 14 px
+    assert (out[56:62, 30:36] == BACKGROUND).all()            # not connected
+    assert (out[:18] == BACKGROUND).all() and (out[:, 64:] == BACKGROUND).all()
+
+
 def test_colours_only_other_keyframes_saw_are_put_back_after_the_reference_refine():
     """`VideoViews.keep_view_colours`: the Gaussians the blend coloured from other keyframes
     only get those colours back, found by their centres in sets that gained and lost rows in

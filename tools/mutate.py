@@ -459,6 +459,19 @@ MUTATIONS = [
     M("recon.scalp_fill_in_the_drafts", "avatarkit/recon/multiview.py",
       '(DRAFT_SCALP_FILL or not self.info.get("draft", False))', "(DRAFT_SCALP_FILL or True)",
       ["tests/test_multiview.py"], "SCALP_FILL in the registration drafts too, whatever DRAFT_SCALP_FILL says"),
+    M("recon.relabel_connected_dropped", "avatarkit/recon/multiview.py",
+      "            lost |= _connected_lost(labels, full, head, near, zone | lost, model, connected)", "            pass",
+      ["tests/test_multiview.py", "-k", "connected"],
+      "RELABEL_CONNECTED handed over but the strands beyond RELABEL_REACH never relabelled"),
+    M("recon.relabel_connected_unconnected", "avatarkit/recon/multiview.py",
+      "    return out & np.isin(comp, keep[keep > 0])", "    return out",
+      ["tests/test_multiview.py", "-k", "connected"],
+      "RELABEL_CONNECTED taking every non-background-coloured pixel within its reach, connected to the head or not"),
+    M("recon.relabel_connected_every_keyframe", "avatarkit/recon/multiview.py",
+      '            connected = RELABEL_CONNECTED if (RELABEL_CONNECTED_IN == "all" or k.frame in turned_end) else None',
+      "            connected = RELABEL_CONNECTED",
+      ["tests/test_keyframe_refine.py", "-k", "relabel"],
+      "RELABEL_CONNECTED applied to every keyframe whatever RELABEL_CONNECTED_IN says"),
 ]
 
 

@@ -93,6 +93,25 @@ BACKGROUND_COLOUR = 0.12
 
 #: relabel the keyframes' heads by the reference's colour models (`relabel_head`)
 RELABEL_KEYFRAMES = True
+#: a turned keyframe's background-labelled pixels not of the background's colour beyond
+#: `RELABEL_REACH` but within this share of the longer side of its fitted head are the
+#: person's too (`relabel_head`) when they connect through such pixels to the person pixels by
+#: the head (None: not). A keyframe turned to the profile has no face for the portrait
+#: segmentation: its person is only what `relabel_head` finds within RELABEL_REACH of the
+#: fitted head, and the strands hanging off a bob's nape lie beyond it (labelled background, the
+#: hull growth never saw them missing). Session 21 (docs/video-build.md, "The bob's strand tips"):
+#: the held-out bob +1.61 / +2.39 dB at +90 / -90 (seed 0; seeds 1, 2: +1.49 / +3.04, +1.59 /
+#: +2.39), its front within 0.06; the sample avatar (seeds 0-2), the mesh subject and the whip
+#: clip build the same to the digit; the held-out long_straight and ponytail styles +1.81 / +0.76
+#: and +0.30 / +0.13 at +90 / -90, nothing lost over 0.03. 0.10: the bob 0.02-0.23 dB less at +-45 / +-90 (front
+#: +0.05); 0.20: the same build as 0.15; the bob on the whip clip +0.12..+2.84 at every view
+RELABEL_CONNECTED: float | None = 0.15
+#: which keyframes RELABEL_CONNECTED applies to: "turned_end" (those registered at the turns'
+#: ends, `View.info["turned_end"]`) or "all". "turned_end": with "all" the bob's keyframes
+#: turned 15-45 degrees take in strands too, the first draft changes and its -80-degree frame
+#: registers at -66 (-74.6): against the default before, front -0.35 / -45 -0.33 / -90 +1.73
+#: dB ("turned_end": -0.06 / +0.58 / +2.39)
+RELABEL_CONNECTED_IN = "turned_end"
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
 #: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
@@ -249,7 +268,7 @@ def reference_colours(image: np.ndarray, labels: np.ndarray):
 
 
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
-                 reach: float | None = None) -> np.ndarray:
+                 reach: float | None = None, connected: float | None = None) -> np.ndarray:
     """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
     reference view's colour models. A portrait segmentation finds hair in a zone laid out
     around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
@@ -262,7 +281,10 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
     colour is within `segment.MATCH_D2` of it, skin likewise; other pixels keep their label.
     Background-labelled pixels there whose colour is not within `segment.MATCH_D2` of the
     background's (away from the head) are the person's too: body at least (shadowed hair on
-    the turned side may match neither model), hair or skin when they match.
+    the turned side may match neither model), hair or skin when they match. connected: such
+    pixels beyond `reach` but within `connected` (share of the longer side) of the head count
+    too where they connect through such pixels to the person pixels by the head
+    (`_connected_lost`, `RELABEL_CONNECTED`; None: not).
     labels: (H, W) int; image: (H, W, 3) uint8."""
     reach = RELABEL_REACH if reach is None else reach
     import cv2
@@ -283,8 +305,11 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
         # the segmentation's person mask loses dark hair at a turned head's back: a pixel it
         # calls background by the head is the person's when its colour is not the background's
         # (the model from every 4th background pixel: the same fit, a quarter of the work)
+        model = ColourModel.fit(full[bg][::4])
         lost = np.zeros_like(candidates)
-        lost[candidates] = ColourModel.fit(full[bg][::4]).distance2(full[candidates]) > MATCH_D2
+        lost[candidates] = model.distance2(full[candidates]) > MATCH_D2
+        if connected is not None:
+            lost |= _connected_lost(labels, full, head, near, zone | lost, model, connected)
         labels[lost] = BODY
         zone |= lost
     lab = full[zone]
@@ -295,6 +320,30 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
     new[(ls >= lh) & (ds <= MATCH_D2)] = SKIN
     labels[zone] = new
     return labels
+
+
+def _connected_lost(labels: np.ndarray, lab: np.ndarray, head: np.ndarray, near: np.ndarray,
+                    person: np.ndarray, background, reach: float) -> np.ndarray:
+    """(H, W) bool: background-labelled pixels beyond `near` but within `reach` (share of the
+    longer side) of the fitted head `head`, whose Lab colour `lab` (H, W, 3) is not the
+    `background` model's (squared distance > `segment.MATCH_D2`) and which connect through such
+    pixels to `person` (the head zone's person pixels) (`RELABEL_CONNECTED`)."""
+    import cv2
+    from scipy import ndimage
+
+    from avatarkit.recon.segment import BACKGROUND, MATCH_D2
+
+    r = max(1, int(round(reach * max(labels.shape))))
+    wide = cv2.dilate(np.asarray(head, np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    far = wide & ~near & (np.asarray(labels) == BACKGROUND)
+    out = np.zeros_like(far)
+    if not far.any() or not person.any():
+        return out
+    out[far] = background.distance2(lab[far]) > MATCH_D2
+    # 8-connected: a strand a pixel wide runs diagonally as often as not
+    comp, _ = ndimage.label(out | person, structure=np.ones((3, 3), bool))
+    keep = np.unique(comp[person])
+    return out & np.isin(comp, keep[keep > 0])
 
 
 def soft_person(labels: np.ndarray, image: np.ndarray | None = None, sigma: float | None = None) -> np.ndarray:
@@ -656,11 +705,12 @@ class VideoViews:
                      head=head_silhouette(fit.rest_vertices, faces, cam))
             if k.frame in turned_end:
                 v.info["turned_end"] = True
+            connected = RELABEL_CONNECTED if (RELABEL_CONNECTED_IN == "all" or k.frame in turned_end) else None
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
                 if colours is not None:
-                    v.labels = relabel_head(v.labels, k.image, v.head, colours).astype(np.int32)
+                    v.labels = relabel_head(v.labels, k.image, v.head, colours, connected=connected).astype(np.int32)
             except AvatarKitError as e:
                 if colours is None:
                     v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
@@ -670,7 +720,7 @@ class VideoViews:
                     # an image of background: what is not the background's colour by the head
                     # is the person's)
                     v.labels = relabel_head(np.zeros(k.image.shape[:2], np.int32), k.image, v.head,
-                                            colours).astype(np.int32)
+                                            colours, connected=connected).astype(np.int32)
             views.append(v)
         return views
 
@@ -765,7 +815,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
