@@ -162,7 +162,7 @@ DRAFT_SCALP_FILL = False
 #: against (`VideoViews.drops_skin_hair`): the registration reads the poses from them. Off.
 #: Session 21 (docs/video-build.md, "The temples' hair on the mesh subject"), eased clip, 0.5
 #: against None (front / +45 / -45 / +90 / -90 dB): mesh subject seed 0 +0.03 / +0.07 / +0.05 /
-#: -0.01 / +0.07 (seed 1 within -0.01..+0.06), sample avatar +0.07..+0.20 (seed 1 +0.05..+0.14),
+#: -0.01 / +0.07 (seed 1 within -0.01..+0.06), sample avatar +0.01..+0.20 (seed 1 +0.05..+0.14),
 #: the held-out bob +0.48 / +0.37 / 0.00 / +0.35 / **-0.10** (seed 1 -0.39 at -90: strands
 #: over its parting the keyframes see as skin between them); 0.7: the bob still -0.04 at -90,
 #: the mesh subject -0.07 at +90
