@@ -374,3 +374,53 @@ def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     assert final.fills_scalp() and draft.fills_scalp()
     monkeypatch.setattr(multiview, "SCALP_FILL", False)
     assert not final.fills_scalp() and not draft.fills_scalp()
+
+
+def test_hair_the_reference_shows_edge_on_and_the_keyframes_see_on_skin_is_dropped(planes, monkeypatch):
+    """`colour_from_views(drop_skin_hair=)` (`EDGE_HAIR_ON_SKIN`): a plane of hair, a reference and
+    a keyframe on +Z; the keyframe's upper half is labelled skin, its lower half hair (the
+    reference's all hair). The plane's
+    right part has its normal turned to +X (the reference sees it edge-on): there the hair the
+    keyframe sees on skin is dropped and the hair it sees on hair kept; the left part, which
+    the reference faces, is kept on skin too. Nothing is dropped without drop_skin_hair or with
+    the switch None; a registration draft does not drop (`VideoViews.drops_skin_hair`)."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews, colour_from_views
+    from avatarkit.recon.segment import HAIR, SKIN
+
+    back, _, _, _ = planes
+    hair = back.with_colors(np.tile(np.float32([0.3, 0.2, 0.1]), (len(back), 1)))
+    bald = back.subset(np.zeros(len(back), bool))
+    x, y = back.means[:, 0], back.means[:, 1]
+    inner = (np.abs(x) < 0.08) & (np.abs(y) < 0.08)
+    normals = np.tile([0.0, 0.0, 1.0], (len(hair), 1))
+    turned = x > 0.0
+    normals[turned] = [1.0, 0.0, 0.0]
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    labels = np.full((SIZE, SIZE), HAIR, np.int32)
+    labels[:SIZE // 2] = SKIN
+    py = np.asarray(cam.project(back.means)[0])[:, 1]
+    on_skin, on_hair = py < SIZE // 2 - 3, py > SIZE // 2 + 3
+    assert (inner & turned & on_skin).sum() > 20 and (inner & turned & on_hair).sum() > 20
+    # the reference labels it all hair (its label reaches over the temples it sees edge-on): its
+    # labels are not counted, the keyframes' are
+    views = [View(_image((0.5, 0.5, 0.5)), cam, np.full((SIZE, SIZE), HAIR, np.int32), 1.0, reference=True),
+             View(_image((0.8, 0.6, 0.5)), cam, labels, 1.0)]
+    key = lambda m: {tuple(p) for p in np.round(np.asarray(m, np.float64), 9)}
+
+    monkeypatch.setattr(multiview, "EDGE_HAIR_ON_SKIN", 0.5)
+    _, out, figures = colour_from_views(bald, hair, views, normals, drop_skin_hair=True)
+    left = key(out.means)
+    assert not key(back.means[inner & turned & on_skin]) & left                  # dropped
+    assert key(back.means[inner & turned & on_hair]) <= left                     # kept: seen on hair
+    assert key(back.means[inner & ~turned & on_skin]) <= left                    # kept: the reference faces it
+    assert figures["edge_hair_on_skin_dropped"] == len(hair) - len(out)
+    _, kept, f_kept = colour_from_views(bald, hair, views, normals)
+    assert len(kept) == len(hair) and f_kept["edge_hair_on_skin_dropped"] == 0
+    monkeypatch.setattr(multiview, "EDGE_HAIR_ON_SKIN", None)
+    _, off, _ = colour_from_views(bald, hair, views, normals, drop_skin_hair=True)
+    assert len(off) == len(hair)
+    assert not VideoViews(np.zeros(3), []).drops_skin_hair()
+    monkeypatch.setattr(multiview, "EDGE_HAIR_ON_SKIN", 0.5)
+    assert VideoViews(np.zeros(3), []).drops_skin_hair()
+    assert not VideoViews(np.zeros(3), [], {"draft": True}).drops_skin_hair()

@@ -38,7 +38,9 @@ saw takes the mean colour of the `HAIR_NEIGHBOURS` nearest hair Gaussians a keyf
 (the back of the head is the colour of the hair around it; the single view's fill there is
 whatever the photo showed in front of it), and the hidden scalp: bald Gaussians of the scalp no
 keyframe saw, where the reference view looks away from them, take the mean colour of the
-nearest scalp Gaussians a keyframe did see (`SCALP_FILL`). Gaussians of the bald head bound to the neck that
+nearest scalp Gaussians a keyframe did see (`SCALP_FILL`). Hair the reference view shows edge-on
+that the other keyframes see on skin-labelled pixels may be dropped (`EDGE_HAIR_ON_SKIN`, off; not
+in the registration drafts). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
 (`NECK_SHOWN`; None: the whole neck is left alone).
@@ -150,6 +152,21 @@ SCALP_FILL = True
 #: -67.6 with it, -0.21 dB at the front; the mesh subject's turned frames came 2-5 degrees nearer
 #: their true +-80, +0.05 dB of profile gain)
 DRAFT_SCALP_FILL = False
+#: a hair Gaussian the reference view shows edge-on (cos between the head's outward normal there
+#: and the direction to the reference camera < `MIN_COS`) whose samples in the other labelled
+#: keyframes fall on skin-labelled pixels for more than this share of their weight (skin + hair
+#: labels) is dropped from the hair (`colour_from_views(drop_skin_hair=)`; None: kept). The
+#: reference photo sees the sides of the head at its silhouette, where its hair label reaches
+#: over the temples and ears the lifter's shell then covers; the keyframes turned toward that
+#: side face it and see the skin there. Not in the drafts the turned keyframes are registered
+#: against (`VideoViews.drops_skin_hair`): the registration reads the poses from them. Off.
+#: Session 21 (docs/video-build.md, "The temples' hair on the mesh subject"), eased clip, 0.5
+#: against None (front / +45 / -45 / +90 / -90 dB): mesh subject seed 0 +0.03 / +0.07 / +0.05 /
+#: -0.01 / +0.07 (seed 1 within -0.01..+0.06), sample avatar +0.01..+0.20 (seed 1 +0.05..+0.14),
+#: the held-out bob +0.48 / +0.37 / 0.00 / +0.35 / **-0.10** (seed 1 -0.39 at -90: strands
+#: over its parting the keyframes see as skin between them); 0.7: the bob still -0.04 at -90,
+#: the mesh subject -0.07 at +90
+EDGE_HAIR_ON_SKIN: float | None = None
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -593,16 +610,34 @@ def silhouette_outside(points: np.ndarray, views: list[View], margin: float | No
     return count
 
 
+def label_weights(means: np.ndarray, samples: list[Samples], views: list[View], labels) -> np.ndarray:
+    """(N,) the summed sample weight of the non-reference labelled views whose segmentation
+    labels one of `labels` at the pixel each Gaussian's centre (means (N, 3)) projects to."""
+    out = np.zeros(len(means))
+    for s, v in zip(samples, views):
+        if v.reference or v.labels is None:
+            continue
+        px, _ = v.camera.project(means)
+        px = np.asarray(px, np.float64)
+        h, w = v.labels.shape
+        ix = np.clip(np.floor(np.where(np.isfinite(px), px, 0)).astype(np.int64), 0, [w - 1, h - 1])
+        on = np.isin(v.labels[ix[:, 1], ix[:, 0]], labels)
+        out += np.where(s.seen & on, s.weight, 0.0)
+    return out
+
+
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
-                      body: np.ndarray | None = None, scalp: np.ndarray | None = None):
+                      body: np.ndarray | None = None, scalp: np.ndarray | None = None,
+                      drop_skin_hair: bool = False):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
     (`fill_hidden_hair`). normals: (N_bald + N_hair, 3) outward normals; keep: (N,) bool rows
     left as they are (the neck); body: (N,) bool rows that may sample a turned keyframe's body
     pixels on its head (`view_samples(body=)`, `SCALP_BODY`); scalp: (N,) bool bald rows that no
-    view saw are filled from the nearest seen ones of them (`SCALP_FILL`). Returns (bald, hair,
-    figures)."""
+    view saw are filled from the nearest seen ones of them (`SCALP_FILL`); drop_skin_hair: hair
+    the reference shows edge-on that the other keyframes see on skin is dropped
+    (`EDGE_HAIR_ON_SKIN`). Returns (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
@@ -624,6 +659,15 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
             scalp &= ~np.asarray(keep, bool)
         hidden = scalp & ~seen & away
         colours, scalp_filled = fill_hidden_hair(both.means, colours, scalp & seen, hidden)
+    on_skin = np.zeros(len(both), bool)
+    if drop_skin_hair and EDGE_HAIR_ON_SKIN is not None:
+        from avatarkit.recon.segment import HAIR, SKIN
+
+        # hair the reference shows edge-on, that the keyframes facing it see as skin
+        means = np.asarray(both.means, np.float64)
+        skin_w = label_weights(means, samples, views, (SKIN,))
+        hair_w = label_weights(means, samples, views, (HAIR,))
+        on_skin = is_hair & away & (skin_w > EDGE_HAIR_ON_SKIN * (skin_w + hair_w)) & (skin_w > 0)
     seen_by = np.stack([s.seen for s in samples])                  # (V, N)
     # ... and only where the reference view looks at a grazing angle or from behind: what it
     # faces (the brows, say) the reference photo's matching colours best
@@ -631,11 +675,15 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
+               "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
     both = both.with_colors(colours)
-    figures["_only_others"] = (np.asarray(both.means, np.float64)[only_others], colours[only_others])
-    return bald.replace(sh=both.sh[:len(bald)]), hair.replace(sh=both.sh[len(bald):]), figures
+    figures["_only_others"] = (np.asarray(both.means, np.float64)[only_others & ~on_skin], colours[only_others & ~on_skin])
+    hair = hair.replace(sh=both.sh[len(bald):])
+    if on_skin.any():
+        hair = hair.subset(~on_skin[len(bald):])
+    return bald.replace(sh=both.sh[:len(bald)]), hair, figures
 
 
 @dataclass
@@ -797,6 +845,11 @@ class VideoViews:
         `DRAFT_SCALP_FILL`."""
         return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
 
+    def drops_skin_hair(self) -> bool:
+        """Whether `colour` drops the hair the reference shows edge-on that the keyframes see on
+        skin (`EDGE_HAIR_ON_SKIN`): not in a registration draft (info["draft"])."""
+        return bool(EDGE_HAIR_ON_SKIN is not None and not self.info.get("draft", False))
+
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
         figures)."""
@@ -809,13 +862,14 @@ class VideoViews:
             keep = neck_kept(keep, both, views[0].camera, NECK_SHOWN)
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
         scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
-        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp)
+        bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
+                                                drop_skin_hair=self.drops_skin_hair())
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures
 
 
-__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_MARGIN",
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
            "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "neck_kept", "person_weight", "pose_matrix",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
