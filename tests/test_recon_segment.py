@@ -272,3 +272,27 @@ def test_light_wall_is_renoised_as_before():
     flat_dark_hair = S._flat_pixels(img) & (sp.labels == HAIR)
     assert flat_dark_hair.sum() > 100
     assert (S._renoise_flat(img, wall) == S._renoise_flat(img)).all()
+
+
+@pytest.mark.parametrize("wall_rgb", [(55, 55, 55), (25, 23, 20)], ids=["dark-grey", "near-black"])
+def test_a_head_filling_the_frame_on_a_flat_dark_wall_is_not_the_whole_frame(wall_rgb, monkeypatch):
+    """`segment.WALL_TAKEN`: a head filling the frame (a video frame at 192 px: no "far" zone of
+    sure background) on a flat dark wall. GrabCut on the image with the wall's dark flat pixels
+    re-noised (`RENOISE_DARK_WALL`) took the whole frame as the person (and the wall as hair);
+    run again with the light flat pixels alone re-noised, the person is the person."""
+    from avatarkit.recon import segment as S
+
+    sp = synthetic_portrait(size=256, blur=1.0, noise=0, background_rgb=wall_rgb)
+    y0, x0, n = 40, 48, 160        # the central 160 px: the head fills the frame
+    image = np.ascontiguousarray(sp.image[y0:y0 + n, x0:x0 + n])
+    truth = sp.labels[y0:y0 + n, x0:x0 + n]
+    x, y, w, h = sp.face_box
+    a = analysis_from_box((n, n), (x - x0, y - y0, w, h))
+    u, v = a.face_grid((n, n))
+    assert not S.face_regions(u, v)["far"].any()       # no sure background to learn from
+    seg = segment_portrait(image, a)
+    out, far, lost = outline_offsets(seg.person, truth != BACKGROUND)
+    assert out < 0.5 and far <= 40 and lost < 0.5, (out, far, lost)
+    assert iou(seg.hair, truth == HAIR) > 0.95
+    monkeypatch.setattr(S, "WALL_TAKEN", None)
+    assert segment_portrait(image, a).person.mean() > 0.99   # the rule before: the whole frame

@@ -232,6 +232,15 @@ WALL_BIN = 4
 #: ...that hold at least this share of the wall zone's pixels (a few stray flat pixels on a
 #: light wall are no flat dark wall)
 WALL_MIN_SHARE = 0.002
+#: when GrabCut on the re-noised image (`RENOISE_DARK_WALL`) keeps at least this share of the
+#: wall zone (what it starts as probable background) as person, it is run again with only the
+#: light flat pixels re-noised, and that person kept when it leaves more wall (None: never).
+#: A head filling the frame (a video at 192 px: no "far" zone of sure background) on a flat
+#: dark or coloured wall: the re-noised wall inside the head ellipse taught the person's
+#: mixture the wall, and GrabCut took the whole frame as person, labelled hair (the bob on a
+#: dark grey / teal wall: 36,864 of 36,864 px person; 14,990 / 16,519 with the light pixels
+#: alone re-noised). Session 21 (docs/video-build.md, "Non-white walls").
+WALL_TAKEN = 0.98
 
 
 def _colour_bins(img: np.ndarray) -> np.ndarray:
@@ -335,6 +344,12 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
         return np.ones(img.shape[:2], bool)
     wall = ~(reg["head_zone"] | reg["torso"])
     person = _grabcut(_renoise_flat(img, wall) if boundary else img, gc, iterations)
+    taken = WALL_TAKEN
+    if boundary and RENOISE_DARK_WALL and taken is not None and wall.any() and person[wall].mean() >= taken:
+        # the re-noised dark wall took the frame (`WALL_TAKEN`): the light flat pixels alone
+        again = _grabcut(_renoise_flat(img), gc, iterations)
+        if again[wall].mean() < person[wall].mean():
+            person = again
     person = _keep_touching(person, sure) | sure
     person = ndimage.binary_fill_holes(person)
     if not boundary:
