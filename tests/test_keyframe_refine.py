@@ -232,21 +232,13 @@ def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, mon
     assert seen == [shifted] and [k.frame for k in added] == [9]
 
 
-def test_the_views_of_the_frames_registered_at_the_turns_ends_are_marked(monkeypatch):
-    """`VideoViews.register` marks the views of the frames `register_turned` added
-    (`View.info["turned_end"]`, read by `recon.hair_hull.TURNED_MARGIN`), and no other."""
+def _sphere_views():
+    """A sphere "fit" seen from the front and four keyframes at yaw 0, 30, -80 and 80 degrees
+    (frames 10, 11, 55, 20), the last two registered at the turns' ends: (fit, image, views)."""
     import trimesh
 
-    import avatarkit.recon.multiview as mv
-    import avatarkit.recon.portrait as portrait
-    from avatarkit.errors import AvatarKitError
     from avatarkit.render.camera import Camera
 
-    def no_face(*a, **k):
-        raise AvatarKitError("no face")
-
-    monkeypatch.setattr(portrait, "analyze_portrait", no_face)
-    monkeypatch.setattr(mv, "RELABEL_KEYFRAMES", False)
     mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.08)
     camera = Camera.orbit(np.zeros(3), 0.0, 0.0, 0.5, 35.0, 32, 32)
     fit = SimpleNamespace(camera=camera, rotation=np.zeros(3), translation=np.zeros(3),
@@ -254,7 +246,22 @@ def test_the_views_of_the_frames_registered_at_the_turns_ends_are_marked(monkeyp
     image = np.zeros((32, 32, 3), np.uint8)
     poses = [pose_from_params([math.radians(y), 0, 0, 0, 0, -0.5]) for y in (0.0, 30.0, -80.0, 80.0)]
     keys = [Keyframe(image, p, 1.0, f) for p, f in zip(poses, (10, 11, 55, 20))]
-    views = VideoViews(np.zeros(10), keys, {"registered": [{"frame": 55}, {"frame": 20}]})
+    return fit, image, VideoViews(np.zeros(10), keys, {"registered": [{"frame": 55}, {"frame": 20}]})
+
+
+def test_the_views_of_the_frames_registered_at_the_turns_ends_are_marked(monkeypatch):
+    """`VideoViews.register` marks the views of the frames `register_turned` added
+    (`View.info["turned_end"]`, read by `recon.hair_hull.TURNED_MARGIN`), and no other."""
+    import avatarkit.recon.multiview as mv
+    import avatarkit.recon.portrait as portrait
+    from avatarkit.errors import AvatarKitError
+
+    def no_face(*a, **k):
+        raise AvatarKitError("no face")
+
+    monkeypatch.setattr(portrait, "analyze_portrait", no_face)
+    monkeypatch.setattr(mv, "RELABEL_KEYFRAMES", False)
+    fit, image, views = _sphere_views()
     made = views.register(fit, image, np.zeros((32, 32), np.int32))
     assert [v.info.get("turned_end", False) for v in made] == [False, False, True, True]
 
@@ -263,12 +270,9 @@ def test_only_the_turned_end_frames_relabel_strands_beyond_the_reach(monkeypatch
     """`VideoViews.register` hands `RELABEL_CONNECTED` to `relabel_head` for the views of the
     frames registered at the turns' ends alone (`RELABEL_CONNECTED_IN` "turned_end"), to every
     keyframe's with "all"."""
-    import trimesh
-
     import avatarkit.recon.multiview as mv
     import avatarkit.recon.portrait as portrait
     from avatarkit.errors import AvatarKitError
-    from avatarkit.render.camera import Camera
 
     def no_face(*a, **k):
         raise AvatarKitError("no face")
@@ -283,14 +287,7 @@ def test_only_the_turned_end_frames_relabel_strands_beyond_the_reach(monkeypatch
     monkeypatch.setattr(mv, "reference_colours", lambda image, labels: object())
     monkeypatch.setattr(mv, "relabel_head", spy)
     monkeypatch.setattr(mv, "RELABEL_CONNECTED", 0.15)
-    mesh = trimesh.creation.icosphere(subdivisions=1, radius=0.08)
-    camera = Camera.orbit(np.zeros(3), 0.0, 0.0, 0.5, 35.0, 32, 32)
-    fit = SimpleNamespace(camera=camera, rotation=np.zeros(3), translation=np.zeros(3),
-                          rest_vertices=np.asarray(mesh.vertices), model=SimpleNamespace(faces=np.asarray(mesh.faces)))
-    image = np.zeros((32, 32, 3), np.uint8)
-    poses = [pose_from_params([math.radians(y), 0, 0, 0, 0, -0.5]) for y in (0.0, 30.0, -80.0, 80.0)]
-    keys = [Keyframe(image, p, 1.0, f) for p, f in zip(poses, (10, 11, 55, 20))]
-    views = VideoViews(np.zeros(10), keys, {"registered": [{"frame": 55}, {"frame": 20}]})
+    fit, image, views = _sphere_views()
     views.register(fit, image, np.zeros((32, 32), np.int32))
     assert calls == [None, 0.15, 0.15]
     calls.clear()

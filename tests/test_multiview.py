@@ -146,6 +146,18 @@ def _noisy(shape, colour, rng):
     return np.clip(np.asarray(colour, np.float64) + rng.normal(0, 4, (*shape, 3)), 0, 255).astype(np.uint8)
 
 
+def _reference(n, skin_rgb, hair_rgb, wall_rgb, rng):
+    """A reference photo n x n and its labels: skin on the left half, hair on the right half of
+    a band (rows 20:60), wall elsewhere."""
+    from avatarkit.recon.segment import BACKGROUND, HAIR, SKIN
+
+    ref = _noisy((n, n), wall_rgb, rng)
+    ref_labels = np.full((n, n), BACKGROUND)
+    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
+    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    return ref, ref_labels
+
+
 def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     """A keyframe whose segmentation called the hair at the back of the head "body" and lost
     part of it to the background (what a portrait segmentation does to a turned head): within
@@ -158,10 +170,7 @@ def test_turned_keyframe_head_is_relabelled_by_the_reference_colours():
     skin_rgb, hair_rgb, wall_rgb, shirt_rgb = (220, 170, 140), (70, 45, 25), (245, 245, 245), (40, 90, 200)
     n = 96
     # the reference: skin on the left half, hair on the right half of a band, wall elsewhere
-    ref = _noisy((n, n), wall_rgb, rng)
-    ref_labels = np.full((n, n), BACKGROUND)
-    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
-    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    ref, ref_labels = _reference(n, skin_rgb, hair_rgb, wall_rgb, rng)
     # the keyframe: face 20:60 x 20:50, hair 20:60 x 50:70 (labelled body, its outer part
     # background), a shirt below the head (body), the wall; a far dark patch at the corner
     img = _noisy((n, n), wall_rgb, rng)
@@ -198,10 +207,7 @@ def test_strands_hanging_beyond_the_reach_are_relabelled_when_connected():
     rng = np.random.default_rng(1)
     skin_rgb, hair_rgb, wall_rgb = (220, 170, 140), (40, 30, 25), (245, 245, 245)
     n = 96
-    ref = _noisy((n, n), wall_rgb, rng)
-    ref_labels = np.full((n, n), BACKGROUND)
-    ref[20:60, 10:45], ref_labels[20:60, 10:45] = _noisy((40, 35), skin_rgb, rng), SKIN
-    ref[20:60, 45:80], ref_labels[20:60, 45:80] = _noisy((40, 35), hair_rgb, rng), HAIR
+    ref, ref_labels = _reference(n, skin_rgb, hair_rgb, wall_rgb, rng)
     # a profile frame without a face for the segmentation: every pixel background
     img = _noisy((n, n), wall_rgb, rng)
     img[20:50, 20:45] = _noisy((30, 25), skin_rgb, rng)
