@@ -2,8 +2,8 @@
 run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip] [--frames N] [--skip-real]
-[--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--no-multiview-hair] [--no-register]
-[--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
+[--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--seed N] [--wall white|dark|colour|clutter]
+[--no-multiview-hair] [--no-register] [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
 `recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
 two session-12 options, both off by default; `AVATARKIT_OPEN_MOUTH=0|1` the teeth and parted lips
 (`recon.mouth`, session 14, off), `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline fitted to
@@ -61,7 +61,7 @@ from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its fol
 
 
 def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
-           multiview_hair: bool, subject: str = "avatar", register: bool = True) -> tuple[dict, dict, float]:
+           multiview_hair: bool, subject: str = "avatar", register: bool = True, seed: int = 0) -> tuple[dict, dict, float]:
     """One build of the synthetic video (kind "video") or of its reference frame ("single") and
     its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
     fresh process: a build made after another one in the same process used to measure
@@ -97,7 +97,7 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     if os.environ.get("AVATARKIT_OUTLINE_POSES") in ("tracked", "registered", "registered-all"):
         video_build.OUTLINE_POSES = os.environ["AVATARKIT_OUTLINE_POSES"]
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
-    opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid")
+    opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid", seed=seed)
     t0 = time.perf_counter()
     avatar = build_video_avatar(path, opts) if kind == "video" else build_avatar(png, opts)
     wall = time.perf_counter() - t0
@@ -128,33 +128,39 @@ def make_clip(kind: str, frames: int | None):
 
 def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, style: str = "short",
               multiview_hair: bool = True, subject: str = "avatar", clip_kind: str = "eased",
-              register: bool = True) -> None:
+              register: bool = True, seed: int = 0, wall: str = "white") -> None:
     from avatarkit.export.images import write_png
     from avatarkit.video import read_frame
 
     path = os.path.join(tmp, f"turn_{subject}.mp4")
     clip = make_clip(clip_kind, frames)
     frames = clip.n_frames
+    from avatarkit.synthetic.walls import wall_image
+
+    # the wall behind the video only: both builds are scored over white, as always
+    background = (1.0, 1.0, 1.0) if wall == "white" else wall_image(wall, size)
     if subject == "mesh":
         from avatarkit.synthetic.mesh_head import MeshHead, turning_video
 
-        turning_video(MeshHead.make(), path, size=size, clip=clip)
+        turning_video(MeshHead.make(), path, size=size, clip=clip, background=background)
         what = "the mesh subject (textured template mesh + hair cap, rasterised)"
     else:
         from avatarkit.synthetic.sample_avatar import make_sample_avatar
         from avatarkit.synthetic.turning_video import write_turning_video
 
         truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
-        write_turning_video(truth, path, size=size, clip=clip)
+        write_turning_video(truth, path, size=size, clip=clip, background=background)
         what = f"sample avatar with {style} hair"
-    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register)
+    what += f", {wall} wall" if wall != "white" else ""
+    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register, seed)
     ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject)
+    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject, True, seed)
     keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
     print(f"synthetic turning video ({clip_kind} clip, {frames} frames {size}x{size}, {what}; keyframes "
-          f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair, each in its own process")
+          f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair (lifter seed {seed}), each in its own "
+          "process")
     from avatarkit.track.keyframes import yaw_pitch
     from avatarkit.track.neck import head_rotation
 
@@ -269,6 +275,9 @@ def main() -> None:
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="tiny sizes, synthetic only (CI)")
     ap.add_argument("--style", default="short", help="the synthetic subject's hair style (synthetic.HAIR_STYLES)")
+    ap.add_argument("--seed", type=int, default=0, help="the builds' lifter seed (BuildOptions.seed)")
+    ap.add_argument("--wall", default="white", choices=("white", "dark", "colour", "clutter"),
+                    help="the wall behind the synthetic video (synthetic.walls; the renders are scored over white)")
     ap.add_argument("--subject", default="both", choices=("both", "avatar", "mesh"),
                     help="synthetic subject: the sample avatar (splatted), the mesh subject (rasterised), or both")
     ap.add_argument("--no-multiview-hair", action="store_true",
@@ -310,7 +319,7 @@ def main() -> None:
         if not a.skip_synthetic:
             for subject in subjects:
                 synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair, subject, a.clip,
-                          not a.no_register)
+                          not a.no_register, a.seed, a.wall)
         if a.time_synthetic:
             from avatarkit.synthetic.sample_avatar import make_sample_avatar
             from avatarkit.synthetic.turning_video import write_turning_video

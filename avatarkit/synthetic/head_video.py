@@ -106,9 +106,14 @@ def avatar_video(avatar, clip, camera: Camera, background=(1.0, 1.0, 1.0), stati
     from avatarkit.export.images import to_uint8
     from avatarkit.render import render
     from avatarkit.sim.config import SimConfig
+    from avatarkit.synthetic.walls import over_wall
 
     config = BakeConfig(sim=SimConfig(static=static_hair))
     static, frames = bake(avatar, clip, config)
+    # background: an (r, g, b) colour, or an (H, W, 3) image (`synthetic.walls`) put under a
+    # render made over black
+    wall = np.asarray(background, np.float32) if np.ndim(background) == 3 else None
     for frame in frames:
-        r = render(frame.person(static, avatar.has_hair), camera, background)
-        yield SyntheticFrame(frame.index, frame.index / clip.fps, to_uint8(r.rgb))
+        r = render(frame.person(static, avatar.has_hair), camera, (0.0, 0.0, 0.0) if wall is not None else background)
+        rgb = r.rgb if wall is None else over_wall(r.rgb, r.alpha, wall)
+        yield SyntheticFrame(frame.index, frame.index / clip.fps, to_uint8(rgb))

@@ -185,7 +185,8 @@ class MeshHead:
 def turning_video(subject: MeshHead, path, size: int = 192, frames: int = 32, distance: float = 0.5,
                   clip=None, background=(1.0, 1.0, 1.0)):
     """The subject turning its head (`turning_video.turning_clip`), rendered from the tracker's
-    camera (`head_video.head_video_camera`) to an H.264 video at `path`; returns the clip."""
+    camera (`head_video.head_video_camera`) to an H.264 video at `path`, over `background` (an
+    (r, g, b) colour or a (size, size, 3) image, `synthetic.walls`); returns the clip."""
     from avatarkit.export.images import to_uint8
     from avatarkit.export.video import write_video
     from avatarkit.synthetic.head_video import head_video_camera
@@ -193,8 +194,15 @@ def turning_video(subject: MeshHead, path, size: int = 192, frames: int = 32, di
 
     clip = clip or turning_clip(frames)
     camera = head_video_camera(size, distance=distance)
-    write_video(path, (to_uint8(subject.render(camera, subject.posed(clip, i), background)[0])
-                       for i in range(clip.n_frames)), fps=clip.fps, crf=12)
+    if np.ndim(background) == 3:
+        # an (H, W, 3) wall image (`synthetic.walls`) under a render made over black
+        from avatarkit.synthetic.walls import over_wall
+
+        frames_rgb = (over_wall(*subject.render(camera, subject.posed(clip, i), (0.0, 0.0, 0.0)), background)
+                      for i in range(clip.n_frames))
+    else:
+        frames_rgb = (subject.render(camera, subject.posed(clip, i), background)[0] for i in range(clip.n_frames))
+    write_video(path, (to_uint8(f) for f in frames_rgb), fps=clip.fps, crf=12)
     return clip
 
 

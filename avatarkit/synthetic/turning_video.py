@@ -70,8 +70,9 @@ def eased_turning_clip(frames: int = 96, yaw: float = math.radians(80.0), pitch:
 
 def write_turning_video(avatar, path, size: int = 192, frames: int = 32, distance: float = 0.5,
                         clip=None, background=(1.0, 1.0, 1.0)):
-    """Render `avatar` driven by `turning_clip` (or `clip`) to an H.264 video at `path`;
-    returns the clip."""
+    """Render `avatar` driven by `turning_clip` (or `clip`) to an H.264 video at `path`, over
+    `background` (an (r, g, b) colour or a (size, size, 3) image, `synthetic.walls`); returns
+    the clip."""
     from avatarkit.export.video import write_video
     from avatarkit.synthetic.head_video import avatar_video, head_video_camera
 
