@@ -3,7 +3,7 @@ run in the same process).
 
 Run: `.venv/bin/python benchmarks/build_video.py [--size 192] [--clip eased|whip] [--frames N] [--skip-real]
 [--quick] [--style short|bob|...] [--subject both|avatar|mesh] [--seed N] [--wall white|dark|colour|clutter]
-[--no-multiview-hair] [--no-register] [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
+[--set MODULE.NAME=VALUE ...] [--no-multiview-hair] [--no-register] [--facing-refine]`; `AVATARKIT_HAIR_END=0|1` (the lifter's hair end from the turned keyframes,
 `recon.hair_end`) and `AVATARKIT_GROW_BARE=0|1` (the hull's growth over bare scalp) switch the
 two session-12 options, both off by default; `AVATARKIT_OPEN_MOUTH=0|1` the teeth and parted lips
 (`recon.mouth`, session 14, off), `AVATARKIT_HAIR_OUTLINE=0|1` the hair's outline fitted to
@@ -61,7 +61,8 @@ from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its fol
 
 
 def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
-           multiview_hair: bool, subject: str = "avatar", register: bool = True, seed: int = 0) -> tuple[dict, dict, float]:
+           multiview_hair: bool, subject: str = "avatar", register: bool = True, seed: int = 0,
+           switches: tuple[str, ...] = ()) -> tuple[dict, dict, float]:
     """One build of the synthetic video (kind "video") or of its reference frame ("single") and
     its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
     fresh process: a build made after another one in the same process used to measure
@@ -73,6 +74,8 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     from avatarkit.synthetic.turning_video import novel_view_psnr
     from avatarkit.track import video_build
     from avatarkit.track.video_build import build_video_avatar
+
+    from _switches import apply_switches
 
     video_build.REGISTER_TURNED = register
     video_build.REGISTER_MODE = os.environ.get("AVATARKIT_REGISTER_MODE", video_build.REGISTER_MODE)
@@ -97,6 +100,7 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     if os.environ.get("AVATARKIT_OUTLINE_POSES") in ("tracked", "registered", "registered-all"):
         video_build.OUTLINE_POSES = os.environ["AVATARKIT_OUTLINE_POSES"]
     pipeline.MULTIVIEW_HAIR_DIRECTIONS = pipeline.GROW_HAIR_HULL = multiview_hair
+    apply_switches(switches)                 # last: `--set` wins over the environment's switches
     opts = BuildOptions(n_bald=counts[0], n_hair=counts[1], preview=False, hair_mode="rigid", seed=seed)
     t0 = time.perf_counter()
     avatar = build_video_avatar(path, opts) if kind == "video" else build_avatar(png, opts)
@@ -128,7 +132,7 @@ def make_clip(kind: str, frames: int | None):
 
 def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, style: str = "short",
               multiview_hair: bool = True, subject: str = "avatar", clip_kind: str = "eased",
-              register: bool = True, seed: int = 0, wall: str = "white") -> None:
+              register: bool = True, seed: int = 0, wall: str = "white", switches: tuple[str, ...] = ()) -> None:
     from avatarkit.export.images import write_png
     from avatarkit.video import read_frame
 
@@ -152,11 +156,13 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
         write_turning_video(truth, path, size=size, clip=clip, background=background)
         what = f"sample avatar with {style} hair"
     what += f", {wall} wall" if wall != "white" else ""
-    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register, seed)
+    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register, seed,
+                                   tuple(switches))
     ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject, True, seed)
+    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject, True, seed,
+                                tuple(switches))
     keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
     print(f"synthetic turning video ({clip_kind} clip, {frames} frames {size}x{size}, {what}; keyframes "
           f"{keys}, reference {ref}); builds {counts[0]} bald + {counts[1]} hair (lifter seed {seed}), each in its own "
@@ -275,6 +281,9 @@ def main() -> None:
     ap.add_argument("--skip-synthetic", action="store_true")
     ap.add_argument("--quick", action="store_true", help="tiny sizes, synthetic only (CI)")
     ap.add_argument("--style", default="short", help="the synthetic subject's hair style (synthetic.HAIR_STYLES)")
+    ap.add_argument("--set", dest="switches", action="append", default=[], metavar="MODULE.NAME=VALUE",
+                    help="set a library switch for every build, e.g. recon.multiview.RELABEL_CONNECTED=None "
+                         "(repeatable; benchmarks/_switches.py)")
     ap.add_argument("--seed", type=int, default=0, help="the builds' lifter seed (BuildOptions.seed)")
     ap.add_argument("--wall", default="white", choices=("white", "dark", "colour", "clutter"),
                     help="the wall behind the synthetic video (synthetic.walls; the renders are scored over white)")
@@ -290,6 +299,13 @@ def main() -> None:
                     help="also time the build of a 250-frame 480x480 synthetic turning video")
     a = ap.parse_args()
     print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
+    from _switches import apply_switches
+
+    try:
+        for line in apply_switches(a.switches):      # here too: the timed builds run in this process
+            print(f"switch: {line}")
+    except ValueError as e:
+        ap.error(str(e))
     if a.facing_refine:
         os.environ["AVATARKIT_FACING_REFINE"] = "1"      # read by each build's own process
     if os.environ.get("AVATARKIT_FACING_REFINE") == "1":
@@ -319,7 +335,7 @@ def main() -> None:
         if not a.skip_synthetic:
             for subject in subjects:
                 synthetic(a.size, a.frames, (8000, 4000), tmp, a.style, not a.no_multiview_hair, subject, a.clip,
-                          not a.no_register, a.seed, a.wall)
+                          not a.no_register, a.seed, a.wall, a.switches)
         if a.time_synthetic:
             from avatarkit.synthetic.sample_avatar import make_sample_avatar
             from avatarkit.synthetic.turning_video import write_turning_video

@@ -88,3 +88,36 @@ def test_benchmark_runs_in_a_fresh_clone(clone, script):
                        capture_output=True, text=True, timeout=1800)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert r.stdout.strip(), "a benchmark prints its figures"
+
+
+def _import_switches():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import _switches
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    return _switches
+
+
+def test_a_switch_set_from_the_benchmarks_command_line_reaches_the_library(monkeypatch):
+    """`--set module.NAME=value` (benchmarks/_switches.py): the value is a Python literal or else
+    the bare text; the module is found under avatarkit; a switch that is not there, not
+    UPPERCASE, or a text without "=" is refused by name; once set, the library reads it when
+    called (docs/development.md, "Module switches")."""
+    import avatarkit.recon.multiview as mv
+
+    sw = _import_switches()
+    module, name, value = sw.parse_switch("recon.multiview.RELABEL_CONNECTED=None")
+    assert module is mv and name == "RELABEL_CONNECTED" and value is None
+    assert sw.parse_switch("avatarkit.recon.multiview.RELABEL_REACH=0.2")[2] == 0.2
+    assert sw.parse_switch("recon.hair_outline.VETO=direction")[2] == "direction"
+    assert sw.parse_switch("recon.hair_outline.VETO='band'")[2] == "band"
+    for bad, what in (("recon.multiview.NO_SUCH=1", "has no NO_SUCH"), ("recon.nowhere.X=1", "no module"),
+                      ("recon.multiview.view_samples=1", "not a module switch"), ("recon.multiview.SCALP_FILL", "expected")):
+        with pytest.raises(ValueError, match=what):
+            sw.parse_switch(bad)
+    monkeypatch.setattr(mv, "SCALP_FILL", mv.SCALP_FILL)          # restored after the test
+    views = mv.VideoViews(np.zeros(10), [], {})
+    assert views.fills_scalp()
+    assert sw.apply_switches(["recon.multiview.SCALP_FILL=False"]) == ["avatarkit.recon.multiview.SCALP_FILL = False"]
+    assert not views.fills_scalp()
