@@ -17,13 +17,19 @@ SCRIPTS = sorted(p.name for p in (ROOT / "benchmarks").glob("*.py")
 SHARED_SCENE = ROOT.parent / "shared" / "bench" / "make_scene.py"
 
 
-def _import_make_scene():
+def _import_bench(name: str):
+    """A module of benchmarks/ (run as scripts there, they import each other by bare name)."""
+    import importlib
+
     sys.path.insert(0, str(ROOT / "benchmarks"))
     try:
-        import make_scene
+        return importlib.import_module(name)
     finally:
         sys.path.remove(str(ROOT / "benchmarks"))
-    return make_scene
+
+
+def _import_make_scene():
+    return _import_bench("make_scene")
 
 
 def test_scene_is_the_standard_definition(tmp_path):
@@ -90,15 +96,6 @@ def test_benchmark_runs_in_a_fresh_clone(clone, script):
     assert r.stdout.strip(), "a benchmark prints its figures"
 
 
-def _import_switches():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        import _switches
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-    return _switches
-
-
 def test_a_switch_set_from_the_benchmarks_command_line_reaches_the_library(monkeypatch):
     """`--set module.NAME=value` (benchmarks/_switches.py): the value is a Python literal or else
     the bare text; the module is found under avatarkit; a switch that is not there, not
@@ -106,7 +103,7 @@ def test_a_switch_set_from_the_benchmarks_command_line_reaches_the_library(monke
     called (docs/development.md, "Module switches")."""
     import avatarkit.recon.multiview as mv
 
-    sw = _import_switches()
+    sw = _import_bench("_switches")
     module, name, value = sw.parse_switch("recon.multiview.RELABEL_CONNECTED=None")
     assert module is mv and name == "RELABEL_CONNECTED" and value is None
     assert sw.parse_switch("avatarkit.recon.multiview.RELABEL_REACH=0.2")[2] == 0.2
