@@ -235,3 +235,41 @@ def test_the_near_plane_is_read_when_called_by_the_renderer_and_its_reference(mo
     assert not pipeline.project_gaussians(g, cam).visible.any()
     assert not reference.project_reference(g, cam).visible.any()
     assert pipeline.render(g, cam).alpha.max() == 0.0
+
+
+# switches another module used to copy in at import (`from avatarkit.X import NAME` at the top,
+# read in a function body): each now read from its home when called (session 21)
+READ_AT_HOME = {
+    "avatarkit/recon/bald.py": {"MATCH_D2"},
+    "avatarkit/recon/hair_fill.py": {"HAIR_THICKNESS"},
+    "avatarkit/recon/hair_directions.py": {"REFERENCE_WEIGHT"},
+    "avatarkit/recon/bald_discs.py": {"MIN_FACING"},
+    "avatarkit/recon/hair_strands.py": {"DEPTH_TOL"},
+    "avatarkit/recon/lift.py": {"FILL_SHARE", "HAIR_REFERENCE_COUNT", "HAIR_THICKNESS", "HAIR_WIDTH", "MARGIN", "SEGMENT"},
+    "avatarkit/recon/hair_outline.py": {"ALPHA_MIN"},
+    "avatarkit/recon/hair_hull.py": {"HAIR_THICKNESS", "MAX_SHELL", "ALPHA_MIN", "EDGE_MARGIN", "DEPTH_TOL"},
+    "avatarkit/track/video_build.py": {"TURNED_EDGE"},
+}
+
+
+@pytest.mark.parametrize("path", sorted(READ_AT_HOME))
+def test_switches_of_other_modules_are_not_copied_in_at_import(path):
+    """None of these switches is bound by a module-level `from avatarkit.X import NAME` in the
+    module that reads it (a copy made at import that setting the home's constant never reaches)."""
+    import ast
+
+    tree = ast.parse((ROOT / path).read_text())
+    copied = {a.asname or a.name for n in tree.body if isinstance(n, ast.ImportFrom)
+              and (n.module or "").startswith("avatarkit") for a in n.names}
+    assert not (copied & READ_AT_HOME[path]), f"{path} copies {sorted(copied & READ_AT_HOME[path])} at import"
+
+
+def test_a_switch_of_another_module_reaches_the_reader(monkeypatch):
+    """`bald_discs.photo_weight` reads `visibility.MIN_FACING` when called: the photo's share is 0
+    at the floor and 1 from `GRAZING` up, wherever the floor is set."""
+    from avatarkit.recon import bald_discs, visibility
+
+    floor = bald_discs.GRAZING / 2
+    monkeypatch.setattr(visibility, "MIN_FACING", floor)
+    w = bald_discs.photo_weight(np.array([floor, (floor + bald_discs.GRAZING) / 2, bald_discs.GRAZING]))
+    np.testing.assert_allclose(w, [0.0, 0.5, 1.0])

@@ -87,8 +87,8 @@ def test_frames_the_tracker_lost_at_a_turns_ends_are_the_ones_registered():
     # the head turns to 80 degrees each way; the tracking follows to 45 and loses the rest (no
     # face found past 50, a collapsed confidence at 45-50); a short dropout near the front must
     # not be registered (its neighbours have not turned)
-    from avatarkit.track.keyframes import eligible_frames
-    from avatarkit.track.video_build import TURNED_EDGE, turned_frames
+    from avatarkit.track.keyframes import TURNED_EDGE, eligible_frames
+    from avatarkit.track.video_build import turned_frames
 
     true = np.radians(np.concatenate([np.linspace(0, 80, 20), np.full(6, 80.0), np.linspace(80, -80, 30),
                                       np.full(6, -80.0), np.linspace(-80, 0, 20), np.zeros(14)]))

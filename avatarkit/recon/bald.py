@@ -20,8 +20,8 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.recon.fill import harmonic_fill_fast
 from avatarkit.recon.portrait import FACE_PROPORTIONS, PortraitAnalysis
-from avatarkit.recon.segment import (BACKGROUND, HAIR, MATCH_D2, SKIN, Segmentation, face_regions,
-                                     lab_to_rgb, rgb_to_lab)
+from avatarkit.recon.segment import BACKGROUND, HAIR, SKIN, Segmentation, face_regions, lab_to_rgb, rgb_to_lab
+from avatarkit.recon import segment as _segment  # its switches read at call time
 
 
 @dataclass(eq=False)
@@ -52,7 +52,7 @@ def _shading(image, labels, skin_model, u, v) -> tuple[float, float, float, floa
     skin-coloured pixels, so the filled scalp darkens toward the outline the way this face does."""
     sample = (labels == SKIN) & face_regions(u, v)["face_core"]
     lab = rgb_to_lab(image[sample])
-    keep = skin_model.distance2(lab) <= MATCH_D2  # no eyes, brows, lips
+    keep = skin_model.distance2(lab) <= _segment.MATCH_D2  # no eyes, brows, lips
     lum = lab[keep, 0].astype(np.float64)
     nz = _facing(u[sample][keep], v[sample][keep])
     mean_l = float(skin_model.mean[0])
@@ -152,7 +152,7 @@ def make_bald_image(image: np.ndarray, segmentation: Segmentation, analysis: Por
         # Match the real skin at the hairline: harmonic residual from skin-coloured neighbours,
         # zero residual (the pure target) against everything else (background, body, and
         # brows or hair wisps the segmentation left in the face).
-        skinlike = segmentation.skin_model.distance2(rgb_to_lab(img8)) <= MATCH_D2
+        skinlike = segmentation.skin_model.distance2(rgb_to_lab(img8)) <= _segment.MATCH_D2
         residual = np.where(((lbl == SKIN) & skinlike & ~scalp)[:, :, None], img - target, 0.0)
         corr = harmonic_fill_fast(residual, scalp, ~scalp, work_size=work_size)
         out[scalp] = target[scalp] + corr[scalp]

@@ -26,8 +26,9 @@ from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.fit import HeadFit
 from avatarkit.recon.image_sampling import lookup, sample_image
-from avatarkit.recon.visibility import MIN_FACING, depth_map, seen_from
+from avatarkit.recon.visibility import depth_map, seen_from
 from avatarkit.rotations import matrix_to_quat
+from avatarkit.recon import visibility as _visibility  # its switches read at call time
 
 #: bald disc radius = COVERAGE x the radius that would tile its share of the surface
 COVERAGE = 1.5
@@ -101,7 +102,8 @@ def propagate_colors(points: np.ndarray, colors: np.ndarray, known: np.ndarray, 
 def photo_weight(facing: np.ndarray) -> np.ndarray:
     """(N,) share of the photo in a seen skin disc's colour, from its facing (N,) (`GRAZING`):
     1 from GRAZING up, 0 at `visibility.MIN_FACING` and below, linear between."""
-    return np.clip((np.asarray(facing, np.float64) - MIN_FACING) / (GRAZING - MIN_FACING), 0.0, 1.0)
+    low = _visibility.MIN_FACING
+    return np.clip((np.asarray(facing, np.float64) - low) / (GRAZING - low), 0.0, 1.0)
 
 
 def _face_parts(model) -> np.ndarray:

@@ -35,8 +35,9 @@ import numpy as np
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_strands import hair_flow, unit_vectors
 from avatarkit.recon.image_sampling import lookup
-from avatarkit.recon.multiview import REFERENCE_WEIGHT, View, view_samples
+from avatarkit.recon.multiview import View, view_samples
 from avatarkit.rotations import matrix_to_quat, quat_to_matrix
+from avatarkit.recon import multiview as _multiview  # its switches read at call time
 
 #: the prior toward today's single-view direction, relative to the views' summed weight
 PRIOR_WEIGHT = 0.002
@@ -139,7 +140,7 @@ def strand_directions(union: GaussianSet, normals: np.ndarray, hair_rows: np.nda
         px, _ = v.camera.project(means)
         px = np.where(np.isfinite(px), px, -1.0)
         coh = lookup(coherence, px)
-        w = float(v.sharpness) * (REFERENCE_WEIGHT if v.reference else 1.0) * coh
+        w = float(v.sharpness) * (_multiview.REFERENCE_WEIGHT if v.reference else 1.0) * coh
         w = np.where(s.seen[hair_rows] & (coh >= MIN_COHERENCE), w, 0.0)
         f2 = np.stack([lookup(flow[..., 0], px), lookup(flow[..., 1], px)], axis=1)
         planes.append(direction_planes(means, f2, v.camera))

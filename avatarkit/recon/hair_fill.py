@@ -6,9 +6,10 @@ import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.fit import HeadFit
-from avatarkit.recon.hair_strands import HAIR_THICKNESS, GrowthContext, back_project, flow_to_tangent, unit_vectors
+from avatarkit.recon.hair_strands import GrowthContext, back_project, flow_to_tangent, unit_vectors
 from avatarkit.recon.image_sampling import sample_image
 from avatarkit.rotations import matrix_to_quat
+from avatarkit.recon import hair_strands as _hair_strands  # its switches read at call time
 
 #: share of the hair budget kept for filling the photo's hair silhouette (`fill_coverage`)
 FILL_SHARE = 0.1
@@ -58,7 +59,7 @@ def fill_coverage(fit: HeadFit, g: GrowthContext, image: np.ndarray, bald_set: G
     rot = np.stack([t, np.cross(nrm, t), nrm], axis=2)
     pixel = spread * depth / cam.fx                         # metres per pixel at that depth
     m = len(means)
-    scales = np.stack([1.6 * pixel, 0.8 * pixel, np.full(m, HAIR_THICKNESS)], axis=1)
+    scales = np.stack([1.6 * pixel, 0.8 * pixel, np.full(m, _hair_strands.HAIR_THICKNESS)], axis=1)
     rgb = sample_image(image, px) / 255.0
     return GaussianSet.from_colors(means, matrix_to_quat(rot), scales, np.full(m, 0.9), rgb,
                                    extras={"strand": np.full(m, -1, np.int32), "seen": np.ones(m, np.uint8)})

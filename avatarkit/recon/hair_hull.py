@@ -47,11 +47,12 @@ import numpy as np
 
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon import multiview as _multiview
-from avatarkit.recon.hair_strands import HAIR_THICKNESS, MAX_SHELL, unit_vectors
+from avatarkit.recon.hair_strands import unit_vectors
 from avatarkit.recon.image_sampling import lookup, sample_image
-from avatarkit.recon.multiview import ALPHA_MIN, EDGE_MARGIN, View
-from avatarkit.recon.visibility import DEPTH_TOL
+from avatarkit.recon.multiview import View
 from avatarkit.rotations import matrix_to_quat, quat_to_matrix
+from avatarkit.recon import hair_strands as _hair_strands  # its switches read at call time
+from avatarkit.recon import visibility as _visibility  # its switches read at call time
 
 #: ray samples are this far apart (metres)
 STEP = 0.002
@@ -132,7 +133,7 @@ def missing_hair(view: View, alpha: np.ndarray, margin: float | None = None,
     if labels.shape != (h, w):
         labels = cv2.resize(labels.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
     hair = (labels == HAIR).astype(np.uint8)
-    covered = (alpha > ALPHA_MIN).astype(np.uint8)
+    covered = (alpha > _multiview.ALPHA_MIN).astype(np.uint8)
     e = max(1, int(round(margin * max(h, w))))
     eh = e if hair_margin is None else max(1, int(round(hair_margin * max(h, w))))
     hair = cv2.erode(hair, _disc(eh))
@@ -159,11 +160,11 @@ def bare_hair(view: View, alpha: np.ndarray, hair_alpha: np.ndarray, margin: flo
     e = max(1, int(round(margin * max(h, w))))
     hair = cv2.erode((labels == HAIR).astype(np.uint8), _disc(e))
     shown = cv2.dilate((hair_alpha >= BARE_SHARE).astype(np.uint8), _disc(e))
-    bare = (hair > 0) & (alpha > ALPHA_MIN) & (shown == 0)
+    bare = (hair > 0) & (alpha > _multiview.ALPHA_MIN) & (shown == 0)
     if BARE_BAND is not None:
         # only the band inside the avatar's outline: what sets the outline from the side
         b = max(1, int(round(BARE_BAND * max(h, w))))
-        bare &= cv2.dilate((alpha <= ALPHA_MIN).astype(np.uint8), _disc(b)) > 0
+        bare &= cv2.dilate((alpha <= _multiview.ALPHA_MIN).astype(np.uint8), _disc(b)) > 0
     return bare
 
 
@@ -180,7 +181,7 @@ def _contradicted(points: np.ndarray, labels: list[np.ndarray], depths: list[np.
         inside = np.isfinite(px).all(axis=1) & (z > 0)
         px = np.where(inside[:, None], px, -1.0)
         inside &= (px[:, 0] >= 0) & (px[:, 0] < cam.width) & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
-        hidden = (lookup(alpha, px) > ALPHA_MIN) & (z > lookup(depth, px) + DEPTH_TOL)
+        hidden = (lookup(alpha, px) > _multiview.ALPHA_MIN) & (z > lookup(depth, px) + _visibility.DEPTH_TOL)
         bad |= inside & ~hidden & (lookup(lab_image, px) != HAIR)
     return bad
 
@@ -252,8 +253,8 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
         # margin: the only views of the strands hanging off the back of the head
         turned_end = TURNED_MARGIN is not None and v.info.get("turned_end", False)
         if turned_end:
-            miss = missing_hair(v, alphas[i], EDGE_MARGIN if TURNED_COVERED_MARGIN is None else TURNED_COVERED_MARGIN,
-                                TURNED_MARGIN)
+            covered_margin = _multiview.EDGE_MARGIN if TURNED_COVERED_MARGIN is None else TURNED_COVERED_MARGIN
+            miss = missing_hair(v, alphas[i], covered_margin, TURNED_MARGIN)
         else:
             miss = missing_hair(v, alphas[i])
         bare = np.zeros_like(miss) if hair_alphas[i] is None else bare_hair(v, alphas[i], hair_alphas[i], BARE_MARGIN) & ~miss
@@ -270,7 +271,7 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     shell_height = float(np.median(hair_sd))
     hair_axes = quat_to_matrix(hair.quats.astype(np.float64))[:, :, 0]
     centre = np.asarray(bald.means, np.float64).mean(axis=0)
-    extent = float(np.linalg.norm(np.ptp(np.asarray(bald.means, np.float64), axis=0))) / 2 + MAX_SHELL
+    extent = float(np.linalg.norm(np.ptp(np.asarray(bald.means, np.float64), axis=0))) / 2 + _hair_strands.MAX_SHELL
     out_means, out_px_size, out_dirs, out_rgb, out_bare = [], [], [], [], []
     rng = np.random.default_rng(0)
     for i, px, on_scalp in rays:
@@ -286,7 +287,7 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
         pts = c[None, None] + d[:, None, :] * ts[None, :, None]             # (R, T, 3)
         flat = pts.reshape(-1, 3)
         sd, _ = sdf.query(flat)
-        ok = (sd >= MIN_GAP) & (sd <= MAX_SHELL)
+        ok = (sd >= MIN_GAP) & (sd <= _hair_strands.MAX_SHELL)
         # bare scalp is its own anchor: hair there needs no hair nearby (the back of a head whose
         # photo shows hair only on top), only the scalp within BARE_SHELL beneath it
         scalp_ray = np.repeat(on_scalp, pts.shape[1])
@@ -336,7 +337,8 @@ def _grow_once(bald: GaussianSet, hair: GaussianSet, views: list[View], sdf, bud
     m = len(means)
     # over bare scalp the splat fills the hair's volume down to the scalp: a sheet as thin as
     # a strand lies edge-on at the outline of a view from the side and would not widen it
-    thick = np.where(on_scalp, np.maximum(HAIR_THICKNESS, BARE_FILL * height), HAIR_THICKNESS)
+    strand_thickness = _hair_strands.HAIR_THICKNESS
+    thick = np.where(on_scalp, np.maximum(strand_thickness, BARE_FILL * height), strand_thickness)
     scales = np.stack([1.6 * size, 0.8 * size, thick], axis=1)
     extras = {}
     for k, a in hair.extras.items():

@@ -38,7 +38,8 @@ import numpy as np
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.hair_hull import _shrunk
 from avatarkit.recon.hair_strands import unit_vectors
-from avatarkit.recon.multiview import ALPHA_MIN, View, silhouette_outside, soft_person
+from avatarkit.recon.multiview import View, silhouette_outside, soft_person
+from avatarkit.recon import multiview as _multiview  # its switches read at call time
 
 #: a hair Gaussian is on a view's outline within this many pixels (render scale) of it
 ON_OUTLINE = 2.0
@@ -104,7 +105,7 @@ def view_gaps(view: View, alpha: np.ndarray, camera, points: np.ndarray,
     if labels.shape != (h, w):
         labels = cv2.resize(labels.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
         image = cv2.resize(np.asarray(image), (w, h), interpolation=cv2.INTER_AREA) if image is not None else None
-    covered = alpha > ALPHA_MIN
+    covered = alpha > _multiview.ALPHA_MIN
     person = soft_person(labels, image) >= 0.5
     near_hair = ndimage.binary_dilation(labels == HAIR, iterations=HAIR_NEAR)
     hair_gap = person & near_hair & ~covered

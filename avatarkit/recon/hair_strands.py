@@ -32,7 +32,7 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.recon.fit import HeadFit, project_mask
 from avatarkit.recon.image_sampling import lookup, sample_image
-from avatarkit.recon.visibility import DEPTH_TOL
+from avatarkit.recon import visibility as _visibility  # its switches read at call time
 
 #: hair keeps at least this clearance (metres) above the scalp
 MARGIN = 0.002
@@ -301,7 +301,7 @@ def hidden_from_camera(g: GrowthContext, p: np.ndarray, px: np.ndarray) -> np.nd
 
     dpx, dz = g.depth_camera.project(p)
     d = lookup(g.head_depth, dpx)
-    behind_head = (d > 0) & (dz > d + DEPTH_TOL)
+    behind_head = (d > 0) & (dz > d + _visibility.DEPTH_TOL)
     lab = lookup(g.labels, px)
     behind_body = ((lab == BODY) | ((lab == SKIN) & ~lookup(g.shell.head, px))) & (p[:, 2] < g.neck_z)
     return behind_head | behind_body

@@ -25,15 +25,15 @@ from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.bald_discs import lift_bald
 from avatarkit.recon.fit import HeadFit
-from avatarkit.recon.hair_fill import FILL_SHARE, fill_coverage
+from avatarkit.recon.hair_fill import fill_coverage
 from avatarkit.recon import hair_strands
-from avatarkit.recon.hair_strands import (HAIR_REFERENCE_COUNT, HAIR_THICKNESS, HAIR_WIDTH, MARGIN, SEGMENT,
-                                          GrowthContext, Hairline, grow_strands, hair_colours, hair_flow, hair_shell,
-                                          hidden_from_camera, scalp_roots, unit_vectors)
+from avatarkit.recon.hair_strands import (GrowthContext, Hairline, grow_strands, hair_colours, hair_flow,
+                                          hair_shell, hidden_from_camera, scalp_roots, unit_vectors)
 from avatarkit.recon.image_sampling import lookup
 from avatarkit.recon.lifter import LiftResult
 from avatarkit.recon.visibility import depth_map
 from avatarkit.rotations import matrix_to_quat
+from avatarkit.recon import hair_fill as _hair_fill  # its switches read at call time
 
 #: a hidden root (the back of the head) grows where the photo's silhouette shows at least this
 #: much hair (metres) at its polar angle
@@ -76,13 +76,13 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
                       hairline)
 
     span = max(float(crown[1] - min(shell.y_end, shell.y_jaw)), 0.05)
-    max_steps = int(min(160, math.ceil(1.6 * span / SEGMENT) + 10))
+    max_steps = int(min(160, math.ceil(1.6 * span / hair_strands.SEGMENT) + 10))
 
     def candidate_roots(count):
         roots = scalp_roots(fit, count, rng)
         _, normal = sdf.query(roots)
         px, _ = fit.camera.project(roots)
-        hidden = hidden_from_camera(g, roots + normal * MARGIN, px)
+        hidden = hidden_from_camera(g, roots + normal * hair_strands.MARGIN, px)
         visible_ok = lookup(shell.hair, px)
         # hidden roots grow where the silhouette shows hair at their polar angle, and below the
         # photo's lowest hair (the nape) when the hairline lets them
@@ -103,7 +103,7 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
     lengths = alive.sum(axis=1)
     order = rng.permutation(len(roots))
     total = np.cumsum(lengths[order])
-    chosen = order[: int(np.searchsorted(total, (1 - FILL_SHARE) * n, side="right"))]
+    chosen = order[: int(np.searchsorted(total, (1 - _hair_fill.FILL_SHARE) * n, side="right"))]
     chosen = chosen[lengths[chosen] > 0]
     sel_s, sel_k = np.nonzero(alive[chosen])
     strand = chosen[sel_s]
@@ -117,9 +117,10 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
     m = len(means)
     seg = np.linalg.norm(b - a, axis=1)
     # fewer strands must each cover more: widen them below the reference count
-    width = HAIR_WIDTH * float(np.clip(np.sqrt(HAIR_REFERENCE_COUNT / max(n, 1)), 1.0, 4.0))
+    width = hair_strands.HAIR_WIDTH * float(np.clip(np.sqrt(hair_strands.HAIR_REFERENCE_COUNT / max(n, 1)),
+                                                    1.0, 4.0))
     scales = np.stack([np.maximum(0.5 * seg, 1e-4), np.full(m, width) * rng.uniform(0.7, 1.3, m),
-                       np.full(m, HAIR_THICKNESS)], axis=1)
+                       np.full(m, hair_strands.HAIR_THICKNESS)], axis=1)
     px, _ = fit.camera.project(means)
     seen_m = seen[strand, sel_k]
     rgb = hair_colours(image, shell.hair, px, seen_m, rng,
@@ -129,7 +130,7 @@ def lift_hair(image: np.ndarray, analysis, segmentation, fit: HeadFit, n: int,
     hair = GaussianSet.from_colors(means, matrix_to_quat(rot), scales, opacity, np.clip(rgb, 0, 1),
                                    extras={"strand": strand.astype(np.int32),
                                            "seen": seen_m.astype(np.uint8)})
-    hair = GaussianSet.concat([hair, fill_coverage(fit, g, image, bald_set, hair, int(FILL_SHARE * n), rng)])
+    hair = GaussianSet.concat([hair, fill_coverage(fit, g, image, bald_set, hair, int(_hair_fill.FILL_SHARE * n), rng)])
     m = len(hair)
     info = {"hair": m, "strands": int(len(np.unique(strand))), "hair_fill": int(m - len(strand)),
             "hair_seen_share": round(float(hair.extras["seen"].mean()), 4) if m else 0.0,

@@ -43,9 +43,10 @@ from typing import Callable
 
 import numpy as np
 
-# a lost stretch is a turn beyond the tracking when a tracked frame beside it turned this much
-from avatarkit.track.keyframes import TURNED_EDGE
 from avatarkit.track.neck import clip_head_rotation
+# a lost stretch is a turn beyond the tracking when a tracked frame beside it turned this much
+# (`keyframes.TURNED_EDGE`, read at call time)
+from avatarkit.track import keyframes as _keyframes
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
@@ -173,7 +174,7 @@ def turned_frames(result, yaw) -> list[TurnedFrame]:
             continue
         e = max(edges, key=lambda i: abs(yaw[i]))
         y = float(yaw[e])
-        if abs(y) < TURNED_EDGE:
+        if abs(y) < _keyframes.TURNED_EDGE:
             continue
         side = 1 if y > 0 else -1
         far = side * (abs(y) + SEARCH_BEYOND)
@@ -546,7 +547,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
 
 
 __all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
-           "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_SHIFTED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND", "TURNED_EDGE",
+           "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_SHIFTED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
            "turned_guess"]
