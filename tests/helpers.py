@@ -45,20 +45,36 @@ def random_gaussians(n: int = 100, sh_degree: int = 0, seed: int = 0, extras=())
     )
 
 
-def splat_plane(z: float, x_range, colour, step: float = 0.01) -> GaussianSet:
-    """Flat, nearly opaque discs (8 mm wide, 1 mm thick) tiling the plane at depth z over
-    x in x_range, y in [-0.1, 0.1], all of one colour (RGB in [0, 1])."""
+def plane_grid(xs, ys, z: float = 0.0, rgb=0.5, opacity: float = 0.99) -> GaussianSet:
+    """Flat discs (8 mm wide, 1 mm thick) on the grid xs x ys at depth z, of one colour (a grey
+    level or RGB in [0, 1]) and one opacity."""
     from avatarkit.gaussians.gaussian_set import rgb_to_dc
 
-    xs = np.arange(x_range[0], x_range[1] + 1e-9, step)
-    ys = np.arange(-0.1, 0.1 + 1e-9, step)
     X, Y = np.meshgrid(xs, ys)
     n = X.size
     means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
-    quats = np.tile([1.0, 0, 0, 0], (n, 1))
-    scales = np.tile([0.008, 0.008, 0.001], (n, 1))
-    sh = np.tile(rgb_to_dc(np.asarray(colour, np.float32)), (n, 1))
-    return GaussianSet(means, quats, scales, np.full(n, 0.99), sh)
+    colours = np.broadcast_to(np.asarray(rgb, np.float32), (n, 3))
+    return GaussianSet(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0.008, 0.008, 0.001], (n, 1)),
+                       np.full(n, opacity), rgb_to_dc(np.ascontiguousarray(colours)))
+
+
+def splat_plane(z: float, x_range, colour, step: float = 0.01) -> GaussianSet:
+    """Flat, nearly opaque discs (8 mm wide, 1 mm thick) tiling the plane at depth z over
+    x in x_range, y in [-0.1, 0.1], all of one colour (RGB in [0, 1])."""
+    return plane_grid(np.arange(x_range[0], x_range[1] + 1e-9, step), np.arange(-0.1, 0.1 + 1e-9, step), z, colour)
+
+
+def region_model(faces: np.ndarray, regions: dict[str, np.ndarray], n_vertices: int):
+    """A stand-in head model with faces, named vertex regions and `region_mask` (what
+    `frame_colours.fusion_selection` reads)."""
+    from types import SimpleNamespace
+
+    def region_mask(name):
+        m = np.zeros(n_vertices, bool)
+        m[regions[name]] = True
+        return m
+
+    return SimpleNamespace(faces=faces, regions=regions, region_mask=region_mask)
 
 
 def gaussian_shell(radius: float, keep, colour, n: int, seed: int, scale: float = 0.006,

@@ -18,8 +18,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
 from avatarkit.render.camera import Camera
+from helpers import plane_grid, region_model
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the sources the package installs (cli/ installs as avatarkit.cli)
@@ -145,12 +145,7 @@ def test_each_call_time_default_names_a_constant_that_exists(module, function, p
 SIZE = 96
 
 
-def _plane(xs, ys, z=0.0, rgb=0.5) -> GaussianSet:
-    X, Y = np.meshgrid(xs, ys)
-    n = X.size
-    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
-    return GaussianSet(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0.008, 0.008, 0.001], (n, 1)),
-                       np.full(n, 0.99), rgb_to_dc(np.full((n, 3), rgb, np.float32)))
+_plane = plane_grid
 
 
 def _camera():
@@ -203,18 +198,11 @@ def test_fusion_selection_follows_regions_and_keeps_none_for_every_gaussian(monk
     still means every bald Gaussian (the sentinel, not None, stands for the module's value)."""
     from avatarkit.track import frame_colours as fc
 
-    faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
-    regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}
-
-    def region_mask(name):
-        m = np.zeros(7, bool)
-        m[regions[name]] = True
-        return m
-
+    model = region_model(np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]]),
+                         {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}, 7)
     bald = _plane(np.array([0.0, 0.1]), np.array([0.0, 0.1])).replace(
         extras={"binding": np.array([0, 1, 2, 0], np.int32)})
-    avatar = SimpleNamespace(head_model=SimpleNamespace(faces=faces, regions=regions, region_mask=region_mask),
-                             bald=bald, hair=_plane(np.array([0.0]), np.array([0.0])))
+    avatar = SimpleNamespace(head_model=model, bald=bald, hair=_plane(np.array([0.0]), np.array([0.0])))
     monkeypatch.setattr(fc, "REGIONS", ("neck",))
     np.testing.assert_array_equal(fc.fusion_selection(avatar), [True, False, False, True, False])
     monkeypatch.setattr(fc, "REGIONS", ("lips",))

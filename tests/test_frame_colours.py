@@ -9,6 +9,7 @@ import pytest
 from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
+from helpers import region_model
 from avatarkit.track.frame_colours import (FrameView, colour_frames, fusion_selection, outline_band,
                                            outline_selection, refine_colours_frames)
 
@@ -149,15 +150,8 @@ def test_colour_frames_read_the_module_settings_when_called(monkeypatch):
 
 
 def test_fusion_selection_takes_the_bald_gaussians_on_the_regions_and_the_hair_if_asked():
-    faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]])
-    regions = {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}
-
-    def region_mask(name):
-        m = np.zeros(7, bool)
-        m[regions[name]] = True
-        return m
-
-    model = SimpleNamespace(faces=faces, regions=regions, region_mask=region_mask)
+    model = region_model(np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6]]),
+                         {"neck": np.array([0, 1]), "lips": np.array([3, 4, 5])}, 7)
     bald = _plane(np.full((4, 3), 0.5), np.array([0.0, 0.1]), np.array([0.0, 0.1]))
     bald = bald.replace(extras={"binding": np.array([0, 1, 2, 0], np.int32)})
     hair = _plane(np.full((2, 3), 0.5), np.array([0.0, 0.1]), np.array([0.0]))

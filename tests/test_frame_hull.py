@@ -8,17 +8,14 @@ import pytest
 
 from avatarkit.gaussians.gaussian_set import GaussianSet, rgb_to_dc
 from avatarkit.render.camera import Camera
+from helpers import plane_grid
 from avatarkit.track.frame_hull import carve, wall_image, wall_votes
 
 SIZE = 96
 
 
 def _plane(xs, ys, z=0.0, opacity=0.99) -> GaussianSet:
-    X, Y = np.meshgrid(xs, ys)
-    n = X.size
-    means = np.stack([X.ravel(), Y.ravel(), np.full(n, z)], 1)
-    return GaussianSet(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.tile([0.008, 0.008, 0.001], (n, 1)),
-                       np.full(n, opacity), rgb_to_dc(np.full((n, 3), 0.5, np.float32)))
+    return plane_grid(xs, ys, z, 0.5, opacity)
 
 
 def _camera():
