@@ -113,7 +113,7 @@ def test_a_switch_set_from_the_benchmarks_command_line_reaches_the_library(monke
                       ("recon.multiview.view_samples=1", "not a module switch"), ("recon.multiview.SCALP_FILL", "expected")):
         with pytest.raises(ValueError, match=what):
             sw.parse_switch(bad)
-    monkeypatch.setattr(mv, "SCALP_FILL", mv.SCALP_FILL)          # restored after the test
+    monkeypatch.setattr(mv, "SCALP_FILL", True)                   # restored after the test
     views = mv.VideoViews(np.zeros(10), [], {})
     assert views.fills_scalp()
     assert sw.apply_switches(["recon.multiview.SCALP_FILL=False"]) == ["avatarkit.recon.multiview.SCALP_FILL = False"]
