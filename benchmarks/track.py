@@ -185,7 +185,7 @@ REFINE_RUNS = (("tracker", 0, {}),
                 REFINE_EVERY["photometric-fast"], REFINE_SETTINGS["photometric-fast"], "photometric-fast"))
 
 
-def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) -> None:
+def refine_columns(frames: int, size: int, avatar_dir: str, runs=None) -> None:
     """The tracker with and without the photometric pose refinement (`TrackOptions(refine=
     "photometric-pose")`, `track.photometric`), each of `runs` (`REFINE_RUNS`: with the jaw's opening
     (`refine="photometric"`), the points from the render's depth, fewer passes, every k-th
@@ -194,6 +194,7 @@ def refine_columns(frames: int, size: int, avatar_dir: str, runs=REFINE_RUNS) ->
     video is
     refined against the avatar as it is (not mirrored): a face that is not quite the avatar's,
     as on a real clip. The template-head videos have no avatar to render: not refined."""
+    runs = REFINE_RUNS if runs is None else runs
     from avatarkit.avatar import load_avatar
     from avatarkit.synthetic.head_video import SyntheticFrame, avatar_video, head_video_camera
     from avatarkit.track import TrackOptions, track_frames
@@ -270,7 +271,8 @@ def subject_renderer(subject: str, avatar=None):
     return lambda clip, camera: (f.rgb for f in HeadVideo(clip, camera, **kw).frames())
 
 
-def real(limit: int | None, videos: str = VIDEOS) -> None:
+def real(limit: int | None, videos: str | None = None) -> None:
+    videos = VIDEOS if videos is None else videos
     from avatarkit.face import face_landmarks
     from avatarkit.track.tracker import CALIBRATION_FRAMES, FrameTracker, TrackOptions
     from avatarkit.track.video import track_video

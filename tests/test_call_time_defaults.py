@@ -22,13 +22,15 @@ from avatarkit.render.camera import Camera
 from helpers import plane_grid, region_model
 
 ROOT = Path(__file__).resolve().parents[1]
-#: the sources the package installs (cli/ installs as avatarkit.cli)
-SOURCES = ("avatarkit", "cli")
+#: the sources the package installs (cli/ installs as avatarkit.cli), and the scripts whose
+#: constants users set (benchmarks, tools)
+SOURCES = ("avatarkit", "cli", "benchmarks", "tools")
+PACKAGES = ("avatarkit", "cli")  # importable as modules: the table below imports them
 _UPPER = re.compile(r"^_?[A-Z][A-Z0-9_]*$")
 
 
-def _files():
-    for top in SOURCES:
+def _files(tops=SOURCES):
+    for top in tops:
         yield from sorted((ROOT / top).rglob("*.py"))
 
 
@@ -95,7 +97,7 @@ def _call_time_defaults():
     statement at the top of a function whose `param` defaults to that marker, REF a module
     global (a name the function imports itself is checked when it runs)."""
     rows = []
-    for path in _files():
+    for path in _files(PACKAGES):
         tree = ast.parse(path.read_text(encoding="utf-8"))
         module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
         module = "avatarkit." + module if module.startswith("cli.") else module

@@ -12,9 +12,10 @@ total, per package and overall.
     .venv/bin/python tools/mutate.py --list          # what there is, without running anything
     .venv/bin/python tools/mutate.py --check         # every `old` text still matches exactly once
 
-It edits the working tree in place (and restores it, also on Ctrl-C), so run it on a tree with
-no uncommitted changes to the mutated files, and nothing else (no other test run) at the same
-time. Exit status: 0 when every mutation run was killed, 1 when some survived, 2 for bad
+It never edits the working tree: the mutations are applied to a scratch copy of it (the files
+git tracks or would track, uncommitted edits included, with `../shared` linked beside it) and the
+tests run there, so a build or a test run in the working tree meanwhile never imports a mutant.
+Exit status: 0 when every mutation run was killed, 1 when some survived, 2 for bad
 arguments or a mutation whose `old` text no longer matches (the code moved: update the list).
 
 Why our own list and not mutmut: mutmut generates hundreds of mutants per module and runs the
@@ -26,9 +27,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -490,13 +493,14 @@ MUTATIONS = [
 ]
 
 
-def _apply(m: Mutation) -> tuple[dict[Path, bytes], dict[Path, str]]:
-    """The edits of `m` worked out in memory (nothing is written): the original bytes and the
-    mutated text of each file it touches."""
+def _apply(m: Mutation, root: Path | None = None) -> tuple[dict[Path, bytes], dict[Path, str]]:
+    """The edits of `m` worked out in memory (nothing is written) on the tree at `root`: the
+    original bytes and the mutated text of each file it touches. `root` defaults to this tree."""
+    root = ROOT if root is None else root
     originals: dict[Path, bytes] = {}
     texts: dict[Path, str] = {}
     for file, old, new in m.edits:
-        path = ROOT / file
+        path = root / file
         if path not in texts:
             originals[path] = path.read_bytes()
             texts[path] = originals[path].decode("utf-8")
@@ -505,6 +509,29 @@ def _apply(m: Mutation) -> tuple[dict[Path, bytes], dict[Path, str]]:
             raise LookupError(f"{m.id}: {file}: the text to mutate occurs {count} times (expected once):\n{old}")
         texts[path] = texts[path].replace(old, new)
     return originals, texts
+
+
+def scratch_copy(into: Path, root: Path | None = None) -> Path:
+    """A copy of the working tree at `root` under `into` (same folder name, so tests that find
+    `../shared` or the repo by path behave as in the tree): every file git tracks or would
+    track (`git ls-files --cached --others --exclude-standard`), uncommitted edits included;
+    ignored outputs (.venv, build folders) are left out. `../shared` is linked beside it when
+    the tree has one. Returns the copy's root."""
+    root = ROOT if root is None else root
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                            cwd=root, capture_output=True, check=True).stdout.decode().split("\0")
+    copy = into / root.name
+    for rel in filter(None, listed):
+        src = root / rel
+        if not src.is_file():  # deleted in the tree but still in the index
+            continue
+        dst = copy / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(src, dst)
+    shared = root.parent / "shared"
+    if shared.exists():
+        (into / "shared").symlink_to(shared.resolve())
+    return copy
 
 
 def check(mutations) -> list[str]:
@@ -517,17 +544,20 @@ def check(mutations) -> list[str]:
     return problems
 
 
-def run_one(m: Mutation, timeout: float) -> tuple[str, float, str]:
-    """Apply, test, restore. Returns (outcome, seconds, last line of the test output)."""
-    originals, texts = _apply(m)
+def run_one(m: Mutation, timeout: float, root: Path) -> tuple[str, float, str]:
+    """Apply to the copy at `root`, test there, restore. Returns (outcome, seconds, last line of
+    the test output)."""
+    originals, texts = _apply(m, root)
     cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "-m", "not slow", *m.tests]
-    env = dict(os.environ, TI_SKIP_VERSION_CHECK="ON", ENABLE_TAICHI_HEADER_PRINT="0")
+    # the copy first on the path: the venv's editable install points at the working tree
+    env = dict(os.environ, TI_SKIP_VERSION_CHECK="ON", ENABLE_TAICHI_HEADER_PRINT="0",
+               PYTHONPATH=os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])]))
     t0 = time.perf_counter()
     try:
         for path, text in texts.items():
             path.write_text(text, encoding="utf-8")
         try:
-            proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+            proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=timeout)
         except subprocess.TimeoutExpired:
             return "killed (timeout)", time.perf_counter() - t0, f"no result within {timeout:.0f} s"
     finally:
@@ -572,19 +602,23 @@ def main(argv=None) -> int:
         print(f"{len(chosen)} mutations apply cleanly")
         return 0
 
-    # Ctrl-C: let the current run's finally clause restore the files, then stop
+    # SIGTERM as Ctrl-C: stop, and remove the scratch copy
     signal.signal(signal.SIGTERM, lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
     results = []
+    scratch = Path(tempfile.mkdtemp(prefix="avatarkit-mutate-"))
     try:
+        copy = scratch_copy(scratch)
         for m in chosen:
-            outcome, seconds, last = run_one(m, args.timeout)
+            outcome, seconds, last = run_one(m, args.timeout, copy)
             results.append((m, outcome))
             print(f"{outcome:17} {m.id:32} {seconds:6.1f} s  {m.why}", flush=True)
             if outcome != "killed":
                 print(f"{'':17} {last}", flush=True)
     except KeyboardInterrupt:
-        print("interrupted; files restored", file=sys.stderr)
+        print("interrupted (the working tree was never touched)", file=sys.stderr)
         return 130
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     print()
     by_pkg: dict[str, list[int]] = {}
     for m, outcome in results:
