@@ -177,6 +177,10 @@ def test_held_push_holds_only_the_views_own_side():
     assert f[0] == 1.0                          # along the ray: the view cannot see it
     assert abs(f[1] - allowed / 6.0) < 0.02     # toward the outline: cut to what is allowed
     assert f[2] == 1.0                          # away from the outline: inward, free
+    # the hold is read to the pixel (`HOLD_TOLERANCE` 1): 2.9 px toward the outline from 4 px inside
+    # it (2 beyond `ON_OUTLINE`) passes whole, 4 px is cut to 3
+    g = held_push(np.stack([right * (2.9 / px_per_m), right * (4.0 / px_per_m)]), p[:2], cam, outward[:2], slack[:2])
+    assert g[0] == 1.0 and abs(g[1] - 3.0 / 4.0) < 0.02
 
 
 def test_direction_veto_lets_a_push_the_holding_view_cannot_see(scene, monkeypatch):
