@@ -424,7 +424,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             # the keyframes' poses registered against the draft build where the video build did so
             # (`track.video_build.refine_keyframes`): a turn's end read short asks for pushes
             hair, report.info.setdefault("segment3d", {})["outline"] = fit_outline(
-                lifted.bald, hair, views.outline_views(fit, keyviews), sdf, edge)
+                lifted.bald, hair, views.outline_views(fit, keyviews), sdf, edge,
+                draft=bool(views.info.get("draft", False)))
         if len(hair) == 0:
             report.warnings.append(NO_HAIR_WARNING)
     with stage("rig"):
