@@ -42,10 +42,10 @@ def test_small_build_through_the_cli(tmp_path, capsys):
         assert stage in err
     assert "wrote" in err and "s\n" in err
     manifest = json.loads((out_dir / "avatar.json").read_text())
-    # the built-in lifter's 3000 and the eyes' extra discs, plus the Gaussians on the head pixels
+    # the built-in lifter's 3000 and its extra discs (the eyes', the holes'), plus the Gaussians on the head pixels
     # they left uncovered
     cover = manifest["provenance"]["build"]["coverage"]
-    extra = manifest["provenance"]["build"]["lift"]["bald_eye_extra"]
+    extra = manifest["provenance"]["build"]["lift"]["bald_extra"]
     assert manifest["parts"]["bald"]["count"] == 3000 + extra + cover["bald_added"]
     assert manifest["provenance"]["hair_mode"] == "cage"
     assert manifest["provenance"]["source_image"].endswith("portrait.jpg")

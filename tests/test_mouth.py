@@ -124,7 +124,7 @@ def test_build_with_the_open_mouth_round_trips(tmp_path, monkeypatch):
     info = avatar.provenance["build"]["mouth"]
     assert info["teeth"] > 300 and info["cavity"] > 1000
     loaded = load_avatar(pipeline.save_avatar(avatar, tmp_path / "av"))
-    assert len(loaded.bald) == 6000 + avatar.provenance["build"]["lift"]["bald_eye_extra"] \
+    assert len(loaded.bald) == 6000 + avatar.provenance["build"]["lift"]["bald_extra"] \
         + avatar.provenance["build"]["coverage"]["bald_added"] + info["teeth"] + info["cavity"]
     np.testing.assert_array_equal(loaded.bald.extras["binding"], avatar.bald.extras["binding"])
 

@@ -373,6 +373,9 @@ def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     from avatarkit.recon.multiview import VideoViews
 
     final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    # by default the final build fills and its drafts do not (session 22: with the bald layer's
+    # holes filled, `bald_discs.HOLE_ALPHA`, the filled scalp no longer shows through the face)
+    assert final.fills_scalp() and not draft.fills_scalp()
     monkeypatch.setattr(multiview, "SCALP_FILL", True)
     monkeypatch.setattr(multiview, "DRAFT_SCALP_FILL", False)
     assert final.fills_scalp() and not draft.fills_scalp()

@@ -332,7 +332,7 @@ def test_fast_end_to_end_build(tmp_path):
     loaded = load_avatar(out)
     build = loaded.provenance["build"]
     # the lifter's counts plus the coverage fill (at most MAX_COVER)
-    assert len(loaded.bald) == 6000 + build["lift"]["bald_eye_extra"] + build["coverage"]["bald_added"]
+    assert len(loaded.bald) == 6000 + build["lift"]["bald_extra"] + build["coverage"]["bald_added"]
     assert 0 < len(loaded.hair) <= 5000 + build["coverage"]["hair_added"]
     assert set(build["timings_s"]) == set(STAGES)
     assert loaded.provenance["hair_mode"] in ("rigid", "cage")
@@ -450,5 +450,5 @@ def test_a_portrait_without_hair_builds_a_bald_avatar(tmp_path):
     out = save_avatar(avatar, tmp_path / "bald")
     assert sorted(p.name for p in out.iterdir()) == ["avatar.json", "bald.ply"]
     loaded = load_avatar(out)
-    assert len(loaded.bald) == 2000 + build["lift"]["bald_eye_extra"] + build["coverage"]["bald_added"] \
+    assert len(loaded.bald) == 2000 + build["lift"]["bald_extra"] + build["coverage"]["bald_added"] \
         and not loaded.has_hair

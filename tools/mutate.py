@@ -502,6 +502,15 @@ MUTATIONS = [
       "            connected = RELABEL_CONNECTED",
       ["tests/test_keyframe_refine.py", "-k", "relabel"],
       "RELABEL_CONNECTED applied to every keyframe whatever RELABEL_CONNECTED_IN says"),
+    M("recon.bald_holes_never_filled", "avatarkit/recon/bald_discs.py",
+      "    if threshold is None or rounds <= 0 or len(points) == 0:", "    if True:",
+      ["tests/test_bald_holes.py"], "HOLE_ALPHA set but fill_holes adding no disc: the face's holes stay open"),
+    M("recon.bald_holes_other_side", "avatarkit/recon/bald_discs.py",
+      "        a = np.where(valid & same & (q <= 9.0),", "        a = np.where(valid & (q <= 9.0),",
+      ["tests/test_bald_holes.py"], "surface_coverage counting the discs of the surface's other side (an ear's back) as cover"),
+    M("recon.bald_holes_from_the_callers_stream", "avatarkit/recon/bald_discs.py",
+      "                          rng.spawn(1)[0])", "                          rng)",
+      ["tests/test_bald_holes.py"], "fill_holes' probes drawn from the caller's stream: the hair drawn next changes with them"),
 ]
 
 

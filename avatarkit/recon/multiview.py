@@ -144,10 +144,11 @@ SCALP_BODY = True
 #: scalp on the mesh subject"), eased clip, profile gain over the single-frame build: mesh
 #: subject +1.73 -> +2.31 (seeds 1 / 2: +1.75 -> +2.44, +1.65 -> +2.28), sample avatar +3.20 ->
 #: +3.44, bob +2.73 -> +2.97; whip clip +1.83 -> +2.34 / +0.85 -> +1.75; no view loses > 0.01 dB.
-#: Off: seen from the front, the bob's video build (`avatarkit build VIDEO`) shows dark specks
-#: across the face that the build without it does not: the filled scalp discs (dark, the hair's
-#: colour) show through the face (docs/video-build.md, "The hidden scalp's specks")
-SCALP_FILL = False
+#: Session 21 left it off: the bob's video build (`avatarkit build VIDEO`) showed dark specks
+#: across the face, the filled scalp (the hair's colour) seen through the holes the bald discs
+#: drawn at random leave in the face; session 22 closed them (`bald_discs.HOLE_ALPHA`) and turned
+#: it on (docs/video-build.md, "The face's holes (session 22)")
+SCALP_FILL = True
 #: ... and so do the drafts a video build registers its turned keyframes against
 #: (`track.video_build`; their views carry info["draft"]). Off: the drafts keep the portrait's
 #: fill there, so the colours the fill guesses from the poses read so far do not steer the
