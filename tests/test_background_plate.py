@@ -98,6 +98,13 @@ def test_a_plate_keeps_clutter_touching_the_head_out_of_the_person(monkeypatch):
     assert (withp.person & wall_px).sum() < 50
     assert iou(withp.person, ~wall_px) > 0.98
     assert iou(withp.hair, truth == HAIR) > 0.95 > iou(without.hair, truth == HAIR)
+    # the wall seen through a gap inside the hair (a hole the person encloses) stays the wall's
+    hole = np.zeros(truth.shape, bool)
+    ys, xs = np.nonzero(truth == HAIR)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    hole[cy - 4:cy + 4, cx - 4:cx + 4] = True
+    holed = np.where(hole[..., None], wall, img).astype(np.uint8)
+    assert not segment_portrait(holed, a, plate=plate).person[hole].any()
     monkeypatch.setattr(S, "PLATE_SURE", False)     # the switch off: the plate is ignored
     assert (segment_portrait(img, a, plate=plate).labels == without.labels).all()
 

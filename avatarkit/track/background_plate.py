@@ -29,8 +29,10 @@ PLATE_SIZE = 256
 #: at most this many frames (every k-th tracked frame) make the plate
 PLATE_FRAMES = 64
 #: the person zone: the head model's projected outline dilated by this share of the head's size
-#: (sqrt of the outline's area). The synthetic bob's hair reaches ~0.1-0.15 of it beyond the
-#: skull at the sides; the tracking's outline is a few px off at a turn's end
+#: (sqrt of the outline's area): the hair beyond the skull. At 0.14 the shared talking clips'
+#: plates held the top of the hair (the grey clip's keyframe lost 9,700 px of person, hair) and
+#: the synthetic walls gained most (the clutter bob's front 16.6 dB against 13.7 at 0.25); at 0.25
+#: the real clips' segmentations are as without a plate (session 22, docs/video-build.md)
 ZONE_MARGIN = 0.25
 #: the torso below the jaw (from this share of the outline's height down) widens this many px a row
 ZONE_START = 0.75
