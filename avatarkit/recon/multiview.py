@@ -114,6 +114,13 @@ RELABEL_CONNECTED: float | None = 0.15
 #: registers at -66 (-74.6): against the default before, front -0.35 / -45 -0.33 / -90 +1.73
 #: dB ("turned_end": -0.06 / +0.58 / +2.39)
 RELABEL_CONNECTED_IN = "turned_end"
+#: a video build's wall plate (`VideoViews.plate`, `track.background_plate`) keeps the pixels
+#: that match it out of `relabel_head`'s "not the wall model's colour" person: a cluttered
+#: wall's poster and books are not the one-colour wall model's colour either. Only what of that
+#: match survives an opening by a disc this share of the frame's longer side wide: the gaps
+#: between strands (a pixel or two) stay the person's, as without a plate (None: no plate here;
+#: session 22, docs/video-build.md "The wall behind the head")
+RELABEL_PLATE: float | None = 0.01
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
 #: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
@@ -288,8 +295,25 @@ def reference_colours(image: np.ndarray, labels: np.ndarray):
     return ColourModel.fit(lab[hair]), ColourModel.fit(lab[skin])
 
 
+def plate_wall(plate, image: np.ndarray):
+    """(wall (H, W) bool, its colour (H, W, 3) uint8): the pixels of a keyframe's image (H, W, 3)
+    uint8 that show the video's wall (`Plate.matches`) opened by `RELABEL_PLATE` (share of the
+    longer side, at least a pixel), and the plate's colour there; None without a plate or with
+    `RELABEL_PLATE` None."""
+    import cv2
+
+    opening = RELABEL_PLATE
+    if plate is None or opening is None:
+        return None
+    wall = plate.matches(image).astype(np.uint8)
+    r = max(1, int(round(opening * max(wall.shape))))
+    wall = cv2.morphologyEx(wall, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
+    return wall, plate.at(wall.shape)[0]
+
+
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
-                 reach: float | None = None, connected: float | None = None) -> np.ndarray:
+                 reach: float | None = None, connected: float | None = None,
+                 wall: np.ndarray | None = None) -> np.ndarray:
     """(H, W) labels of a turned keyframe with its head's pixels relabelled hair or skin by the
     reference view's colour models. A portrait segmentation finds hair in a zone laid out
     around a frontal face: in a keyframe turned 20-35 degrees it labels the hair over the ear
@@ -305,7 +329,10 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
     the turned side may match neither model), hair or skin when they match. connected: such
     pixels beyond `reach` but within `connected` (share of the longer side) of the head count
     too where they connect through such pixels to the person pixels by the head
-    (`_connected_lost`, `RELABEL_CONNECTED`; None: not).
+    (`_connected_lost`, `RELABEL_CONNECTED`; None: not). wall: (`plate_wall`) the pixels that
+    show the video's wall and the wall's colour there, or None: where that colour is not the
+    wall model's either (a cluttered wall is not one colour) they are never taken for the person
+    by their colour; where it is (a plain wall) nothing changes.
     labels: (H, W) int; image: (H, W, 3) uint8."""
     reach = RELABEL_REACH if reach is None else reach
     import cv2
@@ -329,8 +356,15 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
         model = ColourModel.fit(full[bg][::4])
         lost = np.zeros_like(candidates)
         lost[candidates] = model.distance2(full[candidates]) > MATCH_D2
+        if wall is not None:
+            shown, colour = wall
+            # the wall the plate shows where it is not the one-colour model's (a plain wall's
+            # edge pixels a few levels off its flat colour stay the rule's, as without a plate)
+            wall = shown.copy()
+            wall[shown] = model.distance2(rgb_to_lab(colour[shown])) > MATCH_D2
+            lost &= ~wall
         if connected is not None:
-            lost |= _connected_lost(labels, full, head, near, zone | lost, model, connected)
+            lost |= _connected_lost(labels, full, head, near, zone | lost, model, connected, wall)
         labels[lost] = BODY
         zone |= lost
     lab = full[zone]
@@ -344,11 +378,12 @@ def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colour
 
 
 def _connected_lost(labels: np.ndarray, lab: np.ndarray, head: np.ndarray, near: np.ndarray,
-                    person: np.ndarray, background, reach: float) -> np.ndarray:
+                    person: np.ndarray, background, reach: float, wall: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: background-labelled pixels beyond `near` but within `reach` (share of the
     longer side) of the fitted head `head`, whose Lab colour `lab` (H, W, 3) is not the
     `background` model's (squared distance > `segment.MATCH_D2`) and which connect through such
-    pixels to `person` (the head zone's person pixels) (`RELABEL_CONNECTED`)."""
+    pixels to `person` (the head zone's person pixels) (`RELABEL_CONNECTED`); wall: (H, W) bool
+    pixels of the video's wall, never such pixels (None: none)."""
     import cv2
     from scipy import ndimage
 
@@ -361,6 +396,8 @@ def _connected_lost(labels: np.ndarray, lab: np.ndarray, head: np.ndarray, near:
     if not far.any() or not person.any():
         return out
     out[far] = background.distance2(lab[far]) > MATCH_D2
+    if wall is not None:
+        out &= ~wall
     # 8-connected: a strand a pixel wide runs diagonally as often as not
     comp, _ = ndimage.label(out | person, structure=np.ones((3, 3), bool))
     keep = np.unique(comp[person])
@@ -733,6 +770,9 @@ class VideoViews:
     shape: np.ndarray
     keyframes: list[Keyframe]
     info: dict = field(default_factory=dict)
+    #: the video's wall plate (`track.background_plate.Plate`) every keyframe's segmentation
+    #: takes (`recon.segment`, `plate=`), or None
+    plate: object = None
 
     def register(self, fit, image: np.ndarray, labels: np.ndarray, options=None) -> list[View]:
         """The keyframes as `View`s of the fitted rest head (`keyframe_cameras`), each other
@@ -758,11 +798,13 @@ class VideoViews:
             if k.frame in turned_end:
                 v.info["turned_end"] = True
             connected = RELABEL_CONNECTED if (RELABEL_CONNECTED_IN == "all" or k.frame in turned_end) else None
+            wall = plate_wall(self.plate, k.image)
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
-                v.labels = np.asarray(segment_portrait(k.image, analysis).labels, np.int32)
+                v.labels = np.asarray(segment_portrait(k.image, analysis, plate=self.plate).labels, np.int32)
                 if colours is not None:
-                    v.labels = relabel_head(v.labels, k.image, v.head, colours, connected=connected).astype(np.int32)
+                    v.labels = relabel_head(v.labels, k.image, v.head, colours, connected=connected,
+                                            wall=wall).astype(np.int32)
             except AvatarKitError as e:
                 if colours is None:
                     v.info["warnings"] = [f"keyframe {k.frame}: not segmented ({e}); used for colours only"]
@@ -772,7 +814,7 @@ class VideoViews:
                     # an image of background: what is not the background's colour by the head
                     # is the person's)
                     v.labels = relabel_head(np.zeros(k.image.shape[:2], np.int32), k.image, v.head,
-                                            colours, connected=connected).astype(np.int32)
+                                            colours, connected=connected, wall=wall).astype(np.int32)
             views.append(v)
         return views
 
@@ -873,7 +915,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]

@@ -307,12 +307,13 @@ def _preload() -> None:
 
 
 def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None = None,
-                 progress: Progress | None = None, views=None):
+                 progress: Progress | None = None, views=None, plate=None):
     """Build an `Avatar` from a portrait (module docstring). progress(stage, index, total,
     seconds): called when each stage starts (seconds None) and ends. The `BuildReport` is in
     `avatar.provenance["build"]`; the previews (if rendered) in `avatar.build_previews`.
     views: a `recon.multiview.VideoViews` (a video build: the portrait is its reference
-    keyframe), or None."""
+    keyframe), or None. plate: the wall plate of the video the portrait is a frame of
+    (`track.background_plate`), given to its segmentation, or None."""
     from avatarkit.avatar import Avatar, _now, _tool_version
     from avatarkit.head.ref import HeadRef
     from avatarkit.face.correspondence import read_embedding
@@ -357,7 +358,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         report.info["face"] = {"detector": analysis.detector, "faces": len(analysis.faces),
                                "face_mesh": analysis.mesh is not None}
     with stage("segment"):
-        segmentation = segment_portrait(image, analysis, options.hair_mask, path=path)
+        segmentation = segment_portrait(image, analysis, options.hair_mask, path=path, plate=plate)
     with stage("fit"):
         if flame is not None and views is None:
             fit = fit_with_params(analysis, segmentation, head_model, flame, embedding=embedding)

@@ -10,7 +10,9 @@ Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular
    near the person join the person); then the outline's band (0.1 IOD) is
    peeled from the outside where a pixel is mostly wall by a local colour mix
    (`recon.boundary`). Without the two, a plain light wall left a 1.5-10 px halo in the
-   person, which became the hair label (a flat dark wall 8-9 px until session 18);
+   person, which became the hair label (a flat dark wall 8-9 px until session 18). A video
+   build passes the wall seen behind its moving head (`plate=`, `track.background_plate`):
+   the pixels that match it where it is well known are sure background too (`PLATE_SURE`);
 2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
    eyes, above the mouth), outliers (nostrils, shadows) trimmed;
 3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
@@ -241,6 +243,23 @@ WALL_MIN_SHARE = 0.002
 #: dark grey / teal wall: 36,864 of 36,864 px person; 14,990 / 16,519 with the light pixels
 #: alone re-noised). Session 21 (docs/video-build.md, "Non-white walls").
 WALL_TAKEN = 0.98
+#: a video build's wall plate (`track.background_plate`, `segment_portrait(plate=)`): the pixels
+#: that match it where it is well known are GrabCut's sure background (False: the plate is
+#: ignored, the segmentation is the portrait's). At 192 px the head fills the frame and the
+#: portrait has no sure-background zone: on a cluttered wall GrabCut took the poster, the post
+#: and the books touching the head for the person, then the hair (session 22,
+#: docs/video-build.md "The wall behind the head").
+PLATE_SURE = True
+#: ...only the parts of that match that survive an opening by a disc this wide (IOD units; 0:
+#: none): the gaps between strands, a pixel or two, stay GrabCut's to decide
+PLATE_OPEN = 0.05
+#: ...and only where the portrait's own segmentation (without the plate) holds at least this
+#: share of those pixels as person: it failed on that wall, and runs again with them sure
+#: background. Where it did not (a plain white wall: at most 0.2 % of them on the synthetic
+#: turning videos' keyframes; teal 0-9 %, clutter 24-69 %), the plate is left out: as sure
+#: background it still changed GrabCut's colour models (no wall colour left in the person's),
+#: and the white-walled bob's video build lost 0.6 dB at +90
+PLATE_TAKEN = 0.02
 
 
 def _colour_bins(img: np.ndarray) -> np.ndarray:
@@ -327,14 +346,22 @@ def _renoise_flat(img: np.ndarray, wall: np.ndarray | None = None) -> np.ndarray
     return np.clip(img + np.where(flat[..., None], noise, 0.0), 0, 255).astype(np.uint8)
 
 
-def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float, boundary: bool = True
-            ) -> np.ndarray:
+def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: float, boundary: bool = True,
+            plate=None) -> np.ndarray:
+    """(H, W) bool: step 1's person. plate: a video's wall plate (`segment_portrait`)."""
     import cv2
     from scipy import ndimage
 
     from avatarkit.recon.boundary import refine_person
 
     sure = reg["face_core"] | reg["neck"]
+    # the pixels that show the video's wall where its plate is well known (`PLATE_SURE`): sure
+    # background, in the probable-person zones too (clutter touching the head)
+    walled = plate.matches(img) & ~sure if (plate is not None and PLATE_SURE) else np.zeros(img.shape[:2], bool)
+    r = int(round(PLATE_OPEN * iod))
+    if r > 0 and walled.any():
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+        walled = cv2.morphologyEx(walled.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
     gc = np.full(img.shape[:2], cv2.GC_PR_BGD, np.uint8)
     gc[reg["head_zone"] | reg["torso"]] = cv2.GC_PR_FGD
     gc[reg["far"]] = cv2.GC_BGD
@@ -350,10 +377,19 @@ def _person(img: np.ndarray, reg: dict[str, np.ndarray], iterations: int, iod: f
         again = _grabcut(_renoise_flat(img), gc, iterations)
         if again[wall].mean() < person[wall].mean():
             person = again
+    if walled.any() and person[walled].mean() >= PLATE_TAKEN:
+        # the person holds the wall the plate shows (`PLATE_TAKEN`): again, that wall sure background
+        gc[walled & (gc != cv2.GC_FGD)] = cv2.GC_BGD
+        wall |= walled
+        cv2.setRNGSeed(0)  # the run a plate-first segmentation would make (`_working_copy`)
+        person = _grabcut(_renoise_flat(img, wall) if boundary else img, gc, iterations)
+    else:
+        walled = np.zeros_like(walled)
     person = _keep_touching(person, sure) | sure
-    person = ndimage.binary_fill_holes(person)
+    # (the wall the plate shows stays out: filling holes would take a gap between strands back)
+    person = ndimage.binary_fill_holes(person) & ~walled
     if not boundary:
-        return person
+        return _keep_touching(person, sure) | sure
     # the outline's mixed pixels and what is left of a wall's halo: peel them from the outside
     person = refine_person(img, person, boundary_band(iod), keep=sure)
     return _keep_touching(person, sure) | sure
@@ -440,7 +476,7 @@ def _working_copy(image: np.ndarray, analysis: PortraitAnalysis, work_size: int)
 
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
                      work_size: int | None = None, iterations: int = 3, boundary: bool = True,
-                     path: str | os.PathLike | None = None) -> Segmentation:
+                     path: str | os.PathLike | None = None, plate=None) -> Segmentation:
     """Label every pixel of a portrait as background, skin/face, hair or body.
 
     image: (H, W, 3) uint8 RGB, the image `analysis` was made on.
@@ -450,6 +486,8 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     iterations: GrabCut iterations per cut (3 is enough on portraits; 5 is OpenCV's usual).
     boundary: False gives GrabCut's own person outline on the image as it is (no re-noised
         flat pixels, no boundary step): the behaviour before them, the benchmark's baseline.
+    plate: the wall plate (`track.background_plate.Plate`) of the video `image` is a frame of,
+        or None: a pixel matching it where it is well known is sure background (`PLATE_SURE`).
     """
     work_size = WORK_SIZE if work_size is None else work_size
     image = _checked_image(image, analysis, path)
@@ -461,7 +499,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     reg = face_regions(u, v)
     lab = rgb_to_lab(img)
 
-    person = _person(img, reg, iterations, iod, boundary)
+    person = _person(img, reg, iterations, iod, boundary, plate)
     skin_px = reg["skin_sample"] & person
     if skin_px.sum() < 10:
         skin_px = reg["face_core"]
@@ -498,7 +536,7 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
 
 
 def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: int | None = None,
-                   iterations: int = 3) -> np.ndarray:
+                   iterations: int = 3, plate=None) -> np.ndarray:
     """(H, W) bool: the person of `segment_portrait` (its labels other than background) without
     the skin and hair models and the hair's GrabCut, which it does not need (step 1 and the face
     core, upsampled as the labels are). For a caller that wants only the silhouette
@@ -509,7 +547,7 @@ def segment_person(image: np.ndarray, analysis: PortraitAnalysis, *, work_size: 
     img, a, k = _working_copy(image, analysis, work_size)
     u, v = a.face_grid(img.shape[:2])
     reg = face_regions(u, v)
-    person = _person(img, reg, iterations, a.eye_distance, True) | reg["face_core"]
+    person = _person(img, reg, iterations, a.eye_distance, True, plate) | reg["face_core"]
     if k < 1.0:
         person = _upsample_labels(person.astype(np.uint8), (W, H)) != BACKGROUND
     return person

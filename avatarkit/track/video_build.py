@@ -4,6 +4,9 @@ Steps (`build_video_avatar`; each timed into the build report's `timings_s`):
 
     track      the video with the template head (or --head-model)      track.video
     keyframes  face sharpness of every frame; keyframes by head pose    track.keyframes
+    plate      the wall behind the moving head, per pixel, from up to   track.background_plate
+               64 tracked frames: the segmentation of the reference
+               frame and of every keyframe takes it (`SEGMENT_PLATE`)
     identity   one identity shape and every keyframe's head pose over   track.joint_identity
                the keyframes' landmarks
     (build)    the portrait build of the reference keyframe (its own    recon.pipeline
@@ -50,6 +53,11 @@ from avatarkit.track import keyframes as _keyframes
 
 #: the video build's last stage colours the parts one frame cannot (`track.frame_colours`)
 FRAME_COLOURS = True
+#: the wall behind the moving head (`track.background_plate.video_plate`) is given to the
+#: segmentation of the reference frame and of every keyframe (`recon.segment`, `plate=`): a
+#: pixel matching it where it is well known is sure background (session 22, docs/video-build.md
+#: "The wall behind the head")
+SEGMENT_PLATE = True
 #: the open mouth (`recon.mouth`: parted lips, teeth and a cavity) on the video build's avatar
 #: where its frame_colours stage runs, just before it, so the stage colours the teeth and the
 #: cavity from the frames that show them (a Gaussian no frame shows keeps the build's guess);
@@ -296,11 +304,20 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     kf = choose_keyframes(result, sharp, KEYFRAMES if keyframes is None else int(keyframes))
     images = read_frames(video, kf.frame_index)
     timings["keyframes"] = time.perf_counter() - t0
+    plate = None
+    if SEGMENT_PLATE:
+        from avatarkit.track.background_plate import video_plate
+
+        t0 = time.perf_counter()
+        plate = video_plate(video, result)
+        timings["plate"] = time.perf_counter() - t0
     ref_frame = int(kf.frame_index[0])
     # the frames whose tracked yaw is likely under-read (none where the face is never lost)
     edge = [int(f) for f in np.asarray(result.frame_index)[tracking_edge(result)]]
     source = {"video": os.path.abspath(video), "frame": ref_frame, "mode": "video",
               "keyframes": kf.summary(), "tracking_edge": edge}
+    if plate is not None:
+        source["plate"] = plate.summary()
     views = None
     if len(kf) > 1:
         t0 = time.perf_counter()
@@ -315,7 +332,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                            {"keyframes": [int(f) for f in kf.frame_index],
                             "identity_median_error_px": [round(float(e), 3) for e in jf.median_error_px],
                             "identity_shape": [round(float(c), 4) for c in jf.shape],
-                            "tracking_edge": edge})
+                            "tracking_edge": edge}, plate)
     else:
         source["mode"] = "single frame (the head does not turn: one keyframe)"
     with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp:
@@ -346,7 +363,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             # the drafts' views carry info["draft"] (`multiview.DRAFT_SCALP_FILL`)
             draft = build_avatar(png, first, None,
                                  views=dataclasses.replace(views, info={**views.info, "draft": True,
-                                                                        **({"fit_outline": False} if refine and DRAFT_OUTLINE is False else {})}))
+                                                                        **({"fit_outline": False} if refine and DRAFT_OUTLINE is False else {})}),
+                                 plate=plate)
             # no face crop to measure a registered frame's sharpness on: the keyframes' median
             added, figures = register_turned(draft, result, turned, views, video, float(np.median(kf.sharpness)))
             views.keyframes.extend(added)
@@ -363,7 +381,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                 # fitted, and every pose registered again against it at that many pixels
                 for size in (None, SECOND_ROUND) if SECOND_ROUND else (None,):
                     if size is not None:
-                        draft = build_avatar(png, first, None, views=dataclasses.replace(views, info={**views.info, "draft": True}))
+                        draft = build_avatar(png, first, None, views=dataclasses.replace(views, info={**views.info, "draft": True}),
+                                             plate=plate)
                     refined = refine_keyframes(draft, views, tracked, everywhere=everywhere, size=size)
                     views.info["refined"] = refined
                     if SKIP_AT_BOUND:
@@ -377,7 +396,8 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
             # degrees short (the whip clip, unregistered: -0.98 dB at +45), so the hair's outline
             # does not measure with it
             views.info["untrusted_poses"] = unregistered_turned(views)
-        avatar = build_avatar(png, options, count.portrait if progress is not None else None, views=views)
+        avatar = build_avatar(png, options, count.portrait if progress is not None else None, views=views,
+                              plate=plate)
     if jaw:
         from avatarkit.head.jaw_corrective import apply_jaw_corrective
         from avatarkit.track.jaw_corrective import fit_avatar_corrective
@@ -546,7 +566,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
     return out, figures
 
 
-__all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
+__all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "SEGMENT_PLATE", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
            "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_SHIFTED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND",
            "TurnedFrame",
            "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",

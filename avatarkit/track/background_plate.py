@@ -1,0 +1,190 @@
+"""The wall behind the head, from a whole video: what a video knows and a photo does not.
+
+A phone video's wall stays still while the head moves. Per pixel, the frames in which the tracked
+head is far from that pixel show the wall there; their median colour is the wall's (the plate),
+and how many of them agree with it says how well the plate is known there. The portrait
+segmentation of every keyframe and of the reference frame (`recon.segment`, `plate=`) then takes
+a pixel that matches a well-supported plate for sure background: a portrait's GrabCut has no
+sure-background zone when the head fills the frame, and took clutter touching the head (a
+poster, a door post, books) for the person (session 21, docs/video-build.md "Non-white walls").
+
+Where a pixel is the wall's (`person_zone`, per tracked frame): outside the tracked head model's
+projected outline dilated by `ZONE_MARGIN` of the head's size (the hair beyond the skull, the
+tracking's error) and outside a torso swept down from the jaw, widening by `ZONE_SLOPE` px a row.
+A pixel the zone covers in every frame (a head that never moves: where the head and the body
+are) has no plate, and its segmentation is the plate-less one.
+
+Sizes: the plate is made at most `PLATE_SIZE` px on its longer side from at most `PLATE_FRAMES`
+frames spread over the tracked clip; `Plate.at(shape)` resizes it to an image's size.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+#: the plate's longer side (px): a phone video's 1080p frames are median-filtered at this size
+PLATE_SIZE = 256
+#: at most this many frames (every k-th tracked frame) make the plate
+PLATE_FRAMES = 64
+#: the person zone: the head model's projected outline dilated by this share of the head's size
+#: (sqrt of the outline's area): the hair beyond the skull. At 0.14 the shared talking clips'
+#: plates held the top of the hair (the grey clip's keyframe lost 9,700 px of person, hair) and
+#: the synthetic walls gained most (the clutter bob's front 16.6 dB against 13.7 at 0.25); at 0.25
+#: the real clips' segmentations are as without a plate (session 22, docs/video-build.md)
+ZONE_MARGIN = 0.25
+#: the torso below the jaw (from this share of the outline's height down) widens this many px a row
+ZONE_START = 0.75
+ZONE_SLOPE = 0.5
+#: a frame agrees with the plate where no channel differs from it by more than this (0-255
+#: levels: camera noise and a codec's ringing at the clutter's edges)
+AGREE = 12
+#: the plate is known where at least this many frames agree with it...
+MIN_FRAMES = 4
+#: ...and at least this share of the frames that saw the pixel outside the person zone (a pixel
+#: the hair crossed in a few frames: the wall wins only where it is what most of them saw)
+MIN_AGREEMENT = 0.6
+
+
+@dataclass(eq=False)
+class Plate:
+    """The wall seen behind a moving head.
+
+    colour (h, w, 3) uint8: the median of the frames that saw each pixel outside the person
+    zone (0 where none did); support (h, w) int32: how many of them agree with it (`AGREE`);
+    seen (h, w) int32: how many saw it outside the zone; frames: how many frames were read.
+    (h, w) is the video's frame size scaled to at most `PLATE_SIZE`."""
+
+    colour: np.ndarray
+    support: np.ndarray
+    seen: np.ndarray
+    frames: int
+
+    @property
+    def known(self) -> np.ndarray:
+        """(h, w) bool: where the plate is well supported (`MIN_FRAMES`, `MIN_AGREEMENT`)."""
+        return (self.support >= MIN_FRAMES) & (self.support >= MIN_AGREEMENT * np.maximum(self.seen, 1))
+
+    def at(self, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """The plate at an image's size (H, W): (colour (H, W, 3) uint8 (bilinear), known (H, W)
+        bool (nearest, eroded by a pixel where scaled: a known pixel's colour is not a blend
+        with an unknown one))."""
+        import cv2
+
+        H, W = shape
+        known = self.known
+        if known.shape == (H, W):
+            return self.colour, known
+        colour = cv2.resize(self.colour, (W, H), interpolation=cv2.INTER_LINEAR)
+        k = cv2.erode(known.astype(np.uint8), np.ones((3, 3), np.uint8))
+        return colour, cv2.resize(k, (W, H), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+    def matches(self, image: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the pixels of `image` ((H, W, 3) uint8, a frame of the video at any
+        size) where the plate is known and no channel differs from it by more than `AGREE`."""
+        colour, known = self.at(image.shape[:2])
+        diff = np.abs(np.asarray(image, np.int16) - colour.astype(np.int16)).max(axis=2)
+        return known & (diff <= AGREE)
+
+    def summary(self) -> dict:
+        """Figures for the build report."""
+        known = self.known
+        return {"frames": int(self.frames), "size": [int(self.colour.shape[1]), int(self.colour.shape[0])],
+                "known_share": round(float(known.mean()), 4)}
+
+
+def person_zone(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: where the person may be in a frame whose head model projects to `points`
+    ((V, 2) px, NaN where behind the camera): the points' convex outline dilated by
+    `ZONE_MARGIN` of its size, and below `ZONE_START` of its height a torso widening by
+    `ZONE_SLOPE` px a row. All True when no point projects (nothing known: no plate from it)."""
+    import cv2
+
+    h, w = shape
+    p = np.asarray(points, np.float32)
+    p = p[np.isfinite(p).all(axis=1)]
+    if len(p) < 3:
+        return np.ones(shape, bool)
+    hull = np.zeros(shape, np.uint8)
+    cv2.fillConvexPoly(hull, np.round(cv2.convexHull(p)[:, 0]).astype(np.int32), 1)
+    if not hull.any():
+        return np.ones(shape, bool)
+    r = ZONE_MARGIN * np.sqrt(hull.sum())
+    dist = cv2.distanceTransform((1 - hull).astype(np.uint8), cv2.DIST_L2, 3)
+    zone = dist <= r
+    rows = np.nonzero(hull.any(axis=1))[0]
+    y0 = int(rows[0] + ZONE_START * (rows[-1] - rows[0]))
+    cols = np.nonzero(zone[y0])[0]
+    yy, xx = np.mgrid[0:h, 0:w]
+    k = np.maximum(yy - y0, 0) * ZONE_SLOPE
+    return zone | ((yy >= y0) & (xx >= cols.min() - k) & (xx <= cols.max() + k))
+
+
+def plate_from_frames(frames: np.ndarray, zones: np.ndarray) -> Plate:
+    """The plate of frames (T, h, w, 3) uint8 with their person zones (T, h, w) bool (True: the
+    person may be there). Per pixel the channel-wise median of the frames outside their zone,
+    the count that agree with it (`AGREE`) and the count outside."""
+    frames = np.asarray(frames)
+    out = ~np.asarray(zones, bool)                          # (T, h, w) the frame saw the wall here
+    seen = out.sum(axis=0).astype(np.int32)                 # (h, w)
+    x = np.where(out[..., None], frames.astype(np.float32), np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN pixels: no plate
+            med = np.nanmedian(x, axis=0)                    # (h, w, 3)
+    colour = np.nan_to_num(np.round(med), nan=0.0).astype(np.uint8)
+    agree = out & (np.abs(frames.astype(np.int16) - colour[None].astype(np.int16)).max(axis=3) <= AGREE)
+    return Plate(colour, agree.sum(axis=0).astype(np.int32), seen, int(len(frames)))
+
+
+def video_plate(video: str | os.PathLike, result) -> Plate | None:
+    """The plate of a tracked video (`TrackResult` of `track.video.track_video` on it): at most
+    `PLATE_FRAMES` of its frames where the face was found, at most `PLATE_SIZE` px, each with the person zone of
+    its tracked head (`person_zone` of the head model posed by the clip, projected by the
+    tracking's camera). None when the video gives fewer than `MIN_FRAMES` frames."""
+    import cv2
+
+    from avatarkit.head.model import HeadParams
+    from avatarkit.video import open_video
+
+    index = np.asarray(result.frame_index)
+    # only the frames whose face the tracker found: a lost stretch's pose is interpolated (a
+    # turn's end read tens of degrees short), and its head's zone left the hair behind it out
+    found = np.flatnonzero(np.asarray(result.found, bool))
+    step = max(1, int(np.ceil(len(found) / PLATE_FRAMES)))
+    rows = found[::step]
+    if len(rows) < MIN_FRAMES:
+        return None
+    want = {int(index[t]): t for t in rows}
+    images, ts = [], []
+    with open_video(video) as v:
+        for frame in v.frames(min(want), max(want) + 1):
+            t = want.get(int(frame.index))
+            if t is None:
+                continue
+            rgb = frame.rgb
+            H, W = rgb.shape[:2]
+            k = min(1.0, PLATE_SIZE / max(H, W))
+            if k < 1.0:
+                rgb = cv2.resize(rgb, (max(1, round(W * k)), max(1, round(H * k))), interpolation=cv2.INTER_AREA)
+            images.append(rgb)
+            ts.append(t)
+    if len(images) < MIN_FRAMES:
+        return None
+    h, w = images[0].shape[:2]
+    params = HeadParams.from_clip(result.clip, frames=[int(t) for t in ts])
+    params.shape = np.asarray(result.clip.shape, np.float32)
+    verts = result.model.forward(params)[0]                 # (T, V, 3)
+    sx, sy = w / result.camera.width, h / result.camera.height
+    zones = []
+    for vt in verts:
+        px, _ = result.camera.project(vt)
+        zones.append(person_zone(px * np.array([sx, sy]), (h, w)))
+    return plate_from_frames(np.stack(images), np.stack(zones))
+
+
+__all__ = ["AGREE", "MIN_AGREEMENT", "MIN_FRAMES", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
+           "ZONE_START", "Plate", "person_zone", "plate_from_frames", "video_plate"]

@@ -1,0 +1,210 @@
+"""The wall plate of a video (`track.background_plate`) and the segmentation that takes it
+(`recon.segment`, `plate=`): cases whose answer is known."""
+import cv2
+import numpy as np
+import pytest
+
+from avatarkit.recon.portrait import analysis_from_box
+from avatarkit.recon.segment import BACKGROUND, HAIR, segment_portrait
+from avatarkit.recon.synthetic import synthetic_portrait
+from avatarkit.synthetic.walls import wall_image
+from avatarkit.track import background_plate as BP
+from avatarkit.track.background_plate import Plate, person_zone, plate_from_frames
+
+
+def iou(a, b):
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+def textured_wall(h=64, w=96, seed=0):
+    """(h, w, 3) uint8: a wall with a texture and hard-edged clutter (no two neighbours alike)."""
+    rng = np.random.default_rng(seed)
+    wall = rng.integers(40, 216, (h, w, 3)).astype(np.uint8)
+    wall[10:30, 60:80] = (200, 30, 20)     # a poster
+    return wall
+
+
+def blob_video(wall, xs, r=12, cy=32):
+    """Frames (T, h, w, 3) of a disc of its own colour moving over `wall` to the centres xs, and
+    each frame's zone (the disc dilated by 2 px, as a tracked head's zone would be)."""
+    h, w = wall.shape[:2]
+    yy, xx = np.mgrid[0:h, 0:w]
+    frames, zones, discs = [], [], []
+    for x in xs:
+        disc = (yy - cy) ** 2 + (xx - x) ** 2 <= r * r
+        frames.append(np.where(disc[..., None], np.array([90, 60, 40], np.uint8), wall))
+        zones.append((yy - cy) ** 2 + (xx - x) ** 2 <= (r + 2) ** 2)
+        discs.append(disc)
+    return np.stack(frames), np.stack(zones), np.stack(discs)
+
+
+def test_plate_is_the_wall_where_the_blob_left_and_unknown_where_it_never_did():
+    wall = textured_wall()
+    frames, zones, discs = blob_video(wall, np.linspace(38, 58, 10), r=14)
+    # one frame's zone misses the blob's rim (a tracking error): the median keeps the wall
+    zones[0] = cv2.erode(discs[0].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    plate = plate_from_frames(frames, zones)
+    always = zones.all(axis=0)                    # the blob's zone in every frame
+    assert always.sum() > 50 and (~always).sum() > 1000
+    known = plate.known
+    assert not (known & always).any()             # never uncovered: no plate
+    # uncovered in enough frames that agree: the plate is the wall there, to the level
+    enough = (~zones).sum(axis=0) >= BP.MIN_FRAMES
+    assert not (known & ~enough).any() and known.sum() > 0.95 * enough.sum()
+    assert (plate.colour[known] == wall[known]).all()
+    # a frame matches the plate where it shows the wall the plate knows, and nowhere on the blob
+    m = plate.matches(frames[-1])
+    assert m[known & ~zones[-1]].all() and not m[discs[-1]].any()
+
+
+def test_person_zone_covers_the_head_its_margin_and_a_torso_widening_below():
+    h, w = 120, 120
+    t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    pts = np.stack([60 + 20 * np.cos(t), 45 + 25 * np.sin(t)], 1)      # a head 40 x 50 px
+    zone = person_zone(pts, (h, w))
+    size = np.sqrt(np.pi * 20 * 25)
+    r = BP.ZONE_MARGIN * size
+    assert zone[45, int(60 + 20 + r - 1)] and not zone[45, int(60 + 20 + r + 2)]   # the margin
+    assert not zone[2, 2] and not zone[2, 117]                                       # the top corners
+    # below the jaw the torso widens by ZONE_SLOPE a row: wider at the bottom than at the jaw
+    assert zone[119].sum() > zone[70].sum() + BP.ZONE_SLOPE * 40
+    assert person_zone(np.full((10, 2), np.nan), (h, w)).all()      # nothing projects: no plate
+
+
+def clutter_portrait(n=160):
+    """The synthetic portrait's central n px (the head fills the frame: no "far" zone) on the
+    cluttered wall (`synthetic.walls`: a poster and a post touching the head), its truth labels,
+    the wall, and the portrait analysis."""
+    sp = synthetic_portrait(size=256, noise=0, background_rgb=(255, 255, 255))
+    y0, x0 = 40, 48
+    truth = sp.labels[y0:y0 + n, x0:x0 + n]
+    wall = np.round(wall_image("clutter", n) * 255).astype(np.uint8)
+    img = np.where((truth == BACKGROUND)[..., None], wall, sp.image[y0:y0 + n, x0:x0 + n]).astype(np.uint8)
+    x, y, w, h = sp.face_box
+    return np.ascontiguousarray(img), truth, wall, analysis_from_box((n, n), (x - x0, y - y0, w, h))
+
+
+def test_a_plate_keeps_clutter_touching_the_head_out_of_the_person(monkeypatch):
+    from avatarkit.recon import segment as S
+
+    img, truth, wall, a = clutter_portrait()
+    n = len(img)
+    full = np.full((n, n), 10, np.int32)
+    plate = Plate(wall, full, full, 10)             # the wall, known everywhere
+    without = segment_portrait(img, a)
+    withp = segment_portrait(img, a, plate=plate)
+    wall_px = truth == BACKGROUND
+    assert (without.person & wall_px).sum() > 1000   # the poster and the post taken for the person
+    assert (withp.person & wall_px).sum() < 50
+    assert iou(withp.person, ~wall_px) > 0.98
+    assert iou(withp.hair, truth == HAIR) > 0.95 > iou(without.hair, truth == HAIR)
+    # the wall seen through a gap inside the hair (a hole the person encloses) stays the wall's
+    hole = np.zeros(truth.shape, bool)
+    ys, xs = np.nonzero(truth == HAIR)
+    cy, cx = int(np.median(ys)), int(np.median(xs))
+    hole[cy - 4:cy + 4, cx - 4:cx + 4] = True
+    holed = np.where(hole[..., None], wall, img).astype(np.uint8)
+    assert not segment_portrait(holed, a, plate=plate).person[hole].any()
+    monkeypatch.setattr(S, "PLATE_SURE", False)     # the switch off: the plate is ignored
+    assert (segment_portrait(img, a, plate=plate).labels == without.labels).all()
+
+
+def test_a_still_video_has_no_plate_where_the_head_is_and_segments_no_worse():
+    """A head that never moves: its zone is the same in every frame, the plate is unknown there;
+    with the plate known nowhere the segmentation is the plate-less one to the pixel."""
+    img, truth, wall, a = clutter_portrait()
+    zone = cv2.dilate((truth != BACKGROUND).astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool)
+    still = plate_from_frames(np.repeat(img[None], 8, 0), np.repeat(zone[None], 8, 0))
+    assert not (still.known & zone).any() and still.known[~zone].all()
+    without = segment_portrait(img, a)
+    withp = segment_portrait(img, a, plate=still)
+    wall_px = truth == BACKGROUND
+    assert (withp.person & wall_px).sum() <= (without.person & wall_px).sum()
+    assert iou(withp.person, ~wall_px) >= iou(without.person, ~wall_px)
+    nowhere = plate_from_frames(np.repeat(img[None], 8, 0), np.ones((8,) + zone.shape, bool))
+    assert not nowhere.known.any()
+    assert (segment_portrait(img, a, plate=nowhere).labels == without.labels).all()
+
+
+@pytest.mark.parametrize("shape", [(160, 160), (320, 320)])
+def test_plate_at_an_image_size(shape):
+    wall = textured_wall(80, 80)
+    full = np.full((80, 80), 10, np.int32)
+    known = full.copy()
+    known[:, :40] = 0
+    plate = Plate(wall, known, full, 10)
+    colour, k = plate.at(shape)
+    assert colour.shape == shape + (3,) and k.shape == shape
+    s = shape[1] // 80
+    assert not k[:, :40 * s].any() and k[:, 41 * s + 1:].mean() > 0.9
+
+
+def test_the_gaps_between_strands_stay_grabcuts_to_decide(monkeypatch):
+    """`segment.PLATE_OPEN`: hair with one-pixel gaps that show the wall (strands). Every gap
+    matches the plate; taken for sure background one by one they cut the hair to pieces and
+    GrabCut dropped all of it; opened away, the hair is the plate-less segmentation's."""
+    from avatarkit.recon import segment as S
+
+    sp = synthetic_portrait(size=256, noise=0, background_rgb=(255, 255, 255))
+    y0, x0, n = 40, 48, 160
+    truth = sp.labels[y0:y0 + n, x0:x0 + n]
+    img = sp.image[y0:y0 + n, x0:x0 + n].copy()
+    gaps = (truth == HAIR) & (np.arange(n)[None] % 4 == 0)
+    img[gaps] = 255
+    x, y, w, h = sp.face_box
+    a = analysis_from_box((n, n), (x - x0, y - y0, w, h))
+    full = np.full((n, n), 10, np.int32)
+    plate = Plate(np.full((n, n, 3), 255, np.uint8), full, full, 10)    # the white wall
+    without = segment_portrait(img, a)
+    assert without.hair.sum() > 0.5 * (truth == HAIR).sum()
+    # the portrait holds none of the wall the opened plate shows (`PLATE_TAKEN`): kept as it was
+    assert (segment_portrait(img, a, plate=plate).labels == without.labels).all()
+    monkeypatch.setattr(S, "PLATE_OPEN", 0.0)
+    assert segment_portrait(img, a, plate=plate).hair.sum() < 0.2 * without.hair.sum()
+
+
+def test_a_plate_leaves_a_portrait_that_kept_the_wall_out_as_it_was(monkeypatch):
+    """`segment.PLATE_TAKEN`: on a plain wall the portrait's own segmentation holds none of the
+    wall the plate shows; it is kept to the pixel (the plate as sure background would still
+    change GrabCut's colour models)."""
+    from avatarkit.recon import segment as S
+
+    sp = synthetic_portrait(size=256, noise=0, background_rgb=(200, 200, 200))
+    y0, x0, n = 40, 48, 160
+    img = np.ascontiguousarray(sp.image[y0:y0 + n, x0:x0 + n])
+    truth = sp.labels[y0:y0 + n, x0:x0 + n]
+    x, y, w, h = sp.face_box
+    a = analysis_from_box((n, n), (x - x0, y - y0, w, h))
+    full = np.full((n, n), 10, np.int32)
+    plate = Plate(np.where((truth == BACKGROUND)[..., None], img, 0).astype(np.uint8), full, full, 10)
+    without = segment_portrait(img, a)
+    assert (without.person & (truth == BACKGROUND)).sum() < 0.005 * (truth == BACKGROUND).sum()
+    assert (segment_portrait(img, a, plate=plate).labels == without.labels).all()
+
+
+def test_relabel_head_leaves_the_wall_a_plate_shows_to_the_wall(monkeypatch):
+    """`multiview.RELABEL_PLATE`: a turned keyframe with no face (labels all background) on the
+    cluttered wall. `relabel_head` takes what by the head is not the one-colour wall model's
+    colour for the person: the poster and the post. With the plate's wall (`plate_wall`) they
+    stay the wall's; the head's own pixels are the person's either way."""
+    from avatarkit.recon import multiview as MV
+    from avatarkit.recon.segment import ColourModel, rgb_to_lab
+
+    n = 160
+    wall = np.round(wall_image("clutter", n) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:n, 0:n]
+    head = (yy - 70) ** 2 + (xx - 80) ** 2 <= 40 ** 2
+    img = np.where(head[..., None], np.array([200, 150, 120], np.uint8), wall).astype(np.uint8)
+    skin = ColourModel.fit(rgb_to_lab(np.array([[200, 150, 120]] * 8, np.uint8)))
+    hair = ColourModel.fit(rgb_to_lab(np.array([[60, 40, 30]] * 8, np.uint8)))
+    full = np.full((n, n), 10, np.int32)
+    plate = Plate(wall, full, full, 10)
+    labels = np.zeros((n, n), np.int32)
+    plain = MV.relabel_head(labels, img, head, (hair, skin))
+    withp = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
+    assert (plain[~head] != BACKGROUND).sum() > 300          # clutter by the head: the person's
+    assert (withp[~head] != BACKGROUND).sum() < 10
+    assert (withp[head] != BACKGROUND).all() and (plain[head] != BACKGROUND).all()
+    monkeypatch.setattr(MV, "RELABEL_PLATE", None)
+    assert MV.plate_wall(plate, img) is None
+
