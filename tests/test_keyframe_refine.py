@@ -279,7 +279,7 @@ def test_only_the_turned_end_frames_relabel_strands_beyond_the_reach(monkeypatch
 
     calls = []
 
-    def spy(labels, image, head, colours, reach=None, connected=None):
+    def spy(labels, image, head, colours, reach=None, connected=None, wall=None):
         calls.append(connected)
         return labels
 
