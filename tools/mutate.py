@@ -530,8 +530,9 @@ MUTATIONS = [
       "                          rng.spawn(1)[0])", "                          rng)",
       ["tests/test_bald_holes.py"], "fill_holes' probes drawn from the caller's stream: the hair drawn next changes with them"),
     M("recon.bald_holes_first_pass_as_coverage", "avatarkit/recon/bald_discs.py",
-      "    cov = surface_coverage(points[maybe], normals[maybe], means, rot, sc, opacity=opacity, k=k, chunk=chunk)",
-      "    cov = bound[maybe]", ["tests/test_bald_holes.py", "-k", "bit_for_bit or fast_path"],
+      "    cov = surface_coverage(points[maybe], normals[maybe], means, rot, sc, opacity=opacity, k=k, chunk=chunk,\n"
+      "                           tree=tree)\n",
+      "    cov = bound[maybe]\n", ["tests/test_bald_holes.py", "-k", "bit_for_bit or fast_path"],
       "thin_coverage taking its first pass's bound (the nearest discs alone) for the coverage"),
     M("recon.bald_holes_first_pass_drops_the_near_thin", "avatarkit/recon/bald_discs.py",
       "    maybe = np.flatnonzero(bound < threshold + HOLE_MARGIN)", "    maybe = np.flatnonzero(bound < threshold - 0.02)",

@@ -216,12 +216,13 @@ def _discs_on(v: np.ndarray, faces: np.ndarray, ids: np.ndarray, share: np.ndarr
 
 def surface_coverage(points: np.ndarray, normals: np.ndarray, means: np.ndarray, rotations: np.ndarray,
                      scales: np.ndarray, opacity: float | None = None, k: int = 32,
-                     chunk: int = 20000) -> np.ndarray:
+                     chunk: int = 20000, tree=None) -> np.ndarray:
     """(P,) the alpha the discs (means (K, 3), rotations (K, 3, 3) with columns e0, n, b, scales
     (K, 3) along them) give the surface points (P, 3) with outward normals (P, 3), seen head-on:
     1 - prod(1 - opacity exp(-(u^2 / s0^2 + w^2 / s2^2) / 2)) over the k nearest discs whose
     normal agrees with the point's (cos > 0.5: not the other side of an ear or a lip), (u, w) the
-    point's offset along the disc's in-plane axes, out to 3 sigma as the renderer cuts them."""
+    point's offset along the disc's in-plane axes, out to 3 sigma as the renderer cuts them.
+    tree: a `cKDTree(means)` made before (`thin_coverage`'s), or None to make one."""
     from scipy.spatial import cKDTree
 
     opacity = HOLE_OPACITY if opacity is None else float(opacity)
@@ -233,7 +234,7 @@ def surface_coverage(points: np.ndarray, normals: np.ndarray, means: np.ndarray,
     rot = np.asarray(rotations, np.float64)
     sc = np.asarray(scales, np.float64)
     k = int(min(k, len(means)))
-    tree = cKDTree(means)
+    tree = cKDTree(means) if tree is None else tree
     reach = 3.0 * float(sc[:, [0, 2]].max())
     for lo in range(0, len(points), chunk):
         p = points[lo:lo + chunk]
@@ -317,7 +318,8 @@ def thin_coverage(points: np.ndarray, normals: np.ndarray, means: np.ndarray, ro
         hit = valid & facing & (q <= 9.0 - HOLE_MARGIN)
         bound[at] = 1.0 - np.prod(1.0 - np.where(hit, opacity * np.exp(-0.5 * q), 0.0), axis=1)
     maybe = np.flatnonzero(bound < threshold + HOLE_MARGIN)
-    cov = surface_coverage(points[maybe], normals[maybe], means, rot, sc, opacity=opacity, k=k, chunk=chunk)
+    cov = surface_coverage(points[maybe], normals[maybe], means, rot, sc, opacity=opacity, k=k, chunk=chunk,
+                           tree=tree)
     thin = cov < threshold
     return maybe[thin], cov[thin]
 
