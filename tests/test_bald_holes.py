@@ -125,3 +125,77 @@ def test_sample_bald_adds_discs_only_after_the_drawn_ones(monkeypatch):
     # each extra disc's centre is in its triangle's plane
     off = np.einsum("nc,nc->n", np.asarray(filled[0][3000:], np.float64) - tri[:, 0], normal)
     assert np.abs(off).max() < 1e-5
+
+
+# the fast path (`thin_coverage`, `_spread`) against its slow reference (`surface_coverage` over
+# every probe, `_spread_reference`): the same discs, bit for bit
+
+def _random_cloud(rng, k: int, p: int):
+    """k discs and p probes scattered over a 6 cm box with random orientations (so some discs
+    face away from a probe) and sizes near the face's: (points, normals, means, rot, scales)."""
+    from avatarkit.rotations import quat_to_matrix
+
+    means = rng.uniform(-0.03, 0.03, (k, 3))
+    q = rng.normal(size=(k, 4))
+    rot = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    r = rng.uniform(0.002, 0.006, k)
+    scales = np.stack([r, 0.15 * r, r * rng.uniform(0.85, 1.15, k)], 1)
+    pts = rng.uniform(-0.03, 0.03, (p, 3))
+    nrm = rot[rng.integers(0, k, p), :, 1] + rng.normal(scale=0.4, size=(p, 3))     # mostly agreeing
+    return pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), means, rot, scales
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_thin_coverage_is_surface_coverage_below_the_threshold_bit_for_bit(seed):
+    rng = np.random.default_rng(seed)
+    pts, nrm, means, rot, scales = _random_cloud(rng, 3000, 4000)
+    ref = bald_discs.surface_coverage(pts, nrm, means, rot, scales)
+    assert 0.05 < (ref < 0.95).mean() < 0.95                       # both kinds of probe here
+    # thresholds on either side, and exactly at a probe's own coverage (not below it: not thin)
+    for threshold in (0.5, 0.95, 0.99, float(np.sort(ref)[len(ref) // 2])):
+        idx, cov = bald_discs.thin_coverage(pts, nrm, means, rot, scales, threshold)
+        np.testing.assert_array_equal(idx, np.flatnonzero(ref < threshold))
+        np.testing.assert_array_equal(cov, ref[idx])
+    # fewer discs than the first pass takes: the reference alone
+    idx, cov = bald_discs.thin_coverage(pts[:50], nrm[:50], means[:5], rot[:5], scales[:5], 0.95)
+    ref5 = bald_discs.surface_coverage(pts[:50], nrm[:50], means[:5], rot[:5], scales[:5])
+    np.testing.assert_array_equal(idx, np.flatnonzero(ref5 < 0.95))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_spread_keeps_what_the_greedy_reference_keeps(seed):
+    rng = np.random.default_rng(seed)
+    # clusters (many points within one another's spacing) and a sparse scatter, spacings varied
+    centres = rng.uniform(-0.05, 0.05, (20, 3))
+    pts = np.concatenate([centres[rng.integers(0, 20, 1500)] + rng.normal(scale=0.004, size=(1500, 3)),
+                          rng.uniform(-0.05, 0.05, (500, 3))])
+    spacing = rng.uniform(0.001, 0.006, len(pts))
+    order = rng.permutation(len(pts))
+    ref = bald_discs._spread_reference(pts, order, spacing)
+    assert 50 < len(ref) < len(pts) - 50                            # the thinning does something
+    np.testing.assert_array_equal(bald_discs._spread(pts, order, spacing), ref)
+    assert len(bald_discs._spread(pts[:0], order[:0], spacing[:0])) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sample_bald_fast_path_gives_the_references_discs(monkeypatch, seed):
+    from avatarkit.recon.fit import synthetic_head_view
+
+    fit = synthetic_head_view((0.0, 0.15, 0.0), distance=0.6, size=64, n_gaussians=500).truth
+    fast = bald_discs.sample_bald(fit, 6000, np.random.default_rng(seed))
+    monkeypatch.setattr(bald_discs, "HOLE_REFERENCE", True)
+    ref = bald_discs.sample_bald(fit, 6000, np.random.default_rng(seed))
+    assert len(ref[0]) > 6000 + 100                                 # holes were filled
+    for a, b in zip(ref, fast):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(b, a)
+
+
+def test_fill_holes_fast_path_on_the_sheet_gives_the_references_discs(sheet, monkeypatch):
+    v, faces, discs, area, share = sheet
+    fast = bald_discs.fill_holes(v, faces, area, share, discs, np.random.default_rng(11))
+    monkeypatch.setattr(bald_discs, "HOLE_REFERENCE", True)
+    ref = bald_discs.fill_holes(v, faces, area, share, discs, np.random.default_rng(11))
+    assert len(ref[0]) > len(discs[0])
+    for a, b in zip(ref, fast):
+        np.testing.assert_array_equal(b, a)

@@ -529,6 +529,22 @@ MUTATIONS = [
     M("recon.bald_holes_from_the_callers_stream", "avatarkit/recon/bald_discs.py",
       "                          rng.spawn(1)[0])", "                          rng)",
       ["tests/test_bald_holes.py"], "fill_holes' probes drawn from the caller's stream: the hair drawn next changes with them"),
+    M("recon.bald_holes_first_pass_as_coverage", "avatarkit/recon/bald_discs.py",
+      "    cov = surface_coverage(points[maybe], normals[maybe], means, rot, sc, opacity=opacity, k=k, chunk=chunk,\n"
+      "                           tree=tree)\n",
+      "    cov = bound[maybe]\n", ["tests/test_bald_holes.py", "-k", "bit_for_bit or fast_path"],
+      "thin_coverage taking its first pass's bound (the nearest discs alone) for the coverage"),
+    M("recon.bald_holes_first_pass_drops_the_near_thin", "avatarkit/recon/bald_discs.py",
+      "    maybe = np.flatnonzero(bound < threshold + HOLE_MARGIN)", "    maybe = np.flatnonzero(bound < threshold - 0.02)",
+      ["tests/test_bald_holes.py", "-k", "bit_for_bit or fast_path"],
+      "thin_coverage's first pass calling covered the probes its bound leaves just under the threshold"),
+    M("recon.bald_holes_first_pass_other_side", "avatarkit/recon/bald_discs.py",
+      "        hit = valid & facing & (q <= 9.0 - HOLE_MARGIN)", "        hit = valid & (q <= 9.0 - HOLE_MARGIN)",
+      ["tests/test_bald_holes.py", "-k", "bit_for_bit"],
+      "thin_coverage's first pass counting the discs of the other side: its bound no longer one"),
+    M("recon.bald_spread_any_earlier_neighbour", "avatarkit/recon/bald_discs.py",
+      "            if kept[j]:", "            if True:", ["tests/test_bald_holes.py", "-k", "spread"],
+      "the fast _spread dropping a point near an earlier one the greedy thinning had dropped itself"),
 ]
 
 
