@@ -111,3 +111,15 @@ def test_degenerate_triangles_are_flagged_and_get_identity():
 def test_bad_input(vertices, faces, match):
     with pytest.raises(InputError, match=match):
         triangle_frames(vertices, faces)
+
+
+def test_points_on_triangles_lie_inside_and_spread_uniformly():
+    from avatarkit.rig.frames import points_on_triangles
+
+    tri = np.repeat(np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]]]), 40000, axis=0)
+    p = points_on_triangles(tri, np.random.default_rng(0))
+    x, y = p[:, 0], p[:, 1] / 2.0                 # the triangle x, y >= 0, x + y <= 1 after scaling
+    assert (x >= 0).all() and (y >= 0).all() and (x + y <= 1 + 1e-12).all() and (p[:, 2] == 0).all()
+    np.testing.assert_allclose(p.mean(axis=0), tri[0].mean(axis=0), atol=0.01)   # uniform: the centroid
+    # uniform by area: the sub-triangle x + y <= 1/2 holds a quarter of the area
+    assert abs((x + y <= 0.5).mean() - 0.25) < 0.01

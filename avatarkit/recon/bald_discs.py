@@ -200,14 +200,10 @@ def _eye_area_faces(model, vertices: np.ndarray, reach: float | None = None) -> 
 def _discs_on(v: np.ndarray, faces: np.ndarray, ids: np.ndarray, share: np.ndarray, rng: np.random.Generator):
     """Discs on the faces `ids` (k,) of the mesh (v (V, 3), faces (F, 3)), each covering `share`
     (k,) m^2 of the surface: (points (k, 3), quats (k, 4), scales (k, 3), normals (k, 3))."""
-    from avatarkit.rig.frames import triangle_frames
+    from avatarkit.rig.frames import points_on_triangles, triangle_frames
 
     n = len(ids)
-    tri = v[faces]
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    points = np.einsum("nk,nkc->nc", bary, tri[ids])
+    points = points_on_triangles(v[faces[ids]], rng)
     _, rot, _ = triangle_frames(v, faces[ids])                     # columns e0, n, b
     radius = COVERAGE * np.sqrt(share / np.pi) * rng.uniform(0.85, 1.15, n)
     scales = np.stack([radius, FLATNESS * radius, radius * rng.uniform(0.85, 1.15, n)], axis=1)
@@ -372,7 +368,7 @@ def fill_holes(v: np.ndarray, faces: np.ndarray, weight: np.ndarray, share_of: n
     disc's share apart, get a disc `HOLE_SIZE` times their face's size, lying in its plane;
     `HOLE_ROUNDS` rounds.
     Returns the discs with the extra ones appended (the others untouched)."""
-    from avatarkit.rig.frames import triangle_frames
+    from avatarkit.rig.frames import points_on_triangles, triangle_frames
     from avatarkit.rotations import quat_to_matrix
 
     threshold = HOLE_ALPHA if threshold is None else threshold
@@ -383,10 +379,7 @@ def fill_holes(v: np.ndarray, faces: np.ndarray, weight: np.ndarray, share_of: n
         return discs
     m = int(probes * len(points))
     pid = rng.choice(len(faces), size=m, p=weight / weight.sum())
-    r1, r2 = rng.random(m), rng.random(m)
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    probe = np.einsum("nk,nkc->nc", bary, v[faces[pid]])
+    probe = points_on_triangles(v[faces[pid]], rng)
     _, frames, _ = triangle_frames(v, faces)
     frames = np.asarray(frames, np.float64)
     probe_n = frames[pid, :, 1]

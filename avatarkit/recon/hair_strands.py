@@ -32,6 +32,7 @@ import numpy as np
 from avatarkit.errors import InputError
 from avatarkit.recon.fit import HeadFit, project_mask
 from avatarkit.recon.image_sampling import lookup, sample_image
+from avatarkit.rig.frames import points_on_triangles
 from avatarkit.recon import visibility as _visibility  # its switches read at call time
 
 #: hair keeps at least this clearance (metres) above the scalp
@@ -417,10 +418,7 @@ def scalp_roots(fit: HeadFit, n: int, rng: np.random.Generator) -> np.ndarray:
     tri = v[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     ids = rng.choice(len(faces), size=n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    return np.einsum("nk,nkc->nc", bary, tri[ids])
+    return points_on_triangles(tri[ids], rng)
 
 
 def hair_colours(image: np.ndarray, hair: np.ndarray, px: np.ndarray, seen: np.ndarray,

@@ -20,6 +20,7 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon.fit import HeadFit
 from avatarkit.recon.lifter import LiftResult
 from avatarkit.recon.mesh_distance import closest_points
+from avatarkit.rig.frames import points_on_triangles
 
 def _read_splats(source, what: str) -> tuple[GaussianSet, str | None]:
     from avatarkit.gaussians.ply import read_ply
@@ -50,10 +51,7 @@ def head_surface_samples(fit: HeadFit, n: int = 20000, seed: int = 0) -> np.ndar
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     rng = np.random.default_rng(seed)
     ids = rng.choice(len(faces), size=n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    return np.einsum("nk,nkc->nc", bary, tri[ids])
+    return points_on_triangles(tri[ids], rng)
 
 
 #: ICP steps every starting orientation gets before the best one is continued

@@ -89,3 +89,14 @@ def _rotations_scales(v0, v1, v2):
 def degenerate_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Boolean mask (..., F): triangles with no well-defined frame (zero edge or zero area)."""
     return frames_and_degenerate(vertices, faces)[3]
+
+
+def points_on_triangles(tri: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One point uniformly by area on each triangle tri (n, 3, 3) -> (n, 3): barycentrics
+    (1 - sqrt r1, sqrt r1 (1 - r2), sqrt r1 r2) with r1, r2 drawn from `rng` in that order (every
+    sampler of the head's surface draws them so; changing the order changes their avatars)."""
+    n = len(tri)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
+    return np.einsum("nk,nkc->nc", bary, tri)

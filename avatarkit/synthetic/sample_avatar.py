@@ -18,6 +18,7 @@ import numpy as np
 
 from avatarkit.errors import InputError
 from avatarkit.gaussians.gaussian_set import GaussianSet
+from avatarkit.rig.frames import points_on_triangles
 
 SKIN = (0.80, 0.60, 0.50)
 LIPS = (0.72, 0.36, 0.36)
@@ -52,10 +53,7 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.rand
     if not area.sum() > 0:
         raise InputError("the head mesh has no area to put Gaussians on")
     ids = rng.choice(len(faces), size=n, p=area / area.sum())
-    r1, r2 = rng.random(n), rng.random(n)
-    s = np.sqrt(r1)  # uniform on the triangle: (1 - sqrt r1, sqrt r1 (1 - r2), sqrt r1 r2)
-    bary = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    points = np.einsum("nk,nkc->nc", bary, tri[ids])
+    points = points_on_triangles(tri[ids], rng)
     return ids.astype(np.int32), points
 
 
