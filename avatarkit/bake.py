@@ -72,7 +72,7 @@ class BakeConfig:
     fps: float | None = None
     sim: SimConfig = field(default_factory=SimConfig)
     preroll: float | None = None
-    hair_batch: int = HAIR_BATCH
+    hair_batch: int = field(default_factory=lambda: HAIR_BATCH)  # read when the config is made
 
     def __post_init__(self):
         if self.frames is not None:

@@ -92,6 +92,71 @@ def test_no_module_constant_is_frozen_as_a_default_argument():
                        "docs/development.md):\n" + "\n".join(found))
 
 
+#: dataclass fields that may default to an UPPERCASE name: labels and format names, not switches
+FIELD_LABELS = {"ReassignConfig.hair_label", "ReassignConfig.background_label", "ReassignConfig.bald_label",
+                "UsdWriteOptions.prim_path"}
+
+
+def _is_dataclass_decorator(d) -> bool:
+    f = d.func if isinstance(d, ast.Call) else d
+    return (isinstance(f, ast.Name) and f.id == "dataclass") or (isinstance(f, ast.Attribute) and f.attr == "dataclass")
+
+
+def frozen_fields(path: Path) -> list[str]:
+    """'file:line Class.field = default' for every dataclass field whose default reads an
+    UPPERCASE constant at import (`x: int = NAME`); `field(default_factory=lambda: NAME)` reads
+    it when the instance is made and passes."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    out = []
+    for c in ast.walk(tree):
+        if not (isinstance(c, ast.ClassDef) and any(_is_dataclass_decorator(d) for d in c.decorator_list)):
+            continue
+        for st in c.body:
+            if not (isinstance(st, ast.AnnAssign) and isinstance(st.target, ast.Name) and st.value is not None):
+                continue
+            if f"{c.name}.{st.target.id}" in FIELD_LABELS or isinstance(st.value, ast.Lambda):
+                continue
+            lambdas = {id(n) for x in ast.walk(st.value) if isinstance(x, ast.Lambda) for n in ast.walk(x.body)}
+            if any(id(x) not in lambdas and ((isinstance(x, ast.Name) and _UPPER.match(x.id))
+                                             or (isinstance(x, ast.Attribute) and _UPPER.match(x.attr)))
+                   for x in ast.walk(st.value)):
+                rel = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path.name
+                out.append(f"{rel}:{st.lineno} {c.name}.{st.target.id} = {ast.unparse(st.value)}")
+    return out
+
+
+def test_the_field_scan_finds_a_frozen_field(tmp_path):
+    src = tmp_path / "m.py"
+    src.write_text("from dataclasses import dataclass, field\nimport m2\nSIZE = 3\n"
+                   "@dataclass\nclass A:\n    a: int = SIZE\n    b: float = m2.LIMIT\n"
+                   "    c: int = field(default=SIZE)\n    d: int = field(default_factory=lambda: SIZE)\n"
+                   "    e: str = 'SIZE'\n    f: int = 3\n"
+                   "class NotData:\n    g: int = SIZE\n")
+    found = [s.split(" ", 1)[1] for s in frozen_fields(src)]
+    assert found == ["A.a = SIZE", "A.b = m2.LIMIT", "A.c = field(default=SIZE)"]
+
+
+def test_no_option_field_freezes_a_module_constant():
+    found = [s for p in _files() for s in frozen_fields(p)]
+    assert not found, ("dataclass fields frozen at import (write `field(default_factory=lambda: NAME)`, "
+                       "docs/development.md):\n" + "\n".join(found))
+
+
+@pytest.mark.parametrize("cls_path, name, module, constant, value", [
+    ("avatarkit.track.tracker:TrackOptions", "calibration_frames", "avatarkit.track.tracker", "CALIBRATION_FRAMES", 7),
+    ("avatarkit.bake:BakeConfig", "hair_batch", "avatarkit.bake", "HAIR_BATCH", 5),
+    ("avatarkit.track.evaluate:EvalOptions", "alpha_threshold", "avatarkit.track.metrics", "ALPHA_THRESHOLD", 0.25),
+    ("avatarkit.track.evaluate:EvalOptions", "head_on", "avatarkit.track.neck", "DEFAULT_HEAD_ON", "head"),
+    ("avatarkit.cage.deform:CageDeformer", "axis_sigma", "avatarkit.cage.points", "AXIS_SIGMA", 0.5),
+])
+def test_option_fields_read_their_switch_when_made(monkeypatch, cls_path, name, module, constant, value):
+    import dataclasses
+    mod, cls = cls_path.split(":")
+    f = {x.name: x for x in dataclasses.fields(getattr(importlib.import_module(mod), cls))}[name]
+    monkeypatch.setattr(importlib.import_module(module), constant, value)
+    assert f.default_factory() == value
+
+
 def _call_time_defaults():
     """(module, function, param, reference) for every `param = REF if param is None|_UNSET else param`
     statement at the top of a function whose `param` defaults to that marker, REF a module

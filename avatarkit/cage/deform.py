@@ -37,7 +37,7 @@ import numpy as np
 from avatarkit.cage import points as _points
 from avatarkit.cage.mesh import Cage
 from avatarkit.cage.mvc import mvc_weights
-from avatarkit.cage.points import AXIS_SIGMA, METHODS, axis_vectors, deformation_points, principal_axis_index
+from avatarkit.cage.points import METHODS, axis_vectors, deformation_points, principal_axis_index
 from avatarkit.errors import FormatError, InputError
 from avatarkit.fileio import atomic_path, read_npz
 from avatarkit.gaussians.gaussian_set import GaussianSet
@@ -68,7 +68,7 @@ class CageDeformer:
     cage: Cage
     weights_t: np.ndarray
     method: str = "principal_axis"
-    axis_sigma: float = AXIS_SIGMA
+    axis_sigma: float = field(default_factory=lambda: _points.AXIS_SIGMA)  # read when made
     _pre: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):

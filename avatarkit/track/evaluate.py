@@ -50,7 +50,8 @@ import numpy as np
 from avatarkit.errors import OutputError
 from avatarkit.track import metrics
 from avatarkit.track.build_pose import align_to_build, recorded_build_frame
-from avatarkit.track.neck import DEFAULT_HEAD_ON, describe, place_head
+from avatarkit.track import neck as _neck
+from avatarkit.track.neck import describe, place_head
 
 REPORT_FILES = ("metrics.json", "frames.csv", "side_by_side.mp4")
 #: the paper's self-reenactment table (their protocol, see docs/evaluation.md)
@@ -79,7 +80,7 @@ class EvalOptions:
     build_frame: int | None = None
     exclude: int = 5
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    alpha_threshold: float = metrics.ALPHA_THRESHOLD
+    alpha_threshold: float = field(default_factory=lambda: metrics.ALPHA_THRESHOLD)
     simulate_hair: bool = False
     side_by_side: bool = True
     n_bald: int = 40_000
@@ -88,7 +89,7 @@ class EvalOptions:
     colour_share: float = 0.5
     subject_calibration: bool = False
     subject_part: str = "full"
-    head_on: str = DEFAULT_HEAD_ON
+    head_on: str = field(default_factory=lambda: _neck.DEFAULT_HEAD_ON)
     # the default drives the avatars with each frame's head pose and jaw refined by rendering the
     # avatar, 2 cheaper passes on every 5th frame: the landmark fit's pose alone (`--refine none`)
     # is ~4 degrees off on the synthetic videos (docs/tracking.md, session 16), so it scored the

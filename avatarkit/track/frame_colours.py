@@ -51,7 +51,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from avatarkit.track.neck import DEFAULT_HEAD_ON, clip_head_rotation, place_head
+from avatarkit.track import neck as _neck
+from avatarkit.track.neck import clip_head_rotation, place_head
 
 #: head-model regions whose bald Gaussians are coloured from the frames (module docstring);
 #: the Gaussians on the outline of the posed renders are too (`outline_selection`)
@@ -499,7 +500,7 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours
         # are fitted where the neck will be
-        place_head(result, reference_frame, DEFAULT_HEAD_ON)
+        place_head(result, reference_frame, _neck.DEFAULT_HEAD_ON)
         saved = load_avatar(folder)
     ref = np.flatnonzero(np.asarray(result.frame_index) == reference_frame)
     rows = colour_frames(result, span, count, int(ref[0]) if len(ref) else None)

@@ -131,7 +131,7 @@ class TrackOptions:
     depth_weight: float = 0.0
     expr_prior: float = 1e-3
     jaw_prior: float = 1e-3
-    calibration_frames: int = CALIBRATION_FRAMES
+    calibration_frames: int = field(default_factory=lambda: CALIBRATION_FRAMES)  # read when made
     outline_weight: float = 0.3
     view_correction: Any = False
     mirror_landmarks: bool = False
