@@ -111,9 +111,11 @@ def test_sample_bald_adds_discs_only_after_the_drawn_ones(monkeypatch):
 
     fit = synthetic_head_view((0.0, 0.15, 0.0), distance=0.6, size=64, n_gaussians=500).truth
     rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    monkeypatch.setattr(bald_discs, "INSET", None)          # the discs on the surface (set in: test_bald_inset.py)
     monkeypatch.setattr(bald_discs, "HOLE_ALPHA", None)
     plain = bald_discs.sample_bald(fit, 3000, rng_a)
     monkeypatch.undo()                                     # the library's HOLE_ALPHA (on)
+    monkeypatch.setattr(bald_discs, "INSET", None)
     filled = bald_discs.sample_bald(fit, 3000, rng_b)
     assert len(plain[0]) == 3000 and len(filled[0]) > 3000
     for a, b in zip(plain, filled):

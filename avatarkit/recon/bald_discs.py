@@ -3,7 +3,8 @@ bald image where the camera sees them and by a screened harmonic fill elsewhere.
 
 `n_bald` flat discs sampled on the fitted head's triangles (area-weighted, the face and
 eyes `face_density` times denser than the back of the head), lying in their triangle's plane,
-sized so neighbours overlap; with `EYE_DENSITY` above 1 (off), the eyes' surroundings (the
+sized so neighbours overlap (with `INSET`, off, set in from the surface so that their outline
+falls on the mesh's: `inset_depth`); with `EYE_DENSITY` above 1 (off), the eyes' surroundings (the
 eyeballs' fronts and the lids, `_eye_area_faces`) that many times denser again, with smaller
 discs, added to the n (the other discs stay as they were: `sample_bald`). Colour: the bald image sampled (bilinear) at each disc's
 projection where the disc is visible from the input camera (its depth within `DEPTH_TOL` of
@@ -89,6 +90,38 @@ HOLE_REFERENCE = False
 #: exact one point by point: the discs added and their order are the reference's, bit for bit)
 HOLE_FIRST = 8
 HOLE_MARGIN = 1e-9
+#: the discs' centres are set in from the head's surface, along their face's inward normal, by
+#: `inset_depth`: INSET x the face's disc sigma (the radius `_discs_on` gives it before its
+#: random spread) plus the renderer's dilation's part at the input camera's pixel (None: on the
+#: surface). Why: at the outline several discs stand edge-on or tilted along one line of sight,
+#: each at its full opacity, and a flat disc tangent to a curved surface stands out of it by
+#: t^2 / 2R at t from its centre; their composite alpha passes 0.5 beyond the surface. A sphere
+#: of discs drawn as `sample_bald` draws them (COVERAGE 1.5, FLATNESS 0.15, the hole fill,
+#: opacity 0.95-1), radius R 30-100 mm, disc sigma 3.3-7.5 mm, seen at 1536 px (the dilation's
+#: part gone): the 0.5 outline lies 0.41-0.64 sigma outside it (0.41-0.50 for R / sigma 9-15,
+#: a head's; the tighter the curve the more): 0.45 puts it on the surface. Every build's outline
+#: stands 1-2 px beyond the head's (the mesh subject's neck 49.9 px wide against the truth's 45.9
+#: at 192 px): a haloed, fattened head. Off (session 23, docs/video-build.md "The bald layer's
+#: outline (session 23)"): the mesh subject (a hard-edged head, as a person's) gains 0.8-1.4 dB
+#: in every view of both builds and the sample portrait's front view +0.12 dB, but the sample
+#: avatar's and the bob's truths are themselves discs whose outline stands out as the build's
+#: did, and the sample avatar's profile gain falls +3.47 -> +1.97 (its video build -4 dB at
+#: +-90). 0.45 turns it on
+INSET: float | None = None
+#: the dilation's part (the renderer's 0.3 px^2 widens every splat at full opacity, so a stack
+#: of them reaches further): INSET_PIXEL x p^2 / (sigma + p / 2), p the input camera's pixel
+#: (metres at the head's depth). The same spheres at 192 and 384 px (p / sigma 0.19-0.67): the
+#: outline 0.26-0.75 p further out than at 1536 px; never more than one pixel (a stack of splats
+#: no wider than the dilation passes 0.5 about 2.2 of its 0.55 px sigmas out, ~1.2 px, the
+#: discs' own part included). At the input's resolution the outline falls on the surface; seen
+#: much finer it lies that much (under a pixel of the input's) inside
+INSET_PIXEL = 1.5
+#: the head model's regions whose discs stay on the surface ("eyes": the eyeballs and their
+#: surroundings, `_eye_area_faces`: the lids). Where two surfaces meet in a crease (the closed
+#: lips, a lid on its eyeball) setting both in opens a gap the mouth's or the eye's inside shows
+#: through: the synthetic head's lift, face inside its outline 30.13 dB -> 28.93 with them set in
+#: (a dark seam between the lips, the lids' edges), 30.04 kept
+INSET_KEEP = ("lips", "mouth_interior", "eyes")
 
 
 def propagate_colors(points: np.ndarray, colors: np.ndarray, known: np.ndarray, fallback,
@@ -410,6 +443,61 @@ def fill_holes(v: np.ndarray, faces: np.ndarray, weight: np.ndarray, share_of: n
     return tuple(out)
 
 
+def inset_depth(sigma: np.ndarray, pixel: float) -> np.ndarray:
+    """(F,) metres the discs of faces whose disc sigma is `sigma` (F,) (metres) are set in, seen
+    by a camera whose pixel is `pixel` metres at the head (`INSET`, `INSET_PIXEL`; 0 with INSET None)."""
+    sigma = np.asarray(sigma, np.float64)
+    if INSET is None:
+        return np.zeros_like(sigma)
+    p = max(float(pixel), 0.0)
+    return INSET * sigma + np.minimum(INSET_PIXEL * p * p / np.maximum(sigma + 0.5 * p, 1e-12), p)
+
+
+def set_in(points: np.ndarray, normals: np.ndarray, ids: np.ndarray, depth_of: np.ndarray) -> np.ndarray:
+    """The disc centres `points` (N, 3) on faces `ids` (N,) moved along their outward unit
+    `normals` (N, 3) into the head by `depth_of` (F,) metres of their face: every disc of a face
+    alike (the drawn ones, the holes' and the eyes'), so the surface they make is the mesh's,
+    offset."""
+    depth = np.asarray(depth_of, np.float64)[np.asarray(ids)]
+    return (np.asarray(points, np.float64) - depth[:, None] * np.asarray(normals, np.float64)).astype(
+        np.asarray(points).dtype)
+
+
+def camera_pixel(camera, points: np.ndarray) -> float:
+    """The width (metres) of one of `camera`'s pixels at the median depth of `points` (N, 3)."""
+    z = camera.to_camera(np.asarray(points, np.float64))[:, 2]
+    z = z[z > 0]
+    if len(z) == 0:
+        return 0.0
+    return float(np.median(z)) / (0.5 * (float(camera.fx) + float(camera.fy)))
+
+
+def _set_in_discs(discs: tuple, fit: HeadFit, v: np.ndarray, share_of: np.ndarray) -> tuple:
+    """`set_in` on `sample_bald`'s discs (points, quats, scales, ids, normals): each face's
+    depth from its disc sigma (its disc share (F,) m^2, as `_discs_on` sizes them) and the fit's
+    camera's pixel; the `INSET_KEEP` faces' discs stay on the surface."""
+    if INSET is None:
+        return discs
+    points, quats, scales, ids, normals = discs
+    sigma_of = COVERAGE * np.sqrt(np.maximum(share_of, 0.0) / np.pi)
+    pixel = camera_pixel(fit.camera, v) if getattr(fit, "camera", None) is not None else 0.0
+    depth_of = np.where(_inset_kept(fit.model, v), 0.0, inset_depth(sigma_of, pixel))
+    return set_in(points, normals, ids, depth_of), quats, scales, ids, normals
+
+
+def _inset_kept(model, v: np.ndarray) -> np.ndarray:
+    """(F,) bool: faces whose discs stay on the surface (`INSET_KEEP` regions and the eyes'
+    surroundings)."""
+    f = model.faces
+    keep = np.zeros(len(f), bool)
+    for region in INSET_KEEP:
+        if region in model.regions:
+            keep |= model.region_mask(region)[f].sum(axis=1) >= 2
+    if "eyes" in INSET_KEEP:
+        keep |= _eye_area_faces(model, v)
+    return keep
+
+
 def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: float = 3.0,
                 eye_density: float | None = None):
     """Discs on the rest head: (means (n', 3), quats (n', 4), scales (n', 3), face ids (n',) int32,
@@ -420,7 +508,9 @@ def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: fl
     there. The n discs are drawn first as without it, and those that land in the eyes'
     surroundings are replaced in place (then the extra ones appended) by discs drawn from a
     child of `rng` (`Generator.spawn`, which leaves `rng`'s stream as it was): every disc
-    elsewhere, and what the caller draws from `rng` next, are the same as with eye_density 1."""
+    elsewhere, and what the caller draws from `rng` next, are the same as with eye_density 1.
+    With `INSET` (off) every disc is then set in along its face's normal (`inset_depth` of the
+    face's disc sigma and the fit camera's pixel; the `INSET_KEEP` faces' stay)."""
     from avatarkit.rig.frames import degenerate_faces
 
     model = fit.model
@@ -443,10 +533,11 @@ def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: fl
     if eye_density <= 1.0 or not eye.any():
         # the holes' probes from a child stream: what the caller draws from rng next is as
         # without them (and with HOLE_ALPHA None no child is spawned: the builds before it)
-        if HOLE_ALPHA is None:
-            return points, quats, scales, ids, normals
-        return fill_holes(v, faces, weight, share_of, (points, quats, scales, ids, normals),
+        discs = (points, quats, scales, ids, normals)
+        if HOLE_ALPHA is not None:
+            discs = fill_holes(v, faces, weight, share_of, discs,
                           rng.spawn(1)[0])
+        return _set_in_discs(discs, fit, v, share_of)
     child = rng.spawn(1)[0]
     k = max(1, int(round(eye_density * n * weight[eye].sum() / weight.sum())))
     eye_ids = np.flatnonzero(eye)
@@ -462,9 +553,10 @@ def sample_bald(fit: HeadFit, n: int, rng: np.random.Generator, face_density: fl
     # (the eye discs' share is smaller: their faces' holes are measured with their own sizes)
     share_eye = share_of.copy()
     share_eye[eye] = weight[eye].sum() / k / density[eye]
-    if HOLE_ALPHA is None:
-        return tuple(out)
-    return fill_holes(v, faces, weight, share_eye, tuple(out), rng.spawn(1)[0])
+    discs = tuple(out)
+    if HOLE_ALPHA is not None:
+        discs = fill_holes(v, faces, weight, share_eye, discs, rng.spawn(1)[0])
+    return _set_in_discs(discs, fit, v, share_eye)
 
 
 def _eye_colours(image: np.ndarray, analysis) -> np.ndarray:
@@ -563,5 +655,5 @@ def lift_bald(image: np.ndarray, analysis, segmentation, bald, fit: HeadFit, n: 
     return out, info
 
 
-__all__ = ["COVERAGE", "FLATNESS", "GRAZING", "HOLE_ALPHA", "HOLE_OPACITY", "HOLE_PROBES", "HOLE_REFERENCE", "HOLE_ROUNDS", "HOLE_SIZE", "HOLE_FIRST", "HOLE_MARGIN", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald", "sclera_colour",
-           "fill_holes", "photo_weight", "propagate_colors", "sample_bald", "surface_coverage", "thin_coverage"]
+__all__ = ["COVERAGE", "FLATNESS", "GRAZING", "HOLE_ALPHA", "HOLE_OPACITY", "HOLE_PROBES", "HOLE_REFERENCE", "HOLE_ROUNDS", "HOLE_SIZE", "HOLE_FIRST", "HOLE_MARGIN", "INSET", "INSET_KEEP", "INSET_PIXEL", "MOUTH_RGB", "PART_EYE", "PART_MOUTH", "PART_SKIN", "SCLERA_RGB", "lift_bald", "sclera_colour",
+           "camera_pixel", "fill_holes", "inset_depth", "photo_weight", "set_in", "propagate_colors", "sample_bald", "surface_coverage", "thin_coverage"]
