@@ -43,7 +43,8 @@ that the other keyframes see on skin-labelled pixels may be dropped (`EDGE_HAIR_
 in the registration drafts). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
-(`NECK_SHOWN`; None: the whole neck is left alone).
+(`NECK_SHOWN`; None: the whole neck is left alone), and what of them no keyframe saw may take
+the colour of the nearest neck that has one (`NECK_FILL`, off).
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
@@ -185,8 +186,12 @@ EDGE_HAIR_ON_SKIN: float | None = None
 #: build's fill: the single view's fill there is the lit front's skin carried round the neck,
 #: while the neck's sides the turned keyframes do see show it in the shade it turns into. Not the
 #: neck's underside (`NECK_FILL_DOWN`), nor in the drafts a video build registers its turned
-#: keyframes against (info["draft"]). Off (docs/video-build.md, "The back of the neck's colour
-#: (session 23)")
+#: keyframes against (info["draft"]). Off: on main's bald layer, whose discs stand 1-2 px past the
+#: head's outline, the darker neck costs more over the white wall there than it gains inside (mesh
+#: subject seed 0 -0.11 / -0.08 dB at +45 / -45, seed 1 -0.10 / -0.11; the sample avatar and the
+#: bob within 0.02); with session 23's rim inset (`bald_discs.INSET`) it gains +0.31 / +0.40 at
+#: +90 / -90 (seed 1 +0.34 / +0.44), nothing else moving more than 0.02: switch it on with that
+#: (docs/video-build.md, "The back of the neck's colour (session 23)")
 NECK_FILL = False
 #: ... the neck's Gaussians whose normal points more than this many degrees below the horizontal
 #: (the neck's cut end, under the head model's neck, which no view of a head shows but edge-on
