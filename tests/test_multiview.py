@@ -366,6 +366,74 @@ def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_refe
     assert f2["hidden_scalp_filled"] == 0
 
 
+def test_the_neck_no_view_saw_takes_the_colour_of_the_neck_that_has_one(planes):
+    """`colour_from_views(neck=)` (`NECK_FILL`): the back plane is neck, the front plane (its left
+    half's cover) is not. Two views on +Z, grey reference and a dark keyframe: the back plane's
+    open strip facing +Z is seen (their blend); its right part, turned to face +X (the neck's
+    side and back), no view sees: it takes the seen neck's blend instead of keeping the
+    portrait's fill, and so does the neck hidden behind the front plane. The turned part facing
+    down (the neck's cut end, `NECK_FILL_DOWN`) keeps the fill, as every row does without
+    `neck`; the front plane (not neck) is blended the same either way. Kept rows (the neck the
+    reference shows, `NECK_SHOWN`) keep their colour and lend it."""
+    from avatarkit.recon.multiview import colour_from_views
+
+    back, front, _, _ = planes
+    fill = (0.8, 0.6, 0.5)
+    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
+    hair = front.subset(np.zeros(len(front), bool))
+    nb = len(back)
+    x, y = back.means[:, 0], back.means[:, 1]
+    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
+    turned = x > 0.035
+    under = turned & (y < -0.06)                                     # facing down: the cut end
+    side = turned & ~under
+    normals[:nb][side] = [1.0, 0.0, 0.0]
+    normals[:nb][under] = [0.0, -1.0, 0.0]
+    open_strip = (x > 0.015) & (x < 0.035)
+    behind = x < -0.02
+    neck = np.zeros(len(bald), bool)
+    neck[:nb] = True
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    dark = (0.2, 0.1, 0.05)
+    views = [View(_image((0.5, 0.5, 0.5)), cam, None, 1.0, reference=True), View(_image(dark), cam, None, 1.0)]
+    blend = (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
+
+    plain, _, _ = colour_from_views(bald, hair, views, normals)
+    filled, _, figures = colour_from_views(bald, hair, views, normals, neck=neck)
+    pc, fc = plain.colors[:nb], filled.colors[:nb]
+    np.testing.assert_allclose(fc[open_strip], np.tile(blend, (int(open_strip.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(pc[open_strip], fc[open_strip])
+    np.testing.assert_allclose(pc[side], np.tile(fill, (int(side.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[side], np.tile(blend, (int(side.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(fc[behind], np.tile(blend, (int(behind.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(fc[under], np.tile(fill, (int(under.sum()), 1)), atol=1e-3)
+    assert figures["hidden_neck_filled"] >= int(side.sum() + behind.sum())
+    np.testing.assert_allclose(filled.colors[nb:], plain.colors[nb:])
+    # kept rows (the open strip, in the photo's own colour) keep it and lend it to the unseen neck
+    photo = np.float32([0.3, 0.6, 0.3])
+    rgb = bald.colors.copy()
+    rgb[:nb][open_strip] = photo
+    keep = np.zeros(len(bald), bool)
+    keep[:nb] = open_strip
+    kept, _, _ = colour_from_views(bald.with_colors(rgb), hair, views, normals, keep=keep, neck=neck)
+    kc = kept.colors[:nb]
+    np.testing.assert_allclose(kc[open_strip], np.tile(photo, (int(open_strip.sum()), 1)), atol=1e-5)
+    np.testing.assert_allclose(kc[side], np.tile(photo, (int(side.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(kc[under], np.tile(fill, (int(under.sum()), 1)), atol=1e-3)
+
+
+def test_the_registration_drafts_do_not_fill_the_neck(monkeypatch):
+    """`VideoViews.fills_neck`: with `NECK_FILL` the final build fills the neck no view saw, a
+    draft the video build registers against (info["draft"]) does not; off (the default), neither."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert not final.fills_neck() and not draft.fills_neck()
+    monkeypatch.setattr(multiview, "NECK_FILL", True)
+    assert final.fills_neck() and not draft.fills_neck()
+
+
 def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
     registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""

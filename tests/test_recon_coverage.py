@@ -158,3 +158,65 @@ def test_rim_and_background_coloured_pixels_do_not_become_pale_cards(scene):
     # the rim's discs carry the wall's half as transparency: measured opacity 0.45-0.54
     share = added.opacities[on_rim] / COVER_OPACITY
     assert np.all((share > 0.35) & (share < 0.7))
+
+
+def test_wall_the_labels_took_in_past_the_overshoot_gets_no_opaque_wall_discs(scene, monkeypatch):
+    """`COVER_HEAD_INSIDE`: the skin label reaches 4 px into the wall on the head's right side,
+    and the build's discs overshoot the head's outline over the inner 2 px of it (as the bald
+    layer's rim does by 1-2 px). Read at the nearest covered skin pixel, the head's colour was the
+    wall's there (too like the background to unmix: a = 1) and the outer 2 px got opaque
+    wall-coloured discs: the white crescent by the mesh subject's ear. Read again inside the
+    fitted head where it was the wall's, they are background and get none; the discs elsewhere
+    are the same either way."""
+    from scipy import ndimage
+
+    from avatarkit.recon import coverage
+    from avatarkit.recon.hair_strands import back_project
+    from avatarkit.rotations import matrix_to_quat
+
+    fit, bald, hair, image, labels, ear, tuft = scene
+    cam = fit.camera
+    head = labels == SKIN
+    ys, xs = np.nonzero(head & ~ear)
+    yy, xx = np.mgrid[:128, :128]
+    over = ndimage.binary_dilation(head, iterations=4) & ~np.isin(labels, (SKIN, HAIR)) & (xx > 64) \
+        & (np.abs(yy - ys.mean()) < 10)
+    inner = over & ndimage.binary_dilation(head, iterations=2)
+    r0 = render(bald.replace(extras={}), cam)
+    iy, ix = np.nonzero(inner)
+    _, (ny, nx) = ndimage.distance_transform_edt(~(r0.alpha >= COVER_ALPHA), return_indices=True)
+    depth = r0.depth[ny[iy, ix], nx[iy, ix]].astype(np.float64)
+    px = np.stack([ix + 0.5, iy + 0.5], axis=1).astype(np.float64)
+    c = cam.camera_center
+    means = (c + (back_project(fit, px, 1.0) - c) * depth[:, None]).astype(np.float32)
+    w = 1.2 * depth / cam.fx
+    quat = np.tile(matrix_to_quat(np.asarray(cam.rotation, np.float64).T[None])[0], (len(iy), 1))
+    extras = {k: np.zeros(len(iy), np.asarray(v).dtype) for k, v in bald.extras.items()}
+    overshoot = GaussianSet.from_colors(means, quat, np.stack([w, w, 0.15 * w], axis=1), np.full(len(iy), 0.99),
+                                        np.tile(np.float32([0.8, 0.6, 0.5]), (len(iy), 1)), extras=extras)
+    built = GaussianSet.concat([bald, overshoot])
+    covered = render(built.replace(extras={}), cam).alpha >= COVER_ALPHA
+    labels = labels.copy()
+    labels[over] = SKIN                                                 # the wall taken for skin
+    outer = over & ~covered
+    assert covered[inner].all() and outer.sum() >= 15
+
+    def added_on(inside):
+        monkeypatch.setattr(coverage, "COVER_HEAD_INSIDE", inside)
+        out, _, info = cover_silhouette(built, hair, fit, image, labels)
+        added = out.subset(np.arange(len(built), len(out)))
+        p, _ = cam.project(added.means)
+        ij = np.clip(np.floor(p).astype(int), 0, 127)
+        return added, outer[ij[:, 1], ij[:, 0]]
+
+    before, on_before = added_on(None)
+    assert on_before.sum() >= 10                                        # the rule before: wall discs
+    np.testing.assert_allclose(before.opacities[on_before], COVER_OPACITY, atol=1e-6)
+    np.testing.assert_allclose(before.colors[on_before], np.tile(image[0, 0] / 255.0, (int(on_before.sum()), 1)),
+                               atol=0.03)
+    after, on_after = added_on(1)
+    assert not on_after.any()
+    # the others (the ear's, the tuft's, the head's own rim) exactly as before
+    np.testing.assert_allclose(after.means, before.means[~on_before])
+    np.testing.assert_allclose(after.colors, before.colors[~on_before], atol=1e-6)
+    np.testing.assert_allclose(after.opacities, before.opacities[~on_before], atol=1e-6)

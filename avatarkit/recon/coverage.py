@@ -53,6 +53,22 @@ COVER_MIN_SHARE = 0.35
 COVER_BG_GAP = 2
 #: head and background colours closer than this (RGB in [0, 1], Euclidean) cannot be unmixed
 COVER_MIN_CONTRAST = 0.1
+#: where the head's colour h read at the nearest covered pixel is too like the background to
+#: unmix (`COVER_MIN_CONTRAST`), it is read again at the nearest covered pixel of the label inside
+#: the fitted head mesh's silhouette eroded by this many pixels (`head_share(inside=)`; None: not,
+#: a = 1 there, the rule before). The render covers the wall for a pixel or two past the mesh's
+#: outline (the discs' overshoot), and where the segmentation took that wall in, the covered
+#: pixel of the label there shows the wall: h was the background's colour and the pixels beyond
+#: got opaque wall-coloured discs. On the mesh subject's reference frame the skin label reaches
+#: 4 px into the white wall by the ear: the white crescent by its ear at the profile
+#: (docs/video-build.md, "The back of the neck's colour (session 23)"). Only there: h read
+#: inside the head for every pixel also moved the rim's unmixing (the mesh subject's video build
+#: front -0.17 dB). Off: 1 takes the crescent away (mesh subject's video build -45 / +90 / -90
+#: +0.30 / +0.06 / +0.16 dB) but its front loses 0.19 (where the white discs lay over the white
+#: wall the build shows what is behind them) and its single-frame build 0.16 / 0.18 at -45 / -90 (the
+#: photo's colour matching then pulls the side of the face's discs to the white skin-labelled
+#: wall instead); the other subjects build the same to the digit
+COVER_HEAD_INSIDE: int | None = None
 
 
 def _extras_like(template: GaussianSet, n: int, values: dict) -> dict:
@@ -89,15 +105,12 @@ def _background_colour(image: np.ndarray, labels: np.ndarray, ys: np.ndarray, xs
     return smooth[by[ys, xs], bx[ys, xs]].astype(np.float64)
 
 
-def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: np.ndarray, xs: np.ndarray,
-               rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(share (N,) in [0, 1], background (N, 3)): how much of each pixel (ys, xs), colour rgb
-    (N, 3) in [0, 1], is head rather than background (module docstring): unmixed between the
-    smoothed photo at the nearest `covered` (H, W) pixel of the same label (any covered pixel if
-    none has it) and the nearest background (`_background_colour`), and that background colour."""
+def _nearest_colour(smooth: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: np.ndarray,
+                    xs: np.ndarray) -> np.ndarray:
+    """(N, 3) the smoothed photo at the nearest `covered` (H, W) pixel of the same label as each
+    pixel (ys, xs) (any covered pixel where none has it)."""
     from scipy import ndimage
 
-    smooth = _smoothed(image)
     lab = labels[ys, xs]
     h = np.zeros((len(ys), 3))
     for value in np.unique(lab):
@@ -106,7 +119,26 @@ def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: n
         _, (hy, hx) = ndimage.distance_transform_edt(~ref, return_indices=True)
         sel = lab == value
         h[sel] = smooth[hy[ys[sel], xs[sel]], hx[ys[sel], xs[sel]]]
+    return h
+
+
+def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+               rgb: np.ndarray, inside: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(share (N,) in [0, 1], background (N, 3)): how much of each pixel (ys, xs), colour rgb
+    (N, 3) in [0, 1], is head rather than background (module docstring): unmixed between the
+    smoothed photo at the nearest `covered` (H, W) pixel of the same label (any covered pixel if
+    none has it) and the nearest background (`_background_colour`), and that background colour.
+    inside: (H, W) bool, where the head is (`COVER_HEAD_INSIDE`): where the nearest covered pixel
+    is too like the background to unmix, the head's colour is read at the nearest covered pixel
+    of the label inside it instead."""
+    smooth = _smoothed(image)
+    h = _nearest_colour(smooth, labels, covered, ys, xs)
     b = _background_colour(image, labels, ys, xs)
+    flat = np.einsum("ij,ij->i", h - b, h - b) < COVER_MIN_CONTRAST ** 2
+    if inside is not None and flat.any() and (covered & inside).any():
+        # the nearest covered pixel showed the wall (the discs' overshoot past the head's
+        # outline, over wall the segmentation took in): the head's colour where the head is
+        h[flat] = _nearest_colour(smooth, labels, covered & inside, ys[flat], xs[flat])
     hb = h - b
     n2 = np.einsum("ij,ij->i", hb, hb)
     share = np.einsum("ij,ij->i", rgb - b, hb) / np.maximum(n2, 1e-12)
@@ -165,7 +197,14 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     quat = np.tile(matrix_to_quat(np.asarray(cam.rotation, np.float64).T[None])[0], (len(ys), 1))
     rgb = np.clip(sample_image(image, px) / 255.0, 0, 1)
     is_hair = labels[ys, xs] == HAIR
-    share, b = head_share(image, labels, known, ys, xs, rgb)
+    inside = None
+    if COVER_HEAD_INSIDE is not None:
+        from avatarkit.recon.multiview import head_silhouette
+
+        inside = head_silhouette(fit.rest_vertices, fit.model.faces, cam)
+        if int(COVER_HEAD_INSIDE) > 0:
+            inside = ndimage.binary_erosion(inside, iterations=int(COVER_HEAD_INSIDE))
+    share, b = head_share(image, labels, known, ys, xs, rgb, inside)
     keep = share >= COVER_MIN_SHARE
     info["background_dropped"] = int((~keep).sum())
     if not keep.all():
@@ -196,5 +235,5 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     return out_bald, out_hair, info
 
 
-__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_OPACITY",
+__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_OPACITY",
            "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette", "head_share"]

@@ -43,7 +43,8 @@ that the other keyframes see on skin-labelled pixels may be dropped (`EDGE_HAIR_
 in the registration drafts). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
-(`NECK_SHOWN`; None: the whole neck is left alone).
+(`NECK_SHOWN`; None: the whole neck is left alone), and what of them no keyframe saw may take
+the colour of the nearest neck that has one (`NECK_FILL`, off).
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
@@ -178,6 +179,24 @@ DRAFT_SCALP_FILL = False
 #: over its parting the keyframes see as skin between them); 0.7: the bob still -0.04 at -90,
 #: the mesh subject -0.07 at +90
 EDGE_HAIR_ON_SKIN: float | None = None
+#: the neck's bald Gaussians that no keyframe saw and that `NECK_SHOWN` leaves to the blend (the
+#: back and sides of the neck the photo does not show, which no keyframe faces at a usable angle
+#: either) take the mean colour of the `HAIR_NEIGHBOURS` nearest neck Gaussians that have a
+#: colour from the photo or the views (`fill_hidden_hair`), instead of keeping the portrait
+#: build's fill: the single view's fill there is the lit front's skin carried round the neck,
+#: while the neck's sides the turned keyframes do see show it in the shade it turns into. Not the
+#: neck's underside (`NECK_FILL_DOWN`), nor in the drafts a video build registers its turned
+#: keyframes against (info["draft"]). Off: on main's bald layer, whose discs stand 1-2 px past the
+#: head's outline, the darker neck costs more over the white wall there than it gains inside (mesh
+#: subject seed 0 -0.11 / -0.08 dB at +45 / -45, seed 1 -0.10 / -0.11; the sample avatar and the
+#: bob within 0.02); with session 23's rim inset (`bald_discs.INSET`) it gains +0.31 / +0.40 at
+#: +90 / -90 (seed 1 +0.34 / +0.44), nothing else moving more than 0.02: switch it on with that
+#: (docs/video-build.md, "The back of the neck's colour (session 23)")
+NECK_FILL = False
+#: ... the neck's Gaussians whose normal points more than this many degrees below the horizontal
+#: (the neck's cut end, under the head model's neck, which no view of a head shows but edge-on
+#: at the outline) keep the portrait's fill
+NECK_FILL_DOWN = 30.0
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -669,7 +688,7 @@ def label_weights(means: np.ndarray, samples: list[Samples], views: list[View], 
 
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
                       body: np.ndarray | None = None, scalp: np.ndarray | None = None,
-                      drop_skin_hair: bool = False):
+                      drop_skin_hair: bool = False, neck: np.ndarray | None = None):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
@@ -678,7 +697,9 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     pixels on its head (`view_samples(body=)`, `SCALP_BODY`); scalp: (N,) bool bald rows that no
     view saw are filled from the nearest seen ones of them (`SCALP_FILL`); drop_skin_hair: hair
     the reference shows edge-on that the other keyframes see on skin is dropped
-    (`EDGE_HAIR_ON_SKIN`). Returns (bald, hair, figures)."""
+    (`EDGE_HAIR_ON_SKIN`); neck: (N,) bool bald rows of the neck, of which those no view saw
+    that are not kept and not its underside are filled from the nearest ones seen or kept
+    (`NECK_FILL`). Returns (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
@@ -700,6 +721,15 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
             scalp &= ~np.asarray(keep, bool)
         hidden = scalp & ~seen & away
         colours, scalp_filled = fill_hidden_hair(both.means, colours, scalp & seen, hidden)
+    neck_filled = 0
+    if neck is not None:
+        # the neck no view saw, from the neck that has a colour: the views' blend or, where
+        # kept, the photo's (`NECK_FILL`); not its underside, the cut end no view shows
+        neck = np.asarray(neck, bool) & ~is_hair
+        kept = np.zeros(len(both), bool) if keep is None else np.asarray(keep, bool)
+        side = np.asarray(normals, np.float64)[:, 1] > -np.sin(np.radians(float(NECK_FILL_DOWN)))
+        colours, neck_filled = fill_hidden_hair(both.means, colours, neck & (seen | kept),
+                                                neck & ~seen & ~kept & side)
     on_skin = np.zeros(len(both), bool)
     if drop_skin_hair and EDGE_HAIR_ON_SKIN is not None:
         from avatarkit.recon.segment import HAIR, SKIN
@@ -716,6 +746,7 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
+               "hidden_neck_filled": int(neck_filled),
                "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
@@ -891,6 +922,11 @@ class VideoViews:
         `DRAFT_SCALP_FILL`."""
         return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
 
+    def fills_neck(self) -> bool:
+        """Whether `colour` fills the neck no keyframe saw (`NECK_FILL`): not in a registration
+        draft (info["draft"])."""
+        return bool(NECK_FILL and not self.info.get("draft", False))
+
     def drops_skin_hair(self) -> bool:
         """Whether `colour` drops the hair the reference shows edge-on that the keyframes see on
         skin (`EDGE_HAIR_ON_SKIN`): not in a registration draft (info["draft"])."""
@@ -901,6 +937,7 @@ class VideoViews:
         figures)."""
         _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
         keep = self.neck_rows(bald, hair, fit)
+        neck = keep.copy() if self.fills_neck() else None
         if NECK_SHOWN is not None and keep.any():
             from avatarkit.gaussians.gaussian_set import GaussianSet
 
@@ -909,13 +946,13 @@ class VideoViews:
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
         scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
-                                                drop_skin_hair=self.drops_skin_hair())
+                                                drop_skin_hair=self.drops_skin_hair(), neck=neck)
         self._only_others = figures.pop("_only_others")
         return bald, hair, figures
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
