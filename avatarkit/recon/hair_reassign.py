@@ -12,7 +12,8 @@ reassignment", Fig. "Hair Cleanup"): the third step of the 3D hair segmentation,
    Among a candidate's k nearest reference Gaussians (in space), each class gives a local
    centre in a colour + scale feature space (DC colour, sorted log-scales, standardised);
    the candidate joins the nearer centre. Where its neighbourhood holds only one class, the
-   global (median) centres of both classes decide.
+   global (median) centres of both classes decide. With several views, `CLEAR_SHARE` (off) lets
+   the votes from pixels clear of every view's band overrule that for a candidate put in the hair.
 """
 from __future__ import annotations
 
@@ -41,8 +42,9 @@ from avatarkit.render.camera import Camera
 #: kept them all, while the keyframes turned toward that side see skin there clear of any edge.
 #: Off (docs/video-build.md, "The temples' hair and the clear votes (session 23)"): at 0.5, with
 #: `CLEAR_VETO` 0.5, in the final build only, the mesh subject's profile gain +2.58 -> +2.62
-#: (seed 0), the held-out bob's views +0.2..+0.5 dB but at seed 1 its -90 view -0.05: strands
-#: standing off its head that the keyframes see past, onto skin, and the shell's Gaussians stood in for
+#: (seed 0), the held-out bob's views +0.2..+0.5 dB but at seed 1 its -90 view -0.05 (its
+#: strands stand off the head: the keyframes see past them onto skin, and the shell's Gaussians
+#: taken out were what stood in for them at the profile)
 CLEAR_SHARE: float | None = None
 #: ... and only with at least this much clear vote weight (pixels' worth of alpha x T)
 CLEAR_MIN = 0.5
@@ -51,10 +53,10 @@ CLEAR_MIN = 0.5
 CLEAR_VETO: float | None = 0.5
 #: ... and in the drafts a video build registers its turned keyframes against too (False:
 #: `recon.pipeline` passes `clear=False` for a draft, and the turned keyframes are registered
-#: against the drafts as before). In the drafts too, the mesh subject's registered turns moved
-#: by up to 3 degrees and it lost the back of its head's outline at -90 (+0.05 dB less profile
-#: gain than in the final build alone), the bob its -45 view (-0.30 dB against main, +0.52 in
-#: the final build alone)
+#: against the drafts as before). In the drafts too (no veto), the mesh subject's registered
+#: turns moved by up to 3 degrees and it lost the back of its head's outline at -90 (profile gain
+#: +2.61 against +2.64 in the final build alone), the bob its -45 view (-0.30 dB against main,
+#: +0.52 in the final build alone)
 CLEAR_IN_DRAFTS = False
 
 
