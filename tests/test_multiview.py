@@ -453,6 +453,19 @@ def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     assert not final.fills_scalp() and not draft.fills_scalp()
 
 
+def test_the_registration_drafts_keep_the_hair_the_clear_votes_would_take_out(monkeypatch):
+    """`VideoViews.clears_hair`: the final build lets the keyframes' clear votes take hair out
+    (`hair_reassign.CLEAR_SHARE`); a draft the turned keyframes register against does not
+    unless `hair_reassign.CLEAR_IN_DRAFTS`."""
+    from avatarkit.recon import hair_reassign
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert final.clears_hair() and not draft.clears_hair()
+    monkeypatch.setattr(hair_reassign, "CLEAR_IN_DRAFTS", True)
+    assert final.clears_hair() and draft.clears_hair()
+
+
 def test_hair_the_reference_shows_edge_on_and_the_keyframes_see_on_skin_is_dropped(planes, monkeypatch):
     """`colour_from_views(drop_skin_hair=)` (`EDGE_HAIR_ON_SKIN`): a plane of hair, a reference and
     a keyframe on +Z; the keyframe's upper half is labelled skin, its lower half hair (the

@@ -12,7 +12,8 @@ reassignment", Fig. "Hair Cleanup"): the third step of the 3D hair segmentation,
    Among a candidate's k nearest reference Gaussians (in space), each class gives a local
    centre in a colour + scale feature space (DC colour, sorted log-scales, standardised);
    the candidate joins the nearer centre. Where its neighbourhood holds only one class, the
-   global (median) centres of both classes decide.
+   global (median) centres of both classes decide. With several views, `CLEAR_SHARE` (off) lets
+   the votes from pixels clear of every view's band overrule that for a candidate put in the hair.
 """
 from __future__ import annotations
 
@@ -27,6 +28,36 @@ from avatarkit.recon.label_lifting import (UNSEEN, LabelLift, accumulate_view, c
                                            check_views)
 from avatarkit.recon.segment import BACKGROUND, HAIR, SKIN
 from avatarkit.render.camera import Camera
+
+#: with at least two labelled views (a video build's keyframes), a candidate the reassignment
+#: puts in the hair leaves it when, of its votes from pixels outside every view's edge band
+#: (`clear_votes`: where a view's label is not within `band` of a hair edge or depth jump),
+#: more than this share are skin or body labels (None: the reassignment alone decides). The
+#: band marks where a view's labels cannot be trusted; with one view a Gaussian there has no
+#: other evidence than its neighbours' colour and size, but another view may see the same
+#: Gaussian well away from any edge. The lifter's shell reaches over the temples and ears of
+#: a short-haired head where the reference photo's hair mask meets its silhouette: every one of
+#: those Gaussians lies in some view's band, is a candidate, and looks like the hair it was made
+#: as (the photo's hair colour, a strand's size, the shell's height), so the neighbours' features
+#: kept them all, while the keyframes turned toward that side see skin there clear of any edge.
+#: Off (docs/video-build.md, "The temples' hair and the clear votes (session 23)"): at 0.5, with
+#: `CLEAR_VETO` 0.5, in the final build only, the mesh subject's profile gain +2.58 -> +2.62
+#: (seed 0), the held-out bob's views +0.2..+0.5 dB but at seed 1 its -90 view -0.05 (its
+#: strands stand off the head: the keyframes see past them onto skin, and the shell's Gaussians
+#: taken out were what stood in for them at the profile)
+CLEAR_SHARE: float | None = None
+#: ... and only with at least this much clear vote weight (pixels' worth of alpha x T)
+CLEAR_MIN = 0.5
+#: ... unless one view's clear votes give it at least this much hair weight (None: no view
+#: can keep it alone)
+CLEAR_VETO: float | None = 0.5
+#: ... and in the drafts a video build registers its turned keyframes against too (False:
+#: `recon.pipeline` passes `clear=False` for a draft, and the turned keyframes are registered
+#: against the drafts as before). In the drafts too (no veto), the mesh subject's registered
+#: turns moved by up to 3 degrees and it lost the back of its head's outline at -90 (profile gain
+#: +2.61 against +2.64 in the final build alone), the bob its -45 view (-0.30 dB against main,
+#: +0.52 in the final build alone)
+CLEAR_IN_DRAFTS = False
 
 
 @dataclass(frozen=True)
@@ -203,6 +234,19 @@ def _boundary_share(gaussians: GaussianSet, cameras, bands) -> tuple[np.ndarray,
     return inside, total
 
 
+def clear_votes(gaussians: GaussianSet, cameras, label_images, bands, n_labels: int,
+                per_view: bool = False):
+    """(N, n_labels) float64: each Gaussian's blending weight per label summed over the views,
+    counting only the pixels outside that view's edge band (`bands`: K (H, W) bool); with
+    per_view, (K, N, n_labels) each view's."""
+    out = np.zeros((len(cameras), len(gaussians), n_labels))
+    for k, (cam, img, band) in enumerate(zip(cameras, label_images, bands)):
+        lab = np.where(band, n_labels, np.asarray(img, np.int32)).astype(np.int32)
+        w, _, _ = accumulate_view(gaussians, cam, lab, n_labels + 1)
+        out[k] = w[:, :n_labels]
+    return out if per_view else out.sum(axis=0)
+
+
 def _reference_minimum(members: np.ndarray, cfg: ReassignConfig) -> float:
     """The fewest confident members that stand for a class of `members` (N,) bool seen,
     unoccluded members: `min_reference` of them, and at least one local neighbourhood (k)."""
@@ -230,7 +274,7 @@ def bald_layer(surface_distance: np.ndarray, on_skin: np.ndarray, hair_ref: np.n
 def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Camera],
                       label_images: list[np.ndarray], depths: list[np.ndarray] | None = None,
                       config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
-                      **overrides) -> Reassignment:
+                      clear: bool = True, **overrides) -> Reassignment:
     """The paper's boundary-aware reassignment (module docstring, step 3).
 
     lift: `lift_labels` of the same Gaussians, cameras and label images.
@@ -244,6 +288,7 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     surface, not by colours the lifter had to guess.
     A candidate that joins the hair gets `hair_label`; one that leaves it (or an unseen one
     that joins the bald class) gets its best non-hair lifted label, or `bald_label`.
+    clear: with two or more views, the clear votes may overrule the neighbours (`CLEAR_SHARE`).
     """
     check_gaussians(gaussians)
     cfg = config or ReassignConfig()
@@ -343,6 +388,20 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     not_hair[:, cfg.hair_label] = -1.0
     best_other = np.argmax(not_hair, axis=1)
     best_other = np.where(not_hair[np.arange(n), best_other] > 0, best_other, cfg.bald_label)
+    if clear and CLEAR_SHARE is not None and len(cameras) >= 2 and (cand & to_hair).any():
+        # the views that see a candidate clear of every edge overrule its neighbours' looks
+        each = clear_votes(gaussians, cameras, label_images, bands, n_labels, per_view=True)
+        votes = each.sum(axis=0)
+        if CLEAR_VETO is not None:
+            # one view that sees hair there clear of any edge keeps it
+            to_hair_kept = (each[:, :, cfg.hair_label] >= CLEAR_VETO).any(axis=0)
+        else:
+            to_hair_kept = np.zeros(n, bool)
+        other = votes.sum(axis=1) - votes[:, cfg.hair_label]
+        if cfg.background_label is not None:
+            other -= votes[:, cfg.background_label]
+        total = other + votes[:, cfg.hair_label]
+        to_hair &= ~((total >= CLEAR_MIN) & (other > CLEAR_SHARE * total)) | to_hair_kept
     new[cand & to_hair] = cfg.hair_label
     leave = cand & ~to_hair & ((new == cfg.hair_label) | (new == UNSEEN))
     new[leave] = best_other[leave]
@@ -351,4 +410,5 @@ def reassign_boundary(gaussians: GaussianSet, lift: LabelLift, cameras: list[Cam
     return Reassignment(new.astype(np.int32), new != lift.labels, boundary, occluded, cand)
 
 
-__all__ = ["ReassignConfig", "Reassignment", "bald_layer", "reassign_boundary"]
+__all__ = ["CLEAR_IN_DRAFTS", "CLEAR_MIN", "CLEAR_SHARE", "CLEAR_VETO", "ReassignConfig", "Reassignment", "bald_layer", "clear_votes",
+           "reassign_boundary"]

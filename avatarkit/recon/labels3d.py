@@ -55,11 +55,11 @@ class HairSplitReport:
 def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list[np.ndarray],
                hair_label: int | None = None, n_labels: int | None = None, min_weight: float = 0.01,
                config: ReassignConfig | None = None, surface_distance: np.ndarray | None = None,
-               **overrides) -> tuple[GaussianSet, GaussianSet, HairSplitReport]:
+               clear: bool = True, **overrides) -> tuple[GaussianSet, GaussianSet, HairSplitReport]:
     """Lift, reassign, cut: (bald GaussianSet, hair GaussianSet, report).
 
     surface_distance: (N,) signed distances to the head surface (`reassign_boundary`); give
-    them when only the photo's view is labelled.
+    them when only the photo's view is labelled. clear: `reassign_boundary`'s.
     Gaussians whose final label is `hair_label` form the hair set; every other one (skin,
     body, background floaters, and any left unseen) the bald set. Extras travel with them.
     """
@@ -69,7 +69,7 @@ def split_hair(gaussians: GaussianSet, cameras: list[Camera], label_images: list
     t1 = time.perf_counter()
     overrides = dict(overrides, hair_label=hair_label)
     re = reassign_boundary(gaussians, lift, cameras, label_images, None, config, surface_distance,
-                           **overrides)
+                           clear=clear, **overrides)
     t2 = time.perf_counter()
     is_hair = re.labels == hair_label
     hair_index = np.flatnonzero(is_hair)

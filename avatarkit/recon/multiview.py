@@ -47,7 +47,9 @@ it need not); the neck's sides and back, which the photo does not show, take the
 the colour of the nearest neck that has one (`NECK_FILL`, off).
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
-lifting sums the votes of all views). Silhouette bound (`silhouette_outside`): a hair Gaussian
+lifting sums the votes of all views; with `recon.hair_reassign.CLEAR_SHARE` (off) a candidate of
+the boundary-aware reassignment that the views see as skin or body clear of every hair edge
+leaves the hair whatever its looks, in the final build only, `VideoViews.clears_hair`). Silhouette bound (`silhouette_outside`): a hair Gaussian
 whose centre projects inside a keyframe's image but outside that keyframe's person mask
 (`soft_person` >= 0.5, dilated by `SILHOUETTE_MARGIN` of the image's longer side to
 absorb the poses' error) is outside the visual hull and is removed. The mask is first joined
@@ -931,6 +933,14 @@ class VideoViews:
         """Whether `colour` drops the hair the reference shows edge-on that the keyframes see on
         skin (`EDGE_HAIR_ON_SKIN`): not in a registration draft (info["draft"])."""
         return bool(EDGE_HAIR_ON_SKIN is not None and not self.info.get("draft", False))
+
+    def clears_hair(self) -> bool:
+        """Whether the 3D hair segmentation lets the keyframes' clear votes take hair out
+        (`recon.hair_reassign.CLEAR_SHARE`, `reassign_boundary(clear=)`): not in a registration
+        draft (info["draft"]) unless `hair_reassign.CLEAR_IN_DRAFTS`."""
+        from avatarkit.recon import hair_reassign
+
+        return bool(hair_reassign.CLEAR_IN_DRAFTS or not self.info.get("draft", False))
 
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,

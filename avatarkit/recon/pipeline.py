@@ -228,7 +228,7 @@ def _labels_for(labels: np.ndarray, camera, side: int | None = None):
     return small, camera.with_size(*size)
 
 
-def clean_hair(bald, hair, camera, labels: np.ndarray, surface_distance=None):
+def clean_hair(bald, hair, camera, labels: np.ndarray, surface_distance=None, clear: bool = True):
     """The 3D hair segmentation (item 6, `recon.labels3d.split_hair`) of the hair, from the
     photo's label image seen by `camera`, over bald + hair together: labels lifted from the
     view, then the boundary-aware reassignment; hair candidates that end up labelled anything
@@ -238,7 +238,8 @@ def clean_hair(bald, hair, camera, labels: np.ndarray, surface_distance=None):
     surface_distance: a callable (P, 3) points -> (P,) signed distance to the fitted head
     (e.g. `HeadSDF.query(...)[0]`), or None. With one labelled view it is what keeps the hidden
     hair (behind the visible hair, at the back) as hair and the scalp seen through the hair's
-    gaps out of it (`reassign_boundary`)."""
+    gaps out of it (`reassign_boundary`). clear: `reassign_boundary`'s (the views' clear votes
+    may take hair out, `hair_reassign.CLEAR_SHARE`)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
     from avatarkit.recon.labels3d import split_hair
 
@@ -249,7 +250,7 @@ def clean_hair(bald, hair, camera, labels: np.ndarray, surface_distance=None):
     union = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
     sd = None if surface_distance is None else np.asarray(surface_distance(union.means), np.float64)
     _, _, report = split_hair(union, [c for _, c in views], [lab.astype(np.int32) for lab, _ in views],
-                              surface_distance=sd)
+                              surface_distance=sd, clear=clear)
     is_hair = np.zeros(len(union), bool)
     is_hair[report.hair_index] = True
     keep = is_hair[len(bald):]
@@ -404,7 +405,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             hair, summary = clean_hair(lifted.bald, hair,
                                        [v.camera for v in labelled] if labelled else fit.camera,
                                        [v.labels for v in labelled] if labelled else segmentation.labels,
-                                       lambda p: sdf.query(p)[0])
+                                       lambda p: sdf.query(p)[0],
+                                       clear=views is None or views.clears_hair())
             report.info["segment3d"] = summary
         if keyviews and len(hair):
             from avatarkit.recon.multiview import silhouette_outside
