@@ -144,3 +144,16 @@ def test_the_drafts_and_the_switch_off_leave_the_outline(sphere, monkeypatch):
     assert views.recedes()
     monkeypatch.setattr(multiview, "RECEDE_KEYFRAMES", False)
     assert not views.recedes()
+
+
+def test_the_keyframes_vote_at_the_outline_stages_poses(monkeypatch):
+    from test_keyframe_refine import _outline_scene
+
+    fit, vv, views, _ = _outline_scene()
+    monkeypatch.setattr(multiview, "RECEDE_OUTLINE_POSES", True)
+    got = vv.recede_views(fit, views)
+    want = vv.outline_views(fit, views)
+    np.testing.assert_allclose(got[1].camera.world_to_camera, want[1].camera.world_to_camera, atol=1e-12)
+    assert not np.allclose(got[1].camera.world_to_camera, views[1].camera.world_to_camera, atol=1e-3)
+    monkeypatch.setattr(multiview, "RECEDE_OUTLINE_POSES", False)
+    assert vv.recede_views(fit, views) is views

@@ -217,6 +217,11 @@ RECEDE_STEP = 0.5
 #: rounds of `recede_outline` (at most RECEDE_ROUNDS x RECEDE_STEP pixels inward). 2 (a pixel):
 #: with 4 the bob's front lost 0.09 dB (its neck's left edge set in past its truth's)
 RECEDE_ROUNDS = 2
+#: the keyframes vote at the poses the hair's outline stage uses (`VideoViews.outline_views`:
+#: registered against the draft build where the video build did so), not the joint fit's. On:
+#: the mesh subject's -45 / -90 +0.09 / +0.07 (seed 1 +0.23 / +0.08) over the joint fit's poses,
+#: the front -0.18 (-0.25); the sample avatar and the bob the same to the digit
+RECEDE_OUTLINE_POSES = True
 #: a keyframe votes a disc outside when this share of its blending weight there is on the wall
 RECEDE_SHARE = 0.3
 #: ... and a disc moves when at least this share of the keyframes showing it vote so ...
@@ -993,6 +998,12 @@ class VideoViews:
         (`RECEDE_KEYFRAMES`, `recede_outline`): not in a registration draft (info["draft"])."""
         return bool(RECEDE_KEYFRAMES and not self.info.get("draft", False))
 
+    def recede_views(self, fit, views: list[View]) -> list[View]:
+        """The views `recede_outline` votes with: the silhouettes at the poses the hair's outline
+        stage measures them with (`outline_views`: registered against the draft where the video
+        build did so) when `RECEDE_OUTLINE_POSES`, else `views`."""
+        return self.outline_views(fit, views) if RECEDE_OUTLINE_POSES else views
+
     def fills_neck(self) -> bool:
         """Whether `colour` fills the neck no keyframe saw (`NECK_FILL`): not in a registration
         draft (info["draft"])."""
@@ -1016,7 +1027,7 @@ class VideoViews:
         figures); with `recedes`, the bald discs are first set in (`recede_outline`)."""
         receded = None
         if self.recedes():
-            bald, receded = recede_outline(bald, hair, views, fit)
+            bald, receded = recede_outline(bald, hair, self.recede_views(fit, views), fit)
         _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
         keep = self.neck_rows(bald, hair, fit)
         neck = keep.copy() if self.fills_neck() else None
@@ -1036,7 +1047,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
