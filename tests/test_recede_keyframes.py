@@ -94,6 +94,13 @@ def _overshoot(bald, cam: Camera) -> float:
     return math.sqrt((alpha > 0.5).sum() / math.pi) - cam.fy * math.tan(math.asin(RADIUS / DISTANCE))
 
 
+def _fit(v, faces, scalp=None):
+    """A fit of the sphere; scalp (V,) bool: the head model's "scalp" region (None: no regions)."""
+    regions = {} if scalp is None else {"scalp": np.flatnonzero(scalp)}
+    return SimpleNamespace(rest_vertices=v, model=SimpleNamespace(faces=faces, regions=regions,
+                                                                  region_mask=lambda name: scalp))
+
+
 def _views(masks) -> list[View]:
     return [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), cam, np.where(m, SKIN, 0).astype(np.int32))
             for cam, m in zip(CAMERAS, masks)]
@@ -101,7 +108,7 @@ def _views(masks) -> list[View]:
 
 def test_discs_over_the_true_silhouette_set_in_until_their_outline_is_on_it(sphere, monkeypatch):
     v, faces, bald = sphere
-    fit = SimpleNamespace(rest_vertices=v, model=SimpleNamespace(faces=faces))
+    fit = _fit(v, faces)
     views = _views([head_silhouette(v, faces, cam) for cam in CAMERAS])
     before = [_overshoot(bald, cam) for cam in CAMERAS]
     moved, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
@@ -129,7 +136,7 @@ def test_discs_over_the_true_silhouette_set_in_until_their_outline_is_on_it(sphe
 
 def test_a_truth_that_overshoots_as_the_discs_do_leaves_them(sphere):
     v, faces, bald = sphere
-    fit = SimpleNamespace(rest_vertices=v, model=SimpleNamespace(faces=faces))
+    fit = _fit(v, faces)
     views = _views([np.asarray(render(bald.replace(extras={}), cam, (1.0, 1.0, 1.0)).alpha) > 0.5 for cam in CAMERAS])
     moved, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
     before = [_overshoot(bald, cam) for cam in CAMERAS]
@@ -157,3 +164,18 @@ def test_the_keyframes_vote_at_the_outline_stages_poses(monkeypatch):
     assert not np.allclose(got[1].camera.world_to_camera, views[1].camera.world_to_camera, atol=1e-3)
     monkeypatch.setattr(multiview, "RECEDE_OUTLINE_POSES", False)
     assert vv.recede_views(fit, views) is views
+
+
+def test_the_scalp_stays_under_the_hair(sphere, monkeypatch):
+    # the sphere's upper half a scalp: its discs stay on the surface, the rest set in as before
+    v, faces, bald = sphere
+    scalp = v[:, 1] > 0.0
+    views = _views([head_silhouette(v, faces, cam) for cam in CAMERAS])
+    monkeypatch.setattr(multiview, "RECEDE_SCALP", False)
+    moved, _ = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces, scalp))
+    depth = np.linalg.norm(np.asarray(moved.means, np.float64) - np.asarray(bald.means, np.float64), axis=1)
+    on_scalp = scalp[faces].any(axis=1)[bald.extras["binding"]]
+    assert (depth[on_scalp] == 0).all() and (depth[~on_scalp] > 0).sum() > 50
+    monkeypatch.setattr(multiview, "RECEDE_SCALP", True)
+    every, _ = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces, scalp))
+    assert (np.linalg.norm(np.asarray(every.means) - np.asarray(bald.means), axis=1)[on_scalp] > 0).sum() > 50

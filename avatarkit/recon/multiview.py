@@ -222,6 +222,11 @@ RECEDE_ROUNDS = 2
 #: the mesh subject's -45 / -90 +0.09 / +0.07 (seed 1 +0.23 / +0.08) over the joint fit's poses,
 #: the front -0.18 (-0.25); the sample avatar and the bob the same to the digit
 RECEDE_OUTLINE_POSES = True
+#: the discs on the scalp (a host face's vertex in the head model's "scalp" region, as
+#: `VideoViews.scalp_rows`) recede too. False: they stay on the surface, under the hair (the
+#: scalp's outline is the hair's; set in, the crown of the sample avatar's short hair showed the
+#: wall through at the whip clip's +-45: -0.62 / -0.57 dB, kept -0.02 / +0.07)
+RECEDE_SCALP = False
 #: a keyframe votes a disc outside when this share of its blending weight there is on the wall
 RECEDE_SHARE = 0.3
 #: ... and a disc moves when at least this share of the keyframes showing it vote so ...
@@ -822,7 +827,8 @@ def recede_outline(bald, hair, views: list[View], fit):
         both = GaussianSet.concat([bald.replace(means=(rest + offsets).astype(np.float32), extras={}), plain_hair])
         return [_Posed(both, v.camera) for v in views]
 
-    receded = frame_hull.recede(pose, walls, normals, np.ones(nb, bool), step=step, rounds=RECEDE_ROUNDS,
+    movable = np.ones(nb, bool) if RECEDE_SCALP else ~_region_rows(bald, GaussianSet.empty(), fit, "scalp", every=False)[:nb]
+    receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
                                 share=RECEDE_SHARE, quorum=RECEDE_QUORUM,
                                 min_frames=RECEDE_MIN_FRAMES)
     moved = bald.replace(means=(rest + receded.offsets).astype(np.float32))
@@ -1047,7 +1053,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
