@@ -199,6 +199,40 @@ NECK_FILL = False
 #: (the neck's cut end, under the head model's neck, which no view of a head shows but edge-on
 #: at the outline) keep the portrait's fill
 NECK_FILL_DOWN = 30.0
+#: the bald layer's outline set in where the keyframes' own silhouettes say it overshoots
+#: (`recede_outline`, the frame hull's `track.frame_hull.recede` with the keyframes as its
+#: frames): a bald disc whose blending weight falls on the wall (`RECEDE_SHARE` of it) in
+#: `RECEDE_QUORUM` of the keyframes that show it (at least `RECEDE_MIN_FRAMES`) moves inward
+#: along its face's normal, `RECEDE_STEP` of a pixel a round, `RECEDE_ROUNDS` rounds at most,
+#: the keyframes voting again on the moved head each round. The final build only, not the drafts
+#: the turned keyframes are registered against (`VideoViews.recedes`). Off (docs/video-build.md,
+#: "The bald layer's outline from the keyframes (session 23, second round)")
+RECEDE_KEYFRAMES = False
+#: the keyframes' person masks (`recon.segment` labels not background) are dilated by this many
+#: pixels before the wall is taken: at a turning video's 192 px the overshoot to find is 1-1.5 px,
+#: so the frame hull's 1 px (`frame_hull.MARGIN`, for 480 px talking heads) would hide most of it
+RECEDE_MARGIN = 0
+#: a round's move, in pixels of the reference camera at the head (`bald_discs.camera_pixel`)
+RECEDE_STEP = 0.5
+#: rounds of `recede_outline` (at most RECEDE_ROUNDS x RECEDE_STEP pixels inward). 2 (a pixel):
+#: with 4 the bob's front lost 0.09 dB (its neck's left edge set in past its truth's)
+RECEDE_ROUNDS = 2
+#: the keyframes vote at the poses the hair's outline stage uses (`VideoViews.outline_views`:
+#: registered against the draft build where the video build did so), not the joint fit's. On:
+#: the mesh subject's -45 / -90 +0.09 / +0.07 (seed 1 +0.23 / +0.08) over the joint fit's poses,
+#: the front -0.18 (-0.25); the sample avatar and the bob the same to the digit
+RECEDE_OUTLINE_POSES = True
+#: the discs on the scalp (a host face's vertex in the head model's "scalp" region, as
+#: `VideoViews.scalp_rows`) recede too. False: they stay on the surface, under the hair (the
+#: scalp's outline is the hair's; set in, the crown of the sample avatar's short hair showed the
+#: wall through at the whip clip's +-45: -0.62 / -0.57 dB, kept -0.02 / +0.07)
+RECEDE_SCALP = False
+#: a keyframe votes a disc outside when this share of its blending weight there is on the wall
+RECEDE_SHARE = 0.3
+#: ... and a disc moves when at least this share of the keyframes showing it vote so ...
+RECEDE_QUORUM = 0.3
+#: ... and it shows in at least this many keyframes
+RECEDE_MIN_FRAMES = 2
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -760,6 +794,47 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     return bald.replace(sh=both.sh[:len(bald)]), hair, figures
 
 
+class _Posed:
+    """A keyframe's camera with the rest avatar's Gaussians: what `frame_hull.recede` votes on."""
+
+    def __init__(self, gaussians, camera):
+        self.gaussians = gaussians
+        self.camera = camera
+
+
+def recede_outline(bald, hair, views: list[View], fit):
+    """The bald discs the keyframes show over the wall moved inward (`RECEDE_KEYFRAMES`): each
+    view's wall is its labels' background (`frame_hull.wall_image`, `RECEDE_MARGIN`), the discs
+    move along their host face's inward normal (`frame_hull.inward_normals`), `RECEDE_STEP` of a
+    pixel a round. bald (N_bald, with extras["binding"]) and hair (N_hair) in the rest frame the
+    views' cameras see. Returns (bald moved, figures)."""
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+    from avatarkit.recon.bald_discs import camera_pixel
+    from avatarkit.recon.segment import BACKGROUND
+    from avatarkit.track import frame_hull
+
+    nb = len(bald)
+    walls = [None if v.labels is None else frame_hull.wall_image(v.labels != BACKGROUND, RECEDE_MARGIN)
+             for v in views]
+    if nb == 0 or "binding" not in bald.extras or sum(w is not None for w in walls) < RECEDE_MIN_FRAMES:
+        return bald, {"moved": [], "total": 0}
+    normals = frame_hull.inward_normals(fit.rest_vertices, fit.model.faces, bald.extras["binding"])
+    rest = np.asarray(bald.means, np.float64)                     # (N_bald, 3)
+    step = RECEDE_STEP * camera_pixel(views[0].camera, rest)      # metres a round
+    plain_hair = hair.replace(extras={})
+
+    def pose(offsets):
+        both = GaussianSet.concat([bald.replace(means=(rest + offsets).astype(np.float32), extras={}), plain_hair])
+        return [_Posed(both, v.camera) for v in views]
+
+    movable = np.ones(nb, bool) if RECEDE_SCALP else ~_region_rows(bald, GaussianSet.empty(), fit, "scalp", every=False)[:nb]
+    receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
+                                share=RECEDE_SHARE, quorum=RECEDE_QUORUM,
+                                min_frames=RECEDE_MIN_FRAMES)
+    moved = bald.replace(means=(rest + receded.offsets).astype(np.float32))
+    return moved, {**receded.info, "step_m": round(float(step), 6), "margin_px": RECEDE_MARGIN}
+
+
 @dataclass
 class Keyframe:
     """A keyframe as the video build hands it over: image (H, W, 3) uint8; pose (4, 4) the
@@ -924,6 +999,17 @@ class VideoViews:
         `DRAFT_SCALP_FILL`."""
         return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
 
+    def recedes(self) -> bool:
+        """Whether `colour` sets the bald outline in where the keyframes show it over the wall
+        (`RECEDE_KEYFRAMES`, `recede_outline`): not in a registration draft (info["draft"])."""
+        return bool(RECEDE_KEYFRAMES and not self.info.get("draft", False))
+
+    def recede_views(self, fit, views: list[View]) -> list[View]:
+        """The views `recede_outline` votes with: the silhouettes at the poses the hair's outline
+        stage measures them with (`outline_views`: registered against the draft where the video
+        build did so) when `RECEDE_OUTLINE_POSES`, else `views`."""
+        return self.outline_views(fit, views) if RECEDE_OUTLINE_POSES else views
+
     def fills_neck(self) -> bool:
         """Whether `colour` fills the neck no keyframe saw (`NECK_FILL`): not in a registration
         draft (info["draft"])."""
@@ -944,7 +1030,10 @@ class VideoViews:
 
     def colour(self, bald, hair, views: list[View], fit, sdf):
         """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
-        figures)."""
+        figures); with `recedes`, the bald discs are first set in (`recede_outline`)."""
+        receded = None
+        if self.recedes():
+            bald, receded = recede_outline(bald, hair, self.recede_views(fit, views), fit)
         _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
         keep = self.neck_rows(bald, hair, fit)
         neck = keep.copy() if self.fills_neck() else None
@@ -958,11 +1047,13 @@ class VideoViews:
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
                                                 drop_skin_hair=self.drops_skin_hair(), neck=neck)
         self._only_others = figures.pop("_only_others")
+        if receded is not None:
+            figures["receded"] = receded
         return bald, hair, figures
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
