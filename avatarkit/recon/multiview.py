@@ -205,9 +205,13 @@ NECK_FILL_DOWN = 30.0
 #: `RECEDE_QUORUM` of the keyframes that show it (at least `RECEDE_MIN_FRAMES`) moves inward
 #: along its face's normal, `RECEDE_STEP` of a pixel a round, `RECEDE_ROUNDS` rounds at most,
 #: the keyframes voting again on the moved head each round. The final build only, not the drafts
-#: the turned keyframes are registered against (`VideoViews.recedes`). Off (docs/video-build.md,
-#: "The bald layer's outline from the keyframes (session 23, second round)")
-RECEDE_KEYFRAMES = False
+#: the turned keyframes are registered against (`VideoViews.recedes`). On (session 23, the lead,
+#: after the engineer's figures, docs/video-build.md "The bald layer's outline from the keyframes
+#: (session 23, second round)"): the video builds' fronts +0.5-0.7 dB (mesh subject, sample
+#: avatar), +-45 up to +0.19, no view of any subject or seed below main's by more than 0.02 dB;
+#: the +-90 views' outline is seen by no keyframe at its own outline, so #25's profile gain does
+#: not move (mesh subject +2.58 -> +2.59)
+RECEDE_KEYFRAMES = True
 #: the keyframes' person masks (`recon.segment` labels not background) are dilated by this many
 #: pixels before the wall is taken: at a turning video's 192 px the overshoot to find is 1-1.5 px,
 #: so the frame hull's 1 px (`frame_hull.MARGIN`, for 480 px talking heads) would hide most of it
