@@ -104,3 +104,25 @@ def one_error_line(cap) -> str:
     assert len(lines) == 1 and lines[0].startswith("error: "), cap.err
     assert "Traceback" not in cap.err
     return lines[0]
+
+
+def uv_sphere(radius: float, nu: int = 120, nv: int = 60):
+    """A UV sphere of triangles about the origin (vertices on the sphere, faces wound outward):
+    (V, 3), (F, 3)."""
+    th = np.linspace(0.0, np.pi, nv + 1)[1:-1]
+    ph = np.linspace(0.0, 2 * np.pi, nu, endpoint=False)
+    ring = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
+                     np.cos(th)[:, None] * np.ones_like(ph)], axis=-1).reshape(-1, 3)
+    v = radius * np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]])
+    j = np.arange(nu)
+    faces = [np.stack([np.zeros(nu, int), 1 + j, 1 + (j + 1) % nu], 1)]
+    for i in range(nv - 2):
+        a, b = 1 + i * nu, 1 + (i + 1) * nu
+        faces += [np.stack([a + j, b + j, b + (j + 1) % nu], 1), np.stack([a + j, b + (j + 1) % nu, a + (j + 1) % nu], 1)]
+    a = 1 + (nv - 2) * nu
+    faces.append(np.stack([a + j, np.full(nu, len(v) - 1), a + (j + 1) % nu], 1))
+    faces = np.concatenate(faces)
+    tri = v[faces]
+    outward = np.einsum("fc,fc->f", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.mean(1)) > 0
+    faces[~outward] = faces[~outward][:, ::-1]
+    return v, faces

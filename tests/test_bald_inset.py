@@ -14,6 +14,7 @@ from avatarkit.gaussians.gaussian_set import GaussianSet
 from avatarkit.recon import bald_discs
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
+from helpers import uv_sphere
 
 DISTANCE = 0.78        # the synthetic benchmark's camera distance: 2.2 mm pixels at 192 px
 ON = 0.45              # `INSET` when on (off by default)
@@ -24,32 +25,11 @@ def inset_on(monkeypatch):
     monkeypatch.setattr(bald_discs, "INSET", ON)
 
 
-def _sphere(radius: float, nu: int = 120, nv: int = 60):
-    """A UV sphere of triangles (vertices on the sphere, faces wound outward): (V, 3), (F, 3)."""
-    th = np.linspace(0.0, np.pi, nv + 1)[1:-1]
-    ph = np.linspace(0.0, 2 * np.pi, nu, endpoint=False)
-    ring = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
-                     np.cos(th)[:, None] * np.ones_like(ph)], axis=-1).reshape(-1, 3)
-    v = radius * np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]])
-    j = np.arange(nu)
-    faces = [np.stack([np.zeros(nu, int), 1 + j, 1 + (j + 1) % nu], 1)]
-    for i in range(nv - 2):
-        a, b = 1 + i * nu, 1 + (i + 1) * nu
-        faces += [np.stack([a + j, b + j, b + (j + 1) % nu], 1), np.stack([a + j, b + (j + 1) % nu, a + (j + 1) % nu], 1)]
-    a = 1 + (nv - 2) * nu
-    faces.append(np.stack([a + j, np.full(nu, len(v) - 1), a + (j + 1) % nu], 1))
-    faces = np.concatenate(faces)
-    tri = v[faces]
-    outward = np.einsum("fc,fc->f", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.mean(1)) > 0
-    faces[~outward] = faces[~outward][:, ::-1]
-    return v, faces
-
-
 def _sphere_discs(radius: float, tile: float, seed: int = 0):
     """Discs on the sphere as `sample_bald` draws them (area-weighted, `_discs_on`'s sizes for a
     share of pi tile^2 each, the holes filled, opacity 0.95-1): (points, quats, scales, ids,
     normals, opacity) and the sphere's faces' disc sigma (F,)."""
-    v, faces = _sphere(radius)
+    v, faces = uv_sphere(radius)
     tri = v[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     n = int(round(area.sum() / (np.pi * tile ** 2)))

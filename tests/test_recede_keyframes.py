@@ -19,6 +19,7 @@ from avatarkit.recon.multiview import View, head_silhouette, recede_outline
 from avatarkit.recon.segment import SKIN
 from avatarkit.render import render
 from avatarkit.render.camera import Camera
+from helpers import uv_sphere
 
 DISTANCE = 0.78        # the synthetic benchmark's camera distance: ~2.2 mm pixels at 192 px
 RADIUS = 0.05
@@ -33,27 +34,6 @@ def on(monkeypatch):
     monkeypatch.setattr(bald_discs, "INSET", None)
 
 
-def _sphere(radius: float, nu: int = 120, nv: int = 60):
-    """A UV sphere of triangles, faces wound outward: (V, 3), (F, 3)."""
-    th = np.linspace(0.0, np.pi, nv + 1)[1:-1]
-    ph = np.linspace(0.0, 2 * np.pi, nu, endpoint=False)
-    ring = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
-                     np.cos(th)[:, None] * np.ones_like(ph)], axis=-1).reshape(-1, 3)
-    v = radius * np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]])
-    j = np.arange(nu)
-    faces = [np.stack([np.zeros(nu, int), 1 + j, 1 + (j + 1) % nu], 1)]
-    for i in range(nv - 2):
-        a, b = 1 + i * nu, 1 + (i + 1) * nu
-        faces += [np.stack([a + j, b + j, b + (j + 1) % nu], 1), np.stack([a + j, b + (j + 1) % nu, a + (j + 1) % nu], 1)]
-    a = 1 + (nv - 2) * nu
-    faces.append(np.stack([a + j, np.full(nu, len(v) - 1), a + (j + 1) % nu], 1))
-    faces = np.concatenate(faces)
-    tri = v[faces]
-    outward = np.einsum("fc,fc->f", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.mean(1)) > 0
-    faces[~outward] = faces[~outward][:, ::-1]
-    return v, faces
-
-
 @pytest.fixture(scope="module")
 def sphere():
     return _sphere_bald()
@@ -62,7 +42,7 @@ def sphere():
 def _sphere_bald():
     """The sphere (V, 3), (F, 3) and its bald discs drawn as `sample_bald` draws them (a face-sized
     disc, opacity 0.95-1), with their host faces in extras["binding"]."""
-    v, faces = _sphere(RADIUS)
+    v, faces = uv_sphere(RADIUS)
     tri = v[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     n = int(round(area.sum() / (np.pi * 0.0038 ** 2)))
