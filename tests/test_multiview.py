@@ -317,6 +317,15 @@ def test_body_pixels_on_the_head_are_sampled_only_by_the_rows_allowed_and_not_in
     assert not ref.seen[right].any()
 
 
+def _grey_and_dark_views():
+    """Two views from +Z: a grey reference and a dark keyframe; -> (views, the colour their blend
+    gives a Gaussian both see face-on)."""
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    dark = (0.2, 0.1, 0.05)
+    views = [View(_image((0.5, 0.5, 0.5)), cam, None, 1.0, reference=True), View(_image(dark), cam, None, 1.0)]
+    return views, (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
+
+
 def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_reference_looks_away(planes):
     """`colour_from_views(scalp=)` (`SCALP_FILL`): the back plane is scalp, the front plane (its
     left half's cover) is not. Two views on +Z, grey reference and a dark keyframe: the back
@@ -342,10 +351,7 @@ def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_refe
     turned &= ~off_scalp
     scalp = np.zeros(len(bald), bool)
     scalp[:nb] = ~off_scalp
-    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
-    dark = (0.2, 0.1, 0.05)
-    views = [View(_image((0.5, 0.5, 0.5)), cam, None, 1.0, reference=True), View(_image(dark), cam, None, 1.0)]
-    blend = (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
+    views, blend = _grey_and_dark_views()
 
     plain, _, _ = colour_from_views(bald, hair, views, normals)
     filled, _, figures = colour_from_views(bald, hair, views, normals, scalp=scalp)
@@ -393,10 +399,7 @@ def test_the_neck_no_view_saw_takes_the_colour_of_the_neck_that_has_one(planes):
     behind = x < -0.02
     neck = np.zeros(len(bald), bool)
     neck[:nb] = True
-    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
-    dark = (0.2, 0.1, 0.05)
-    views = [View(_image((0.5, 0.5, 0.5)), cam, None, 1.0, reference=True), View(_image(dark), cam, None, 1.0)]
-    blend = (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
+    views, blend = _grey_and_dark_views()
 
     plain, _, _ = colour_from_views(bald, hair, views, normals)
     filled, _, figures = colour_from_views(bald, hair, views, normals, neck=neck)
