@@ -798,12 +798,13 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     return bald.replace(sh=both.sh[:len(bald)]), hair, figures
 
 
+@dataclass(frozen=True)
 class _Posed:
-    """A keyframe's camera with the rest avatar's Gaussians: what `frame_hull.recede` votes on."""
+    """A keyframe's camera with the rest avatar's Gaussians: what `frame_hull.recede` votes on
+    (the `.gaussians` and `.camera` of a `frame_colours.FrameView`)."""
 
-    def __init__(self, gaussians, camera):
-        self.gaussians = gaussians
-        self.camera = camera
+    gaussians: object
+    camera: object
 
 
 def recede_outline(bald, hair, views: list[View], fit):
