@@ -54,7 +54,7 @@ def bench_size(base: np.ndarray, size: int, repeat: int) -> None:
         path = Path(tmp) / "p.jpg"
         cv2.imwrite(str(path), image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])
         t_read, _ = timed(lambda: read_image(path), repeat)
-    t_an, a = timed(lambda: analyze_portrait(image), repeat)
+    t_an, a = timed(lambda: analyze_portrait(image, detector="cascade"), repeat)
     t_seg, seg = timed(lambda: segment_portrait(image, a), repeat)
     t_bald, bald = timed(lambda: make_bald_image(image, seg, a), repeat)
 

@@ -30,7 +30,14 @@ def sample():
 
 @pytest.fixture(scope="module")
 def sample_analysis(sample):
-    return analyze_portrait(sample, path=SAMPLE)
+    # the cascade detectors' own path (the library's default is "auto": MediaPipe)
+    return analyze_portrait(sample, path=SAMPLE, detector="cascade")
+
+
+@pytest.fixture(scope="module")
+def analyses(sample):
+    """detector -> the sample's analysis with it ("auto": the default, MediaPipe here)."""
+    return {d: analyze_portrait(sample, path=SAMPLE, detector=d) for d in ("cascade", "auto")}
 
 
 # ---------------------------------------------------------------------------------- image_io
@@ -194,21 +201,25 @@ def test_canonical_crop_is_square_contains_face_and_levels_eyes(sample, sample_a
     assert np.median(np.abs(src_vals - crop_vals)) < 10
 
 
-def test_roll_follows_image_rotation(sample, sample_analysis):
+@pytest.mark.parametrize("detector", ["cascade", "auto"])
+def test_roll_follows_image_rotation(sample, analyses, detector):
     h, w = sample.shape[:2]
     rot = cv2.getRotationMatrix2D((w / 2, h / 2), 10, 1.0)  # +10 deg = counter-clockwise on screen
     turned = cv2.warpAffine(sample, rot, (w, h), borderMode=cv2.BORDER_REPLICATE)
-    b = analyze_portrait(turned)
-    assert b.roll_deg == pytest.approx(sample_analysis.roll_deg - 10, abs=2.5)
+    b = analyze_portrait(turned, detector=detector)
+    assert b.detector == analyses[detector].detector
+    assert b.roll_deg == pytest.approx(analyses[detector].roll_deg - 10, abs=2.5)
     crop, m = b.crop(turned)
     eyes = b.points(["right_eye", "left_eye"]) @ m[:, :2].T + m[:, 2]
     assert abs(eyes[0, 1] - eyes[1, 1]) < 0.5
 
 
-def test_mirrored_portrait_mirrors_the_analysis(sample, sample_analysis):
-    a = sample_analysis
+@pytest.mark.parametrize("detector", ["cascade", "auto"])
+def test_mirrored_portrait_mirrors_the_analysis(sample, analyses, detector):
+    a = analyses[detector]
     w = sample.shape[1]
-    b = analyze_portrait(np.ascontiguousarray(sample[:, ::-1]))
+    b = analyze_portrait(np.ascontiguousarray(sample[:, ::-1]), detector=detector)
+    assert b.detector == a.detector
     assert b.roll_deg == pytest.approx(-a.roll_deg, abs=1.5)
     # the subject's right eye of the mirror image is the mirrored left eye of the original
     # (Haar hits are quantised to the cascade's scale steps: agree to a tenth of the eye distance)
@@ -226,7 +237,7 @@ def test_lbp_fallback_when_haar_finds_nothing(sample, monkeypatch):
 
     haar = portrait._haar
     monkeypatch.setattr(portrait, "_haar", lambda name: Blind() if "frontalface" in name else haar(name))
-    a = analyze_portrait(sample)
+    a = analyze_portrait(sample, detector="cascade")
     assert a.detector == "lbp_skimage" and len(a.faces) == 1
     assert a.landmarks["left_eye"].detected and a.landmarks["right_eye"].detected
     x, y, w, h = a.face_box
@@ -263,17 +274,19 @@ def test_small_face_is_refused(sample):
         analyze_portrait(canvas, path="tiny.png")
 
 
-def test_strongly_turned_face_warns(sample, sample_analysis):
+@pytest.mark.parametrize("detector", ["cascade", "auto"])
+def test_strongly_turned_face_warns(sample, analyses, detector):
     # Squeeze the image half on the subject's left side (a crude stand-in for yaw): symmetry and
     # eye placement break, detection still works, and the result must say so.
     h, w = sample.shape[:2]
-    cx = sample_analysis.eye_mid[0]
+    a = analyses[detector]
+    cx = a.eye_mid[0]
     xs = np.arange(w, dtype=np.float32)
     mapx = np.tile(np.where(xs < cx, xs, cx + (xs - cx) / 0.3).astype(np.float32), (h, 1))
     mapy = np.tile(np.arange(h, dtype=np.float32)[:, None], (1, w))
     turned = cv2.remap(sample, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    b = analyze_portrait(turned)
-    assert b.frontality < sample_analysis.frontality - 0.3
+    b = analyze_portrait(turned, detector=detector)
+    assert b.frontality < a.frontality - 0.3
     assert any("non-frontal" in warning for warning in b.warnings)
 
 

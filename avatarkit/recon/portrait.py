@@ -434,17 +434,17 @@ def _as_image(image, path):
 
 
 def analyze_portrait(image, face_index: int | None = None, *, path: str | os.PathLike | None = None,
-                     min_face: int | None = None, detector: str = "cascade") -> PortraitAnalysis:
+                     min_face: int | None = None, detector: str = "auto") -> PortraitAnalysis:
     """Find exactly one face in a portrait and describe it.
 
     image: (H, W, 3) uint8 RGB, or an image file path (read with `read_image`).
     face_index: which face to use when there are several (faces are indexed left to right).
     path: the file name to put in error messages when `image` is an array.
 
-    detector: "cascade" (OpenCV Haar / scikit-image LBP, the default of this function),
+    detector: "auto" (the default, as `BuildOptions.face_detector`'s: MediaPipe when installed,
+    else the cascades with a warning; the cascades also when MediaPipe finds no face),
     "mediapipe" (BlazeFace + the 468-point face mesh and iris, `avatarkit.face`; raises
-    `ModelsMissing` when they are not installed) or "auto" (MediaPipe when installed, else the
-    cascades with a warning; the cascades also when MediaPipe finds no face).
+    `ModelsMissing` when they are not installed) or "cascade" (OpenCV Haar / scikit-image LBP).
 
     Raises InputError: no face; several faces and no `face_index` (the message lists them);
     `face_index` out of range; face narrower than `min_face` pixels. A strongly non-frontal
