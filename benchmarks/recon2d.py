@@ -158,7 +158,7 @@ def bench_synthetic() -> None:
             row.append(f"{ious[0]:8.3f} {ious[1]:8.3f} {out:6.2f} {lost:6.2f}")
         print(f"{name:30s} {row[0]} | {row[1]}")
     image, person, hair = mesh_subject_front()
-    a = analyze_portrait(image)
+    a = analyze_portrait(image, detector="cascade")  # the figures in docs/building.md
     row = []
     for boundary in (True, False):
         seg = segment_portrait(image, a, boundary=boundary)
@@ -177,7 +177,7 @@ def main(argv=None) -> int:
         args.repeat = 1
     print(f"avatarkit 2D recon stages; cv2 threads {cv2.getNumThreads()}, cpus {os.cpu_count()} (timings are noisy on a shared box)")
     base = read_image(SAMPLE)
-    analyze_portrait(base)  # load the cascades once, outside the timings
+    analyze_portrait(base, detector="cascade")  # load the cascades once, outside the timings
     for size in (512,) if args.quick else (512, 1024, 2048):
         bench_size(base, size, args.repeat)
     bench_fill(args.repeat)
