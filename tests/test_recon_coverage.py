@@ -252,10 +252,10 @@ def test_the_neck_beyond_the_head_gets_no_disc_with_cover_neck_off(scene, monkey
     rim = band & (gap <= coverage.NECK_RIM_PX)
     assert far.sum() >= 12 and rim.sum() >= 5
 
-    def run(on):
+    def run(on, views=False):
         monkeypatch.setattr(coverage, "COVER_NECK", on)
         neck = np.zeros(labels.shape, bool)
-        out, _, info = cover_silhouette(bald, hair, fit, image, labels, neck_out=neck)
+        out, _, info = cover_silhouette(bald, hair, fit, image, labels, neck_out=neck, views=views)
         added = out.subset(np.arange(len(bald), len(out)))
         p, _ = cam.project(added.means)
         ij = np.clip(np.floor(p).astype(int), 0, 127)
@@ -276,6 +276,11 @@ def test_the_neck_beyond_the_head_gets_no_disc_with_cover_neck_off(scene, monkey
     assert rim[ij[:, 1], ij[:, 0]].sum() >= 5 and ear[ij[:, 1], ij[:, 0]].sum() >= 20
     np.testing.assert_array_equal(after.means, before.means[kept])
     np.testing.assert_allclose(after.colors, before.colors[kept], atol=1e-6)
+    # a video build (`views`) follows COVER_NECK_VIDEO: on (the default) it keeps the band's discs
+    video = run(False, views=True)[0]
+    np.testing.assert_array_equal(video.means, before.means)
+    monkeypatch.setattr(coverage, "COVER_NECK_VIDEO", False)
+    np.testing.assert_array_equal(run(True, views=True)[0].means, after.means)
 
 
 def test_under_jaw_is_the_neck_and_what_hangs_below_the_jaw(scene):

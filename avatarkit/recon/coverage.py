@@ -86,7 +86,8 @@ COVER_HEAD_INSIDE: int | None = None
 #: (session 24)"). Above the jaw (the ears, a face wider than the fit) nothing changes. Off since
 #: session 24: the shared clips' held-out person PSNR (`evaluate --compare-single`) grey +0.34 /
 #: +0.36 dB (video / single-frame build), glasses -0.04 / +0.00; the sample portrait and the
-#: synthetic subjects' builds (their necks within `NECK_RIM_PX` of the fit) the same to the digit
+#: synthetic subjects' builds (their necks within `NECK_RIM_PX` of the fit) the same to the digit.
+#: Single-frame builds only (`COVER_NECK_VIDEO` for the video builds)
 COVER_NECK = False
 UNDER_JAW_WEIGHT = 0.5
 #: with `COVER_NECK` off, the under-the-jaw pixels this close (pixels) to the render's covered
@@ -95,6 +96,13 @@ UNDER_JAW_WEIGHT = 0.5
 #: portrait's jaw against its dark collar showed the white background through 38 pixels (its
 #: front view in the head mask 28.19 -> 27.81 dB)
 NECK_RIM_PX = 2.0
+#: `COVER_NECK` for the video builds (two or more keyframes; `cover_silhouette(views=True)`):
+#: True, they keep the neck's coverage discs. On the white and cluttered walls the synthetic
+#: subjects' video builds are the same either way (no neck of theirs past the rim), but on the
+#: dark wall the mesh subject's video build lost 0.07 / 0.17 / 0.26 / 0.04 / 0.26 dB (front /
+#: +45 / -45 / +90 / -90; its single-frame build +0.01) with them dropped: not understood, so
+#: the rule stays with the single-frame builds (the shared clips, every portrait)
+COVER_NECK_VIDEO = True
 
 
 def under_jaw(means: np.ndarray, ids: np.ndarray, model, vertices: np.ndarray) -> np.ndarray:
@@ -191,14 +199,15 @@ def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: n
 
 
 def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarray, labels: np.ndarray,
-                     margin: float | None = None, neck_out: np.ndarray | None = None
-                     ) -> tuple[GaussianSet, GaussianSet, dict]:
+                     margin: float | None = None, neck_out: np.ndarray | None = None,
+                     views: bool = False) -> tuple[GaussianSet, GaussianSet, dict]:
     """(bald, hair, figures) with Gaussians added on the uncovered head pixels (module
     docstring). image: (H, W, 3) uint8 seen by `fit.camera`; labels: (H, W) segmentation labels.
     neck_out: an (H, W) bool array or None; with `COVER_NECK` off, the pixels left without a
     disc under the jaw (`under_jaw`) are set True in it (the colour matching leaves them out:
     matched there, the neck's edge discs behind would take the photo's colour at the alpha's
-    shortfall, an orange streak)."""
+    shortfall, an orange streak). views: a video build's (`COVER_NECK_VIDEO` instead of
+    `COVER_NECK`)."""
     from scipy import ndimage
 
     from avatarkit.recon.assemble import HAIR_MARGIN
@@ -268,7 +277,7 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     if skin.any():
         faces = np.asarray(fit.model.faces)
         ids, _ = nearest_faces(means[skin], np.asarray(fit.rest_vertices, np.float64), faces)
-        if not COVER_NECK:
+        if not (COVER_NECK_VIDEO if views else COVER_NECK):
             # the neck's and the jaw's underside's skin pixels: no disc (COVER_NECK)
             sel = np.flatnonzero(skin)
             keep = ~under_jaw(means[skin], ids, fit.model, fit.rest_vertices) | (gap[ys[sel], xs[sel]] <= NECK_RIM_PX)
@@ -297,6 +306,6 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     return out_bald, out_hair, info
 
 
-__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_NECK", "COVER_OPACITY",
+__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_NECK", "COVER_NECK_VIDEO", "COVER_OPACITY",
            "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "NECK_RIM_PX", "UNDER_JAW_WEIGHT", "cover_silhouette", "head_share",
            "under_jaw"]

@@ -468,7 +468,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             from avatarkit.recon.coverage import cover_silhouette
 
             neck = np.zeros(head_labels.shape, bool)
-            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, head_labels, neck_out=neck)
+            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, head_labels, neck_out=neck,
+                                                                   views=bool(keyviews))
             # the neck's pixels left without a disc (`coverage.COVER_NECK` off) are not the head's
             head_labels = np.where(neck, BODY, head_labels)
         if outline_trim.SHARPEN_OUTLINE:
