@@ -220,3 +220,89 @@ def test_wall_the_labels_took_in_past_the_overshoot_gets_no_opaque_wall_discs(sc
     np.testing.assert_allclose(after.means, before.means[~on_before])
     np.testing.assert_allclose(after.colors, before.colors[~on_before], atol=1e-6)
     np.testing.assert_allclose(after.opacities, before.opacities[~on_before], atol=1e-6)
+
+
+def test_the_neck_beyond_the_head_gets_no_disc_with_cover_neck_off(scene, monkeypatch):
+    """`COVER_NECK` off: a band of skin-labelled, shadow-coloured pixels beside the head model's
+    neck (the grey clip's shaded neck side and collar fold beyond the fitted neck) gets no disc
+    past the render's rim (`NECK_RIM_PX`), and those pixels are reported in `neck_out`; with it on
+    (the rule before) they get discs bound to the neck. The rim's discs and the ear's are the same
+    either way."""
+    from scipy import ndimage
+
+    from avatarkit.recon import coverage
+
+    fit, bald, hair, image, labels, ear, tuft = scene
+    cam = fit.camera
+    model = fit.model
+    px, _ = cam.project(np.asarray(fit.rest_vertices, np.float64)[model.region_mask("neck")])
+    head = labels == SKIN
+    yy, xx = np.mgrid[:128, :128]
+    # rows the neck's vertices project to, below the face's jaw (the neck region's lower 60 %)
+    y0 = np.percentile(px[:, 1], 40)
+    band = (ndimage.binary_dilation(head, iterations=6) & ~np.isin(labels, (SKIN, HAIR)) & (xx > 64)
+            & (yy > y0) & (yy < px[:, 1].max() - 2))
+    image, labels = image.copy(), labels.copy()
+    labels[tuft] = 0
+    labels[band] = SKIN
+    image[band] = (90, 60, 50)                                            # the neck's shaded side
+    covered = render(bald.replace(extras={}), cam).alpha >= COVER_ALPHA
+    gap = ndimage.distance_transform_edt(~covered)
+    far = band & (gap > coverage.NECK_RIM_PX)
+    rim = band & (gap <= coverage.NECK_RIM_PX)
+    assert far.sum() >= 12 and rim.sum() >= 5
+
+    def run(on, views=False):
+        monkeypatch.setattr(coverage, "COVER_NECK", on)
+        neck = np.zeros(labels.shape, bool)
+        out, _, info = cover_silhouette(bald, hair, fit, image, labels, neck_out=neck, views=views)
+        added = out.subset(np.arange(len(bald), len(out)))
+        p, _ = cam.project(added.means)
+        ij = np.clip(np.floor(p).astype(int), 0, 127)
+        return added, far[ij[:, 1], ij[:, 0]], ~far[ij[:, 1], ij[:, 0]], neck, info
+
+    before, on_far, kept, neck_before, info_before = run(True)
+    assert on_far.sum() >= 10 and not neck_before.any() and "neck_dropped" not in info_before
+    # the rule before: the band's discs are bound to the neck's triangles
+    assert coverage.under_jaw(before.means[on_far], before.extras["binding"][on_far], model,
+                              fit.rest_vertices).mean() > 0.9
+    after, on_far_after, kept_after, neck_after, info_after = run(False)
+    assert not on_far_after.any()
+    assert info_after["neck_dropped"] == on_far.sum()
+    assert neck_after[far].mean() > 0.9 and not neck_after[~far].any()
+    # the rim's discs and the ear's are the same ones
+    p, _ = cam.project(before.means[kept])
+    ij = np.clip(np.floor(p).astype(int), 0, 127)
+    assert rim[ij[:, 1], ij[:, 0]].sum() >= 5 and ear[ij[:, 1], ij[:, 0]].sum() >= 20
+    np.testing.assert_array_equal(after.means, before.means[kept])
+    np.testing.assert_allclose(after.colors, before.colors[kept], atol=1e-6)
+    # a video build (`views`) follows COVER_NECK_VIDEO: on (the default) it keeps the band's discs
+    video = run(False, views=True)[0]
+    np.testing.assert_array_equal(video.means, before.means)
+    monkeypatch.setattr(coverage, "COVER_NECK_VIDEO", False)
+    np.testing.assert_array_equal(run(True, views=True)[0].means, after.means)
+
+
+def test_under_jaw_is_the_neck_and_what_hangs_below_the_jaw(scene):
+    """`under_jaw`: a point on a neck triangle is under the jaw; a point 5 mm below a jaw-skinned
+    triangle is, the same point 5 mm beside it (sideways) or above it is not; a point below a
+    triangle the jaw does not move (the forehead's) is not."""
+    from avatarkit.face.fit import JAW_JOINT
+    from avatarkit.recon.coverage import UNDER_JAW_WEIGHT, under_jaw
+
+    fit = scene[0]
+    model, v = fit.model, np.asarray(fit.rest_vertices, np.float64)
+    faces = np.asarray(model.faces)
+    neck = np.flatnonzero(model.region_mask("neck")[faces].sum(axis=1) == 3)
+    w = np.asarray(model.weights, np.float64)[faces, JAW_JOINT].mean(axis=1)
+    not_neck = model.region_mask("neck")[faces].sum(axis=1) < 2
+    jaw = np.flatnonzero((w >= UNDER_JAW_WEIGHT + 0.1) & not_neck)
+    still = np.flatnonzero((w == 0) & not_neck & (model.region_mask("face")[faces].sum(axis=1) == 3))
+    assert len(neck) and len(jaw) and len(still)
+    c = lambda f: v[faces[f]].mean(axis=1)
+    down, side, up = np.array([0, -0.005, 0]), np.array([0.005, 0, 0]), np.array([0, 0.005, 0])
+    assert under_jaw(c(neck[:20]), neck[:20], model, v).all()
+    assert under_jaw(c(jaw) + down, jaw, model, v).all()
+    assert not under_jaw(c(jaw) + side, jaw, model, v).any()
+    assert not under_jaw(c(jaw) + up, jaw, model, v).any()
+    assert not under_jaw(c(still) + down, still, model, v).any()

@@ -27,6 +27,10 @@ with a < `COVER_MIN_SHARE` is mostly background and gets nothing; the others get
 colour (c - (1 - a) b) / a and opacity a times the usual, so that seen from the front over the
 background they still show c, and seen from the side they show the head's colour, faintly. Where
 h and b are too alike to tell apart (`COVER_MIN_CONTRAST`), a = 1, as before.
+
+Under the jaw the photo's skin beyond the fitted head is not the head's outline but the neck's
+shaded side, a collar's fold or the shadow between them: those pixels (`under_jaw`, past the
+render's rim) get no disc (`COVER_NECK` off) and are left out of the colour matching.
 """
 from __future__ import annotations
 
@@ -69,6 +73,55 @@ COVER_MIN_CONTRAST = 0.1
 #: photo's colour matching then pulls the side of the face's discs to the white skin-labelled
 #: wall instead); the other subjects build the same to the digit
 COVER_HEAD_INSIDE: int | None = None
+#: False: the photo's skin pixels beyond the fitted head under the jaw get no disc: a skin disc
+#: whose nearest head triangle is the neck's (the model's `neck` region), or a triangle skinned
+#: to the jaw by at least `UNDER_JAW_WEIGHT` with the disc below it (its offset from the
+#: triangle's centroid pointing down, -Y, more than sideways: `under_jaw`), farther than
+#: `NECK_RIM_PX` from the render's covered pixels. True: they get one
+#: (the builds before session 24). There the skin label beyond the model's neck is the neck's
+#: shaded side, a collar's fold or the shadow between them, and a camera-facing disc of that
+#: colour, right from the front, stands as a dark fin seen from the side: the grey clip's dark
+#: line down the neck's side at 45 and 90 degrees and the bulge on its neck's right side at the
+#: front, the glasses clip's collar fold below the ear (docs/building.md, "The neck's coverage
+#: (session 24)"). Above the jaw (the ears, a face wider than the fit) nothing changes. Off since
+#: session 24: the shared clips' held-out person PSNR (`evaluate --compare-single`) grey +0.34 /
+#: +0.36 dB (video / single-frame build), glasses -0.04 / +0.00; the sample portrait and the
+#: synthetic subjects' builds (their necks within `NECK_RIM_PX` of the fit) the same to the digit.
+#: Single-frame builds only (`COVER_NECK_VIDEO` for the video builds)
+COVER_NECK = False
+UNDER_JAW_WEIGHT = 0.5
+#: with `COVER_NECK` off, the under-the-jaw pixels this close (pixels) to the render's covered
+#: pixels keep their discs: the render's own rim (the fit a pixel or two narrower than the photo's
+#: outline), seen from the side a line no deeper than two discs. Dropped there too, the sample
+#: portrait's jaw against its dark collar showed the white background through 38 pixels (its
+#: front view in the head mask 28.19 -> 27.81 dB)
+NECK_RIM_PX = 2.0
+#: `COVER_NECK` for the video builds (two or more keyframes; `cover_silhouette(views=True)`):
+#: True, they keep the neck's coverage discs. On the white and cluttered walls the synthetic
+#: subjects' video builds are the same either way (no neck of theirs past the rim), but on the
+#: dark wall the mesh subject's video build lost 0.07 / 0.17 / 0.26 / 0.04 / 0.26 dB (front /
+#: +45 / -45 / +90 / -90; its single-frame build +0.01) with them dropped: not understood, so
+#: the rule stays with the single-frame builds (the shared clips, every portrait)
+COVER_NECK_VIDEO = True
+
+
+def under_jaw(means: np.ndarray, ids: np.ndarray, model, vertices: np.ndarray) -> np.ndarray:
+    """(N,) bool: discs at `means` (N, 3) whose nearest head triangles `ids` (N,) are the neck's
+    (`neck` region: 2 of 3 vertices) or are skinned to the jaw by at least `UNDER_JAW_WEIGHT`
+    (their vertices' mean) with the disc below them: its offset from the triangle's centroid
+    (on the rest head `vertices` (V, 3)) points down (-Y) by more than half its length."""
+    from avatarkit.face.fit import JAW_JOINT
+
+    faces = np.asarray(model.faces)[np.asarray(ids)]
+    out = np.zeros(len(faces), bool)
+    if "neck" in model.regions:
+        out |= model.region_mask("neck")[faces].sum(axis=1) >= 2
+    w = np.asarray(model.weights, np.float64)
+    if w.shape[1] > JAW_JOINT:
+        jaw = w[faces, JAW_JOINT].mean(axis=1) >= UNDER_JAW_WEIGHT
+        off = np.asarray(means, np.float64) - np.asarray(vertices, np.float64)[faces].mean(axis=1)
+        out |= jaw & (off[:, 1] < -0.5 * np.linalg.norm(off, axis=1))
+    return out
 
 
 def _extras_like(template: GaussianSet, n: int, values: dict) -> dict:
@@ -146,9 +199,15 @@ def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: n
 
 
 def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarray, labels: np.ndarray,
-                     margin: float | None = None) -> tuple[GaussianSet, GaussianSet, dict]:
+                     margin: float | None = None, neck_out: np.ndarray | None = None,
+                     views: bool = False) -> tuple[GaussianSet, GaussianSet, dict]:
     """(bald, hair, figures) with Gaussians added on the uncovered head pixels (module
-    docstring). image: (H, W, 3) uint8 seen by `fit.camera`; labels: (H, W) segmentation labels."""
+    docstring). image: (H, W, 3) uint8 seen by `fit.camera`; labels: (H, W) segmentation labels.
+    neck_out: an (H, W) bool array or None; with `COVER_NECK` off, the pixels left without a
+    disc under the jaw (`under_jaw`) are set True in it (the colour matching leaves them out:
+    matched there, the neck's edge discs behind would take the photo's colour at the alpha's
+    shortfall, an orange streak). views: a video build's (`COVER_NECK_VIDEO` instead of
+    `COVER_NECK`)."""
     from scipy import ndimage
 
     from avatarkit.recon.assemble import HAIR_MARGIN
@@ -208,7 +267,8 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     keep = share >= COVER_MIN_SHARE
     info["background_dropped"] = int((~keep).sum())
     if not keep.all():
-        means, scales, quat, rgb, is_hair, share, b = (a[keep] for a in (means, scales, quat, rgb, is_hair, share, b))
+        means, scales, quat, rgb, is_hair, share, b, ys, xs = (a[keep] for a in (means, scales, quat, rgb, is_hair,
+                                                                                share, b, ys, xs))
     rgb = np.clip((rgb - (1.0 - share[:, None]) * b) / np.maximum(share[:, None], 1e-6), 0, 1)
     opacity = COVER_OPACITY * share
 
@@ -217,6 +277,17 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     if skin.any():
         faces = np.asarray(fit.model.faces)
         ids, _ = nearest_faces(means[skin], np.asarray(fit.rest_vertices, np.float64), faces)
+        if not (COVER_NECK_VIDEO if views else COVER_NECK):
+            # the neck's and the jaw's underside's skin pixels: no disc (COVER_NECK)
+            sel = np.flatnonzero(skin)
+            keep = ~under_jaw(means[skin], ids, fit.model, fit.rest_vertices) | (gap[ys[sel], xs[sel]] <= NECK_RIM_PX)
+            info["neck_dropped"] = int((~keep).sum())
+            if neck_out is not None:
+                neck_out[ys[sel[~keep]], xs[sel[~keep]]] = True
+            skin = skin.copy()
+            skin[sel[~keep]] = False
+            ids = ids[keep]
+    if skin.any():
         extras = _extras_like(bald, int(skin.sum()), {"binding": ids, "part": PART_SKIN})
         added = GaussianSet.from_colors(means[skin], quat[skin], scales[skin], opacity[skin],
                                         rgb[skin], extras=extras)
@@ -235,5 +306,6 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     return out_bald, out_hair, info
 
 
-__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_OPACITY",
-           "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "cover_silhouette", "head_share"]
+__all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_NECK", "COVER_NECK_VIDEO", "COVER_OPACITY",
+           "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "NECK_RIM_PX", "UNDER_JAW_WEIGHT", "cover_silhouette", "head_share",
+           "under_jaw"]
