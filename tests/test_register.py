@@ -217,6 +217,29 @@ def test_a_draft_whose_hair_is_off_its_head_reads_short_unless_the_hair_is_disco
     assert np.linalg.norm(found.pose[:3, 3] - truth[:3, 3]) < 0.01
 
 
+def test_the_hair_discounted_yaw_replaces_the_plain_pose_only_when_turned_further_by_the_gate(scene, monkeypatch):
+    """`HAIR_GATE`: the plain search's pose is kept unless the hair-discounted yaw is turned
+    further from the reference than the plain one by more than the gate (the draft's hair turned
+    20 degrees: the discount reads ~6 degrees further than every pixel; turned -12 degrees, the
+    two agree)."""
+    import avatarkit.track.register as register
+
+    gs, camera, ref_pose, truth, image = scene
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    for degrees, gate, taken in ((20.0, 3.0, True), (20.0, 30.0, False), (-12.0, 3.0, False)):
+        monkeypatch.setattr(register, "HAIR_GATE", math.radians(gate))
+        draft = _hair_turned(gs, degrees)
+        plain = register_frame(draft, image, camera, ref_pose, guess, window)
+        found = register_frame(draft, image, camera, ref_pose, guess, window, discount_hair=True)
+        assert found.evaluations > 2 * plain.evaluations     # both searches ran
+        if taken:
+            assert params_from_pose(found.pose)[0] > params_from_pose(plain.pose)[0] + math.radians(gate)
+        else:
+            np.testing.assert_array_equal(found.pose, plain.pose)
+            assert found.error == plain.error
+
+
 def _target_of(image):
     from avatarkit.track.register import _target
 
