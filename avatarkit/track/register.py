@@ -122,9 +122,9 @@ def photometric_error(gaussians, camera: Camera, target: np.ndarray, background,
 
     r = render(gaussians, camera, background=tuple(float(x) for x in background))
     rows = max(1, int(round(above * camera.height)))
-    err = np.mean((np.clip(r.rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2, axis=-1)     # (rows, W)
     if hair is None:
-        return float(np.mean(err))
+        return float(np.mean((np.clip(r.rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2))
+    err = np.mean((np.clip(r.rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2, axis=-1)     # (rows, W)
     w = 1.0 - hair_share(hair, camera)[:rows]
     # a render that is all hair has nothing else to compare: the plain mean
     return float(np.sum(w * err) / np.sum(w)) if np.sum(w) > 1e-6 else float(np.mean(err))
