@@ -164,9 +164,9 @@ DRAFT_OUTLINE = False
 #: clip, seed 0: the +80-degree end at +68 relative, true +83.7), as short against a draft built
 #: with every keyframe at its true yaw, +71 against the truth's own surface with the draft's hair
 #: (session 24, docs/video-build.md, "The turned frames' yaw without the draft's hair"). Off (()):
-#: both on, the mesh subject's profile gain rises +2.59 -> +2.76 (seed 0) and +2.86 -> +3.06 (seed
-#: 1), no view of it or of the sample avatar below main's (the avatar's builds and both whip builds
-#: are main's to the digit), but the held-out bob, whose keyframes it moves toward the truth,
+#: both on, the mesh subject's profile gain rises +2.59 -> +2.76, +2.86 -> +3.06, +2.77 -> +3.00
+#: (seeds 0 / 1 / 2), no view of it more than 0.02 below main's (the sample avatar's builds and
+#: both whip builds are main's to the digit), but the held-out bob, whose keyframes it moves toward the truth,
 #: loses 0.39 / 0.42 dB at -45 / -90 (seed 0) and 0.28 at -45 (seed 1), and on the cluttered wall
 #: (where the plain registration already reads the turn ends long) the mesh subject's -90 0.70;
 #: ~2.6x the registrations' time
