@@ -232,6 +232,35 @@ def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, mon
     assert seen == [shifted] and [k.frame for k in added] == [9]
 
 
+@pytest.mark.parametrize("stages", [(), ("turned",), ("refine",), ("turned", "refine")])
+def test_the_hair_discount_switch_reaches_the_registrations_it_names(scene, monkeypatch, stages):
+    """`HAIR_DISCOUNT` (read at call time): "turned" for `register_turned`, "refine" for
+    `refine_keyframes`; each asks `register_frame` to discount the draft's hair or not."""
+    import avatarkit.track.keyframes as keyframes
+    import avatarkit.track.register as register
+    import avatarkit.track.video_build as vb
+
+    draft, camera, ref_pose, frame = scene
+    image = frame(0.0)[1]
+    seen = []
+
+    def spy(gaussians, image, reference_camera, reference_pose, guess, yaw_range, **kw):
+        seen.append(kw.get("discount_hair"))
+        return register.Registration(np.asarray(guess), 0.0, 1)
+
+    monkeypatch.setattr(register, "register_frame", spy)
+    monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
+    monkeypatch.setattr(vb, "HAIR_DISCOUNT", stages)
+    result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
+    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
+    turned = [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))]
+    vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
+    turned_pose = pose_from_params([math.radians(40.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    vb.refine_keyframes(draft, VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0),
+                                                         Keyframe(image, turned_pose, 1.0, 1)]), tracked=2)
+    assert seen == ["turned" in stages, "refine" in stages]
+
+
 def _sphere_views():
     """A sphere "fit" seen from the front and four keyframes at yaw 0, 30, -80 and 80 degrees
     (frames 10, 11, 55, 20), the last two registered at the turns' ends: (fit, image, views)."""
