@@ -208,8 +208,10 @@ def test_without_a_draft_the_turned_keyframes_are_not_trusted_by_the_outline():
     assert unregistered_turned(VideoViews(np.zeros(10), keys)) == [2, 3]
 
 
-@pytest.mark.parametrize("shifted", [False, True])
-def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, monkeypatch, shifted):
+def _spied_turned(scene, monkeypatch, keyword):
+    """`register.register_frame` replaced by a spy that records the `keyword` argument of each
+    call (and returns the guess), and one turned frame (clip index 2, video frame 9) of a
+    one-keyframe view to register: (seen, image, call) where call() runs `register_turned`."""
     import avatarkit.track.keyframes as keyframes
     import avatarkit.track.register as register
     import avatarkit.track.video_build as vb
@@ -219,16 +221,24 @@ def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, mon
     seen = []
 
     def spy(gaussians, image, reference_camera, reference_pose, guess, yaw_range, **kw):
-        seen.append(kw.get("shifted"))
+        seen.append(kw.get(keyword))
         return register.Registration(np.asarray(guess), 0.0, 1)
 
     monkeypatch.setattr(register, "register_frame", spy)
     monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
-    monkeypatch.setattr(vb, "REGISTER_SHIFTED", shifted)
     result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
     views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
     turned = [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))]
-    added, figures = vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
+    return seen, image, lambda: vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
+
+
+@pytest.mark.parametrize("shifted", [False, True])
+def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, monkeypatch, shifted):
+    import avatarkit.track.video_build as vb
+
+    seen, _, register_turned = _spied_turned(scene, monkeypatch, "shifted")
+    monkeypatch.setattr(vb, "REGISTER_SHIFTED", shifted)
+    added, figures = register_turned()
     assert seen == [shifted] and [k.frame for k in added] == [9]
 
 
@@ -236,25 +246,12 @@ def test_register_turned_hands_the_shifted_switch_to_the_registration(scene, mon
 def test_the_hair_discount_switch_reaches_the_registrations_it_names(scene, monkeypatch, stages):
     """`HAIR_DISCOUNT` (read at call time): "turned" for `register_turned`, "refine" for
     `refine_keyframes`; each asks `register_frame` to discount the draft's hair or not."""
-    import avatarkit.track.keyframes as keyframes
-    import avatarkit.track.register as register
     import avatarkit.track.video_build as vb
 
     draft, camera, ref_pose, frame = scene
-    image = frame(0.0)[1]
-    seen = []
-
-    def spy(gaussians, image, reference_camera, reference_pose, guess, yaw_range, **kw):
-        seen.append(kw.get("discount_hair"))
-        return register.Registration(np.asarray(guess), 0.0, 1)
-
-    monkeypatch.setattr(register, "register_frame", spy)
-    monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
+    seen, image, register_turned = _spied_turned(scene, monkeypatch, "discount_hair")
     monkeypatch.setattr(vb, "HAIR_DISCOUNT", stages)
-    result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
-    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
-    turned = [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))]
-    vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
+    register_turned()
     turned_pose = pose_from_params([math.radians(40.0), 0.0, 0.0, 0.0, -0.05, -0.5])
     vb.refine_keyframes(draft, VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0),
                                                          Keyframe(image, turned_pose, 1.0, 1)]), tracked=2)
