@@ -312,6 +312,46 @@ def test_the_build_sharpens_its_outline_when_asked(monkeypatch):
     assert info["bald_narrowed"] > 0 and len(bald) == nb and len(hair) == nh - info["hair_dropped"]
 
 
+def test_the_neck_pixels_the_coverage_leaves_out_are_out_of_the_colour_matching(monkeypatch):
+    """The pixels `cover_silhouette` reports in `neck_out` (under the jaw, no disc:
+    `coverage.COVER_NECK` off) leave the colour matching's mask, which is otherwise the photo's
+    skin + hair labels; matched there, the neck's edge discs behind took the photo's colour at
+    the alpha's shortfall. The build is stopped after the colours stage (the hair rig raises)."""
+    from avatarkit.recon import assemble, coverage, hair_rig, pipeline
+    from avatarkit.recon.segment import HAIR, SKIN
+
+    seen = {}
+    real_cover, real_refine = coverage.cover_silhouette, assemble.refine_colours
+
+    def cover(bald, hair, fit, image, labels, **kwargs):
+        out = real_cover(bald, hair, fit, image, labels, **kwargs)
+        h, w = labels.shape
+        block = (slice(h // 2 - 10, h // 2 + 10), slice(w // 2 - 10, w // 2 + 10))
+        assert kwargs["neck_out"] is not None
+        kwargs["neck_out"][block] = True       # as if the coverage had dropped them
+        seen["labels"], seen["block"] = labels.copy(), block
+        return out
+
+    def refine(gaussians, camera, image, mask, *args, **kwargs):
+        seen["mask"] = mask.copy()
+        return real_refine(gaussians, camera, image, mask, *args, **kwargs)
+
+    def stop(*args, **kwargs):
+        raise InputError("stopped after the colours stage (test)")
+
+    monkeypatch.setattr(coverage, "cover_silhouette", cover)
+    monkeypatch.setattr(assemble, "refine_colours", refine)
+    monkeypatch.setattr(hair_rig, "rig_hair", stop)
+    with pytest.raises(InputError, match="test"):
+        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    head = np.isin(seen["labels"], (SKIN, HAIR))
+    assert head[seen["block"]].all()            # the block is the face's: in the mask but for the rule
+    assert not seen["mask"][seen["block"]].any()
+    outside = np.ones_like(head)
+    outside[seen["block"]] = False
+    np.testing.assert_array_equal(seen["mask"][outside], head[outside])
+
+
 def test_fast_end_to_end_build(tmp_path):
     """The whole pipeline on the sample portrait at low Gaussian counts: saved, loaded, checked."""
     from avatarkit.avatar import load_avatar
