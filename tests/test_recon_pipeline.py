@@ -251,11 +251,24 @@ def test_build_fails_cleanly_late_in_the_pipeline(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def _build_to_the_colours(monkeypatch):
+    """Build the sample (2000 + 1500 Gaussians, one colour round) and stop after the colours
+    stage: the hair rig, the next stage, raises."""
+    from avatarkit.recon import hair_rig, pipeline
+
+    def stop(*args, **kwargs):
+        raise InputError("stopped after the colours stage (test)")
+
+    monkeypatch.setattr(hair_rig, "rig_hair", stop)
+    with pytest.raises(InputError, match="test"):
+        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+
+
 def test_the_build_trims_its_outline_when_asked(monkeypatch):
     """With `outline_trim.TRIM_OUTLINE` the colours stage trims the bald discs and hair against
     the photo's person (the segmentation's, in the fit's camera) after the coverage fill; the
     build is stopped after the colours stage (the hair rig raises)."""
-    from avatarkit.recon import hair_rig, outline_trim, pipeline
+    from avatarkit.recon import outline_trim
 
     calls = []
     real = outline_trim.trim_outline
@@ -265,14 +278,9 @@ def test_the_build_trims_its_outline_when_asked(monkeypatch):
         calls.append((len(bald), len(hair), person.shape, (fit.camera.height, fit.camera.width), out))
         return out
 
-    def stop(*args, **kwargs):
-        raise InputError("stopped after the colours stage (test)")
-
     monkeypatch.setattr(outline_trim, "TRIM_OUTLINE", True)
     monkeypatch.setattr(outline_trim, "trim_outline", spy)
-    monkeypatch.setattr(hair_rig, "rig_hair", stop)
-    with pytest.raises(InputError, match="test"):
-        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    _build_to_the_colours(monkeypatch)
     assert len(calls) == 1
     nb, nh, shape, view, (bald, hair, info) = calls[0]
     assert shape == view and nb >= 2000 and nh > 0
@@ -283,7 +291,7 @@ def test_the_build_sharpens_its_outline_when_asked(monkeypatch):
     """With `outline_trim.SHARPEN_OUTLINE` the colours stage sharpens the outline (in the trim's
     place: `TRIM_OUTLINE` on too does not trim) against the photo's person in the fit's camera;
     the build is stopped after the colours stage (the hair rig raises)."""
-    from avatarkit.recon import hair_rig, outline_trim, pipeline
+    from avatarkit.recon import outline_trim
 
     calls = []
     real = outline_trim.sharpen_outline
@@ -293,9 +301,6 @@ def test_the_build_sharpens_its_outline_when_asked(monkeypatch):
         calls.append((len(bald), len(hair), person.shape, (fit.camera.height, fit.camera.width), out))
         return out
 
-    def stop(*args, **kwargs):
-        raise InputError("stopped after the colours stage (test)")
-
     def no_trim(*args, **kwargs):
         raise AssertionError("trimmed as well as sharpened")
 
@@ -303,9 +308,7 @@ def test_the_build_sharpens_its_outline_when_asked(monkeypatch):
     monkeypatch.setattr(outline_trim, "TRIM_OUTLINE", True)
     monkeypatch.setattr(outline_trim, "sharpen_outline", spy)
     monkeypatch.setattr(outline_trim, "trim_outline", no_trim)
-    monkeypatch.setattr(hair_rig, "rig_hair", stop)
-    with pytest.raises(InputError, match="test"):
-        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    _build_to_the_colours(monkeypatch)
     assert len(calls) == 1
     nb, nh, shape, view, (bald, hair, info) = calls[0]
     assert shape == view and nb >= 2000 and nh > 0
@@ -317,7 +320,7 @@ def test_the_neck_pixels_the_coverage_leaves_out_are_out_of_the_colour_matching(
     `coverage.COVER_NECK` off) leave the colour matching's mask, which is otherwise the photo's
     skin + hair labels; matched there, the neck's edge discs behind took the photo's colour at
     the alpha's shortfall. The build is stopped after the colours stage (the hair rig raises)."""
-    from avatarkit.recon import assemble, coverage, hair_rig, pipeline
+    from avatarkit.recon import assemble, coverage
     from avatarkit.recon.segment import HAIR, SKIN
 
     seen = {}
@@ -336,14 +339,9 @@ def test_the_neck_pixels_the_coverage_leaves_out_are_out_of_the_colour_matching(
         seen["mask"] = mask.copy()
         return real_refine(gaussians, camera, image, mask, *args, **kwargs)
 
-    def stop(*args, **kwargs):
-        raise InputError("stopped after the colours stage (test)")
-
     monkeypatch.setattr(coverage, "cover_silhouette", cover)
     monkeypatch.setattr(assemble, "refine_colours", refine)
-    monkeypatch.setattr(hair_rig, "rig_hair", stop)
-    with pytest.raises(InputError, match="test"):
-        pipeline.build_avatar(SAMPLE, pipeline.BuildOptions(n_bald=2000, n_hair=1500, refine_iterations=1))
+    _build_to_the_colours(monkeypatch)
     head = np.isin(seen["labels"], (SKIN, HAIR))
     assert head[seen["block"]].all()            # the block is the face's: in the mask but for the rule
     assert not seen["mask"][seen["block"]].any()
