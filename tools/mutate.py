@@ -600,7 +600,7 @@ MUTATIONS = [
       ["tests/test_recon_coverage.py"],
       "COVER_NECK's dropped pixels not reported: the colour matching pulls the neck's edge discs to them"),
     M("recon.neck_out_still_matched", "avatarkit/recon/pipeline.py",
-      "            head_labels = np.where(neck, BODY, head_labels)\n", "            pass\n",
+      "            matched &= ~neck\n", "            pass\n",
       ["tests/test_recon_pipeline.py", "-k", "neck_pixels"],
       "the neck pixels the coverage left without a disc kept in the colour matching (an orange streak at 45)"),
     M("recon.edge_hair_on_skin_every_hair", "avatarkit/recon/multiview.py",

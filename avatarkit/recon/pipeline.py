@@ -321,7 +321,6 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.head.io import load_head_model
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
-    from avatarkit.recon.segment import BODY, HAIR, SKIN
     from avatarkit.recon import outline_trim
     from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
     from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, rig_sdf
@@ -444,9 +443,9 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
                            if len(assembled.hair) else None)
     with stage("colours"):
         bald, hair = assembled.bald, assembled.hair
-        # the photo's labels the coverage and the colour matching read (the neck's pixels the
-        # coverage leaves without a disc, `coverage.COVER_NECK` off, become the body's)
-        head_labels = segmentation.labels
+        # where the photo's colours are matched: the head's pixels but the neck's the coverage
+        # leaves without a disc (`coverage.COVER_NECK` off)
+        matched = head_mask(segmentation)
         if keyviews and MULTIVIEW_HAIR_DIRECTIONS:
             from avatarkit.recon.hair_directions import orient_from_views
 
@@ -467,11 +466,10 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
         if COVER_SILHOUETTE:
             from avatarkit.recon.coverage import cover_silhouette
 
-            neck = np.zeros(head_labels.shape, bool)
-            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, head_labels, neck_out=neck,
-                                                                   views=bool(keyviews))
-            # the neck's pixels left without a disc (`coverage.COVER_NECK` off) are not the head's
-            head_labels = np.where(neck, BODY, head_labels)
+            neck = np.zeros(matched.shape, bool)
+            bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels,
+                                                                   neck_out=neck, views=bool(keyviews))
+            matched &= ~neck
         if outline_trim.SHARPEN_OUTLINE:
             # before the colours are matched: the outline discs narrowed, not recoloured to hide on the wall
             bald, hair, report.info["outline_sharpen"] = outline_trim.sharpen_outline(bald, hair, fit,
@@ -485,7 +483,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             from avatarkit.gaussians.gaussian_set import GaussianSet
 
             both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
-            both, figures = refine_colours(both, fit.camera, image, np.isin(head_labels, (SKIN, HAIR)),
+            both, figures = refine_colours(both, fit.camera, image, matched,
                                            options.refine_iterations)
             bald = bald.replace(sh=both.sh[:len(bald)])
             hair = hair.replace(sh=both.sh[len(bald):])
