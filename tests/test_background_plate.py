@@ -321,8 +321,7 @@ def test_the_continued_wall_takes_the_wall_above_a_still_head_and_not_its_hair(m
     assert (flooded.known & ~wide.known & person).sum() > 20
 
 
-def test_the_continued_wall_is_off_by_default_and_read_at_call_time(monkeypatch):
-    assert BP.CONTINUE_MARGIN == 0.0
+def test_without_the_near_zones_the_plate_is_the_wide_zones_alone():
     frames, zones, near, person, wall = still_head_video()
     band = zones[0] & ~near[0] & ~person
     # `video_plate` asks for the near zones only when the margin is on; `plate_from_frames`

@@ -21,6 +21,8 @@ differ from them (`PASS_FRAMES`, `PASS_SHARE`). A talking head that barely moves
 its hair outside a tight zone in every frame and never shows anything else there: no plate (hair
 is not wall); a turning head uncovers the wall beside its face and covers it again. It cannot
 tell the wall just above a turning head's top, which the head never passes over either: off.
+What tells it (`CONTINUE_MARGIN`, on) is its colour: the wall beside it continuing into it, grown
+from the known wall a ring at a time in the colours of the wall far from the head (`_continued`).
 
 Sizes: the plate is made at most `PLATE_SIZE` px on its longer side from at most `PLATE_FRAMES`
 frames spread over the tracked clip; `Plate.at(shape)` resizes it to an image's size.
@@ -65,15 +67,14 @@ PASS_SHARE = 0.1
 #: a pixel joins where at least `CONTINUE_MATCHES` of the wall pixels (known or joined) within
 #: `CONTINUE_REACH` of it are within `AGREE` of its colour. The wall just above a turning head's
 #: top, which the head never passes over (`PASS_MARGIN`), is the wall beside it continuing; the
-#: top of a still head's hair, outside a tight zone in every frame too, is not the wall's colour
-CONTINUE_MARGIN = 0.0
+#: top of a still head's hair, outside a tight zone in every frame too, is not the wall's colour.
+#: On (session 25, docs/video-build.md "The wall above the head"): the white-wall builds and the
+#: shared clips' keyframes are as without it, to the digit and the pixel
+CONTINUE_MARGIN = 0.14
 #: ...the neighbourhood a joining pixel's colour is matched in (share of the plate's longer side)
 CONTINUE_REACH = 0.015
 #: ...and how many of the wall pixels there must match it (one stray pixel does not vouch)
 CONTINUE_MATCHES = 3
-#: ...each of them within this many levels (every channel) of the known wall pixel it was grown
-#: from: the growth does not drift down a soft edge into the hair
-CONTINUE_DRIFT = 24
 #: ...and only in the colours of the known wall at least this far (share of the longer side) from
 #: what the plate does not know (`_wall_palette`, bins of `PALETTE_BIN` levels and their
 #: neighbours), grown from known pixels of those colours
@@ -185,11 +186,8 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     """(h, w) bool: the `candidate` pixels (h, w) bool whose colour `c_colour` (h, w, 3) uint8
     continues the wall `known` (h, w) bool of colour `colour` (h, w, 3): grown from it a ring at a
     time, a pixel joins where at least `CONTINUE_MATCHES` wall pixels (known or joined) within
-    `CONTINUE_REACH` are within `AGREE` of its colour in every channel, and within
-    `CONTINUE_DRIFT` of the known wall's colour they were grown from (their anchor: a joined pixel
-    takes the nearest of its matches' anchors). Without the anchor the growth drifts down a
-    soft edge, a few levels a ring, from a grey wall into dark hair (the grey clip's top of the
-    hair)."""
+    `CONTINUE_REACH` are within `AGREE` of its colour in every channel; only pixels (candidates and
+    the known wall they grow from) of the far wall's colours (`_wall_palette`)."""
     import cv2
 
     h, w = known.shape
@@ -203,7 +201,6 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     candidate = candidate & _in_palette(table, cc)
     pad_w = np.pad(wall, r)
     pad_c = np.pad(col, ((r, r), (r, r), (0, 0)))
-    pad_a = pad_c.copy()                                                   # (h+2r, w+2r, 3) anchors
     while True:
         ring = candidate & ~wall & (cv2.dilate(wall.astype(np.uint8), disc) > 0)
         ys, xs = np.nonzero(ring)
@@ -211,22 +208,14 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
             break
         c = cc[ys, xs]                                                     # (N, 3)
         count = np.zeros(len(ys), np.int32)
-        best = np.full(len(ys), 1 << 14, np.int32)
-        anchor = np.zeros((len(ys), 3), np.int16)
         for dy, dx in offsets:
             yy, xx = ys + r + dy, xs + r + dx
-            drift = np.abs(pad_a[yy, xx] - c).max(axis=1)
-            ok = pad_w[yy, xx] & (np.abs(pad_c[yy, xx] - c).max(axis=1) <= AGREE) & (drift <= CONTINUE_DRIFT)
-            count += ok
-            nearer = ok & (drift < best)
-            best[nearer] = drift[nearer]
-            anchor[nearer] = pad_a[yy[nearer], xx[nearer]]
+            count += pad_w[yy, xx] & (np.abs(pad_c[yy, xx] - c).max(axis=1) <= AGREE)
         join = count >= CONTINUE_MATCHES
         if not join.any():
             break
         wall[ys[join], xs[join]] = True
         pad_w[ys[join] + r, xs[join] + r] = True
-        pad_a[ys[join] + r, xs[join] + r] = anchor[join]
     return wall & ~known
 
 
@@ -351,5 +340,5 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
                              np.stack(near) if continuing else None)
 
 
-__all__ = ["AGREE", "CONTINUE_DRIFT", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
+__all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
            "ZONE_START", "Plate", "person_zone", "plate_from_frames", "video_plate"]
