@@ -328,3 +328,33 @@ def test_without_the_near_zones_the_plate_is_the_wide_zones_alone():
     # without them is the plate as before, to the pixel
     a, b = plate_from_frames(frames, zones), plate_from_frames(frames, zones, near=None)
     assert (a.known == b.known).all() and (a.colour == b.colour).all() and not (a.known & band).any()
+
+
+def test_relabel_head_leaves_the_wall_continuing_past_the_known_plate_to_the_wall(monkeypatch):
+    """`multiview.RELABEL_PLATE_NEAR`: the plate knows the cluttered wall only beyond a band by the
+    head (the tracked head's zone covers the band in every frame). Without the rule the poster and
+    the post in the band are taken for the person (not the one-colour wall model's colour); with
+    it, where their colour continues the known plate beside them, they stay the wall's. The head,
+    a colour no wall pixel near it has, is the person's either way."""
+    from avatarkit.recon import multiview as MV
+    from avatarkit.recon.segment import ColourModel, rgb_to_lab
+
+    n = 160
+    wall = np.round(wall_image("clutter", n) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:n, 0:n]
+    d2 = (yy - 70) ** 2 + (xx - 80) ** 2
+    head = d2 <= 40 ** 2
+    img = np.where(head[..., None], np.array([200, 150, 120], np.uint8), wall).astype(np.uint8)
+    skin = ColourModel.fit(rgb_to_lab(np.array([[200, 150, 120]] * 8, np.uint8)))
+    hair = ColourModel.fit(rgb_to_lab(np.array([[60, 40, 30]] * 8, np.uint8)))
+    known = np.where(d2 > 44 ** 2, 10, 0).astype(np.int32)     # a 4 px band by the head unknown
+    plate = Plate(wall, known, np.full((n, n), 10, np.int32), 10)
+    band = ~head & ~plate.known
+    labels = np.zeros((n, n), np.int32)
+    monkeypatch.setattr(MV, "RELABEL_PLATE_NEAR", None)
+    before = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
+    assert (before[band] != BACKGROUND).sum() > 150          # the band's poster and post: person
+    monkeypatch.setattr(MV, "RELABEL_PLATE_NEAR", 0.03)
+    after = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
+    assert (after[band] != BACKGROUND).sum() < 0.1 * (before[band] != BACKGROUND).sum()
+    assert (after[head] != BACKGROUND).all() and (after[~band & ~head] == before[~band & ~head]).all()
