@@ -258,3 +258,103 @@ def test_the_tighter_zone_takes_the_wall_the_head_passed_over_and_never_still_ha
     assert (moved.known >= wide.known).all() and gained.sum() > 30
     assert (moved.colour[moved.known] == wall[moved.known]).all()
     assert not (moved.matches(frames[0]) & person[0]).any()
+
+
+def still_head_video(hair_r=None, tuft=0, n=12, size=128, cx=64, cy=22, model_r=16):
+    """Frames (n, size, size, 3) of a still head (the model: a skin disc of model_r whose top is
+    near the frame's top, as a 192 px video's head) on the cluttered wall, with hair of its own
+    colour to hair_r (None: bald) and a tuft `tuft` px beyond the wide zone above its top (a
+    flyaway the wide zone leaves out); the frames' zones (wide: `ZONE_MARGIN`; near: the
+    continued wall's 0.14) and where the person is (size, size) bool."""
+    wall = np.round(wall_image("clutter", size) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:size, 0:size]
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    pts = np.stack([cx + model_r * np.cos(t), cy + model_r * np.sin(t)], 1)
+    zone = person_zone(pts, (size, size))
+    near = person_zone(pts, (size, size), 0.14)
+    d2 = (yy - cy) ** 2 + (xx - cx) ** 2
+    img = wall.copy()
+    hair = np.zeros((size, size), bool)
+    if hair_r is not None:
+        hair = d2 <= hair_r ** 2
+        if tuft:
+            right = np.nonzero(zone[cy])[0][-1]      # the wide zone's side beside the head
+            hair |= (np.abs(yy - cy) <= 3) & (xx >= cx) & (xx <= right + tuft)
+    img[hair] = (150, 100, 80)
+    img[d2 <= model_r ** 2] = (220, 170, 140)
+    frames = np.repeat(img[None], n, axis=0)
+    return frames, np.repeat(zone[None], n, 0), np.repeat(near[None], n, 0), hair | (d2 <= model_r ** 2), wall
+
+
+def test_the_continued_wall_takes_the_wall_above_a_still_head_and_not_its_hair(monkeypatch):
+    # a bald head that never moves (the top of a turning head, which the zone always covers): the
+    # wall between the tight and the wide zone is never seen outside the wide one: no plate
+    frames, zones, near, person, wall = still_head_video()
+    band = zones[0] & ~near[0] & ~person
+    assert band.sum() > 100
+    wide = plate_from_frames(frames, zones)
+    assert not (wide.known & band).any()
+    # ...and the wall beside it continues into it: known, the wall's colour there (to the level:
+    # every frame shows it), nothing of the head
+    cont = plate_from_frames(frames, zones, near=near)
+    assert (cont.known & band).sum() > 0.75 * band.sum()
+    assert (cont.colour[cont.known] == wall[cont.known]).all()
+    assert not (cont.known & person).any() and (cont.known >= wide.known).all()
+    assert not (cont.matches(frames[0]) & person).any()
+    # a still head whose hair reaches past the tight zone: that zone's plate alone is hair there;
+    # the hair does not continue the wall beside it: none of it known
+    frames, zones, near, person, wall = still_head_video(hair_r=22)
+    assert (plate_from_frames(frames, near).known & person).sum() > 50
+    cont = plate_from_frames(frames, zones, near=near)
+    assert not (cont.known & person).any()
+    assert (cont.known & zones[0] & ~person).sum() > 0.6 * (zones[0] & ~near[0] & ~person).sum()
+    # a flyaway tuft beyond the wide zone: the wide plate knows it (hair as wall, the grey clip's
+    # top); the continued wall is grown only in the colours of the wall far from the unknown
+    # (`CONTINUE_DEEP`), so the tuft neither seeds it nor lets it into the hair below
+    frames, zones, near, person, wall = still_head_video(hair_r=22, tuft=2)
+    wide = plate_from_frames(frames, zones)
+    assert (wide.known & person).sum() >= 10
+    cont = plate_from_frames(frames, zones, near=near)
+    assert not (cont.known & ~wide.known & person).any()
+    monkeypatch.setattr(BP, "CONTINUE_DEEP", 0.0)
+    flooded = plate_from_frames(frames, zones, near=near)
+    assert (flooded.known & ~wide.known & person).sum() > 20
+
+
+def test_without_the_near_zones_the_plate_is_the_wide_zones_alone():
+    frames, zones, near, person, wall = still_head_video()
+    band = zones[0] & ~near[0] & ~person
+    # `video_plate` asks for the near zones only when the margin is on; `plate_from_frames`
+    # without them is the plate as before, to the pixel
+    a, b = plate_from_frames(frames, zones), plate_from_frames(frames, zones, near=None)
+    assert (a.known == b.known).all() and (a.colour == b.colour).all() and not (a.known & band).any()
+
+
+def test_relabel_head_leaves_the_wall_continuing_past_the_known_plate_to_the_wall(monkeypatch):
+    """`multiview.RELABEL_PLATE_NEAR`: the plate knows the cluttered wall only beyond a band by the
+    head (the tracked head's zone covers the band in every frame). Without the rule the poster and
+    the post in the band are taken for the person (not the one-colour wall model's colour); with
+    it, where their colour continues the known plate beside them, they stay the wall's. The head,
+    a colour no wall pixel near it has, is the person's either way."""
+    from avatarkit.recon import multiview as MV
+    from avatarkit.recon.segment import ColourModel, rgb_to_lab
+
+    n = 160
+    wall = np.round(wall_image("clutter", n) * 255).astype(np.uint8)
+    yy, xx = np.mgrid[0:n, 0:n]
+    d2 = (yy - 70) ** 2 + (xx - 80) ** 2
+    head = d2 <= 40 ** 2
+    img = np.where(head[..., None], np.array([200, 150, 120], np.uint8), wall).astype(np.uint8)
+    skin = ColourModel.fit(rgb_to_lab(np.array([[200, 150, 120]] * 8, np.uint8)))
+    hair = ColourModel.fit(rgb_to_lab(np.array([[60, 40, 30]] * 8, np.uint8)))
+    known = np.where(d2 > 44 ** 2, 10, 0).astype(np.int32)     # a 4 px band by the head unknown
+    plate = Plate(wall, known, np.full((n, n), 10, np.int32), 10)
+    band = ~head & ~plate.known
+    labels = np.zeros((n, n), np.int32)
+    monkeypatch.setattr(MV, "RELABEL_PLATE_NEAR", None)
+    before = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
+    assert (before[band] != BACKGROUND).sum() > 150          # the band's poster and post: person
+    monkeypatch.setattr(MV, "RELABEL_PLATE_NEAR", 0.03)
+    after = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
+    assert (after[band] != BACKGROUND).sum() < 0.1 * (before[band] != BACKGROUND).sum()
+    assert (after[head] != BACKGROUND).all() and (after[~band & ~head] == before[~band & ~head]).all()

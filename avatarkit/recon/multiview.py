@@ -124,6 +124,14 @@ RELABEL_CONNECTED_IN = "turned_end"
 #: between strands (a pixel or two) stay the person's, as without a plate (None: no plate here;
 #: session 22, docs/video-build.md "The wall behind the head")
 RELABEL_PLATE: float | None = 0.01
+#: ...and the pixels the plate does not know whose colour continues the known wall beside them: at
+#: least `RELABEL_PLATE_MATCHES` known plate pixels within this share of the longer side agree with
+#: it (`background_plate.AGREE`). On the cluttered wall the band of poster behind a turned head's
+#: back lies inside the tracked head's zone in every frame; not the one-colour wall model's colour,
+#: it was taken for the person (None: only the known plate; session 25, docs/video-build.md "The
+#: wall above the head": on a plain wall the plate is the wall model's colour and nothing changes)
+RELABEL_PLATE_NEAR: float | None = 0.03
+RELABEL_PLATE_MATCHES = 3
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
 #: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
@@ -367,7 +375,40 @@ def plate_wall(plate, image: np.ndarray):
     wall = plate.matches(image).astype(np.uint8)
     r = max(1, int(round(opening * max(wall.shape))))
     wall = cv2.morphologyEx(wall, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)) > 0
-    return wall, plate.at(wall.shape)[0]
+    colour, known = plate.at(wall.shape)
+    near = RELABEL_PLATE_NEAR
+    if near is not None:
+        cont = _continues_plate(np.asarray(image), colour, known, max(1, int(round(near * max(wall.shape)))))
+        colour = colour.copy()
+        colour[cont] = np.asarray(image)[cont]
+        wall = wall | cont
+    return wall, colour
+
+
+def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r: int) -> np.ndarray:
+    """(H, W) bool: the pixels of image (H, W, 3) uint8 the plate does not know (`known` (H, W)
+    bool, its colour (H, W, 3)) where at least `RELABEL_PLATE_MATCHES` known plate pixels within
+    r px are within `background_plate.AGREE` of the image's colour in every channel."""
+    import cv2
+
+    from avatarkit.track import background_plate
+
+    H, W = known.shape
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    todo = ~known & (cv2.dilate(known.astype(np.uint8), disc) > 0)
+    ys, xs = np.nonzero(todo)
+    out = np.zeros((H, W), bool)
+    if len(ys) == 0:
+        return out
+    pk = np.pad(known, r)
+    pc = np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0)))
+    c = np.asarray(image, np.int16)[ys, xs]
+    count = np.zeros(len(ys), np.int32)
+    for dy, dx in zip(*np.nonzero(disc)):
+        yy, xx = ys + dy, xs + dx
+        count += pk[yy, xx] & (np.abs(pc[yy, xx] - c).max(axis=1) <= background_plate.AGREE)
+    out[ys, xs] = count >= RELABEL_PLATE_MATCHES
+    return out
 
 
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,
@@ -1058,7 +1099,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]

@@ -21,6 +21,8 @@ differ from them (`PASS_FRAMES`, `PASS_SHARE`). A talking head that barely moves
 its hair outside a tight zone in every frame and never shows anything else there: no plate (hair
 is not wall); a turning head uncovers the wall beside its face and covers it again. It cannot
 tell the wall just above a turning head's top, which the head never passes over either: off.
+What tells it (`CONTINUE_MARGIN`, on) is its colour: the wall beside it continuing into it, grown
+from the known wall a ring at a time in the colours of the wall far from the head (`_continued`).
 
 Sizes: the plate is made at most `PLATE_SIZE` px on its longer side from at most `PLATE_FRAMES`
 frames spread over the tracked clip; `Plate.at(shape)` resizes it to an image's size.
@@ -58,6 +60,26 @@ PASS_FRAMES = 4
 #: frames the zone is over it (the dark-wall bob: 3,002 px at 4 frames, 2,940 at 0.1, 504 at
 #: 0.5); the share keeps out a still head's hair whose colour a few frames' exposure changed
 PASS_SHARE = 0.1
+#: the continued wall (`plate_from_frames(near=)`; 0, or >= `ZONE_MARGIN`: off): where the
+#: `ZONE_MARGIN` plate is not known, a pixel takes the plate of this tighter zone (the median of
+#: the frames that show it outside the head model's outline dilated by this share) where that
+#: colour continues the known wall next to it: grown out from the known wall a ring at a time,
+#: a pixel joins where at least `CONTINUE_MATCHES` of the wall pixels (known or joined) within
+#: `CONTINUE_REACH` of it are within `AGREE` of its colour. The wall just above a turning head's
+#: top, which the head never passes over (`PASS_MARGIN`), is the wall beside it continuing; the
+#: top of a still head's hair, outside a tight zone in every frame too, is not the wall's colour.
+#: On (session 25, docs/video-build.md "The wall above the head"): the white-wall builds and the
+#: shared clips' keyframes are as without it, to the digit and the pixel
+CONTINUE_MARGIN = 0.14
+#: ...the neighbourhood a joining pixel's colour is matched in (share of the plate's longer side)
+CONTINUE_REACH = 0.015
+#: ...and how many of the wall pixels there must match it (one stray pixel does not vouch)
+CONTINUE_MATCHES = 3
+#: ...and only in the colours of the known wall at least this far (share of the longer side) from
+#: what the plate does not know (`_wall_palette`, bins of `PALETTE_BIN` levels and their
+#: neighbours), grown from known pixels of those colours
+CONTINUE_DEEP = 0.025
+PALETTE_BIN = 8
 #: the torso below the jaw (from this share of the outline's height down) widens this many px a row
 ZONE_START = 0.75
 ZONE_SLOPE = 0.5
@@ -160,20 +182,100 @@ def _median_plate(frames: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.n
     return colour, out & ~diff, diff
 
 
-def plate_from_frames(frames: np.ndarray, zones: np.ndarray, tight: np.ndarray | None = None) -> Plate:
+def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_colour: np.ndarray) -> np.ndarray:
+    """(h, w) bool: the `candidate` pixels (h, w) bool whose colour `c_colour` (h, w, 3) uint8
+    continues the wall `known` (h, w) bool of colour `colour` (h, w, 3): grown from it a ring at a
+    time, a pixel joins where at least `CONTINUE_MATCHES` wall pixels (known or joined) within
+    `CONTINUE_REACH` are within `AGREE` of its colour in every channel; only pixels (candidates and
+    the known wall they grow from) of the far wall's colours (`_wall_palette`)."""
+    import cv2
+
+    h, w = known.shape
+    r = max(1, int(round(CONTINUE_REACH * max(h, w))))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    offsets = [(dy - r, dx - r) for dy, dx in zip(*np.nonzero(disc)) if (dy, dx) != (r, r)]
+    cc = np.asarray(c_colour, np.int16)
+    col = np.where(known[..., None], np.asarray(colour, np.int16), cc)     # (h, w, 3) the wall's colour
+    table = _wall_palette(known, colour)
+    wall = known & _in_palette(table, col)
+    candidate = candidate & _in_palette(table, cc)
+    pad_w = np.pad(wall, r)
+    pad_c = np.pad(col, ((r, r), (r, r), (0, 0)))
+    while True:
+        ring = candidate & ~wall & (cv2.dilate(wall.astype(np.uint8), disc) > 0)
+        ys, xs = np.nonzero(ring)
+        if len(ys) == 0:
+            break
+        c = cc[ys, xs]                                                     # (N, 3)
+        count = np.zeros(len(ys), np.int32)
+        for dy, dx in offsets:
+            yy, xx = ys + r + dy, xs + r + dx
+            count += pad_w[yy, xx] & (np.abs(pad_c[yy, xx] - c).max(axis=1) <= AGREE)
+        join = count >= CONTINUE_MATCHES
+        if not join.any():
+            break
+        wall[ys[join], xs[join]] = True
+        pad_w[ys[join] + r, xs[join] + r] = True
+    return wall & ~known
+
+
+def _wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """(32768,) bool: the colour bins (`PALETTE_BIN` levels a channel; with their 26 neighbours)
+    of the known wall far from what the plate does not know: the known pixels at least
+    `CONTINUE_DEEP` of the longer side from an unknown one. A still head's flyaway top of the hair
+    lies outside the zone in most frames and is known (the grey clip: 181 px by the unknown);
+    grown from, it took the hair. The wall far from the head never shows it."""
+    import cv2
+    from scipy import ndimage
+
+    d = max(1, int(round(CONTINUE_DEEP * max(known.shape))))
+    deep = cv2.distanceTransform(known.astype(np.uint8), cv2.DIST_L2, 3) > d
+    n = 256 // PALETTE_BIN
+    q = (np.asarray(colour)[deep] // PALETTE_BIN).astype(np.intp)
+    table = np.zeros(n**3, bool)
+    table[(q[:, 0] * n + q[:, 1]) * n + q[:, 2]] = True
+    return ndimage.binary_dilation(table.reshape(n, n, n), np.ones((3, 3, 3), bool)).ravel()
+
+
+def _in_palette(table: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """(...) bool: colours (..., 3) whose bin is in the palette `table` (`_wall_palette`)."""
+    n = 256 // PALETTE_BIN
+    q = (np.asarray(colour) // PALETTE_BIN).astype(np.intp)
+    return table[(q[..., 0] * n + q[..., 1]) * n + q[..., 2]]
+
+
+def plate_from_frames(frames: np.ndarray, zones: np.ndarray, tight: np.ndarray | None = None,
+                      near: np.ndarray | None = None) -> Plate:
     """The plate of frames (T, h, w, 3) uint8 with their person zones (T, h, w) bool (True: the
     person may be there). Per pixel the channel-wise median of the frames outside their zone,
     the count that agree with it (`AGREE`) and the count outside. tight (T, h, w) bool: the
     frames' tighter zones (`PASS_MARGIN`); where the plate of `zones` is not known, a pixel takes
     the plate of `tight` if that is known there and the head passed over it: at least
-    `PASS_FRAMES` and `PASS_SHARE` of the frames with the tighter zone over it differ from it."""
+    `PASS_FRAMES` and `PASS_SHARE` of the frames with the tighter zone over it differ from it.
+    near (T, h, w) bool: the frames' zones at `CONTINUE_MARGIN`; where the plate (after the pass
+    test) is still not known, a pixel takes the plate of `near` where that is known and its colour
+    continues the known wall (`_continued`)."""
     frames = np.asarray(frames)
     out = ~np.asarray(zones, bool)                          # (T, h, w) the frame saw the wall here
     colour, agree, _ = _median_plate(frames, out)
     plate = Plate(colour, agree.sum(axis=0).astype(np.int32), out.sum(axis=0).astype(np.int32), int(len(frames)))
-    if tight is None:
-        return plate
-    inside = np.asarray(tight, bool)                        # (T, h, w) the tighter zone is over it
+    if tight is not None:
+        _pass_test(plate, frames, np.asarray(tight, bool))
+    if near is not None:
+        inside = np.asarray(near, bool)
+        n_colour, n_agree, _ = _median_plate(frames, ~inside)
+        n_plate = Plate(n_colour, n_agree.sum(axis=0).astype(np.int32), (~inside).sum(axis=0).astype(np.int32), plate.frames)
+        known = plate.known
+        take = _continued(known, plate.colour, n_plate.known & ~known, n_colour)
+        plate.colour[take] = n_colour[take]
+        plate.support[take] = n_plate.support[take]
+        plate.seen[take] = n_plate.seen[take]
+    return plate
+
+
+def _pass_test(plate: Plate, frames: np.ndarray, inside: np.ndarray) -> None:
+    """`plate` given the plate of the tighter zones `inside` (T, h, w) bool where the head was
+    seen to pass over a pixel (`plate_from_frames`, `PASS_MARGIN`), in place."""
     t_colour, t_agree, t_diff = _median_plate(frames, ~inside)
     t_plate = Plate(t_colour, t_agree.sum(axis=0).astype(np.int32), (~inside).sum(axis=0).astype(np.int32), plate.frames)
     over = inside.sum(axis=0)                               # (h, w) frames with the head over it
@@ -182,7 +284,6 @@ def plate_from_frames(frames: np.ndarray, zones: np.ndarray, tight: np.ndarray |
     plate.colour[take] = t_colour[take]
     plate.support[take] = t_plate.support[take]
     plate.seen[take] = t_plate.seen[take]
-    return plate
 
 
 def video_plate(video: str | os.PathLike, result) -> Plate | None:
@@ -225,15 +326,19 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
     verts = result.model.forward(params)[0]                 # (T, V, 3)
     sx, sy = w / result.camera.width, h / result.camera.height
     passing = 0.0 < PASS_MARGIN < ZONE_MARGIN
-    zones, tight = [], []
+    continuing = 0.0 < CONTINUE_MARGIN < ZONE_MARGIN
+    zones, tight, near = [], [], []
     for vt in verts:
         px, _ = result.camera.project(vt)
         px = px * np.array([sx, sy])
         zones.append(person_zone(px, (h, w)))
         if passing:
             tight.append(person_zone(px, (h, w), PASS_MARGIN))
-    return plate_from_frames(np.stack(images), np.stack(zones), np.stack(tight) if passing else None)
+        if continuing:
+            near.append(person_zone(px, (h, w), CONTINUE_MARGIN))
+    return plate_from_frames(np.stack(images), np.stack(zones), np.stack(tight) if passing else None,
+                             np.stack(near) if continuing else None)
 
 
-__all__ = ["AGREE", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
+__all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
            "ZONE_START", "Plate", "person_zone", "plate_from_frames", "video_plate"]
