@@ -169,8 +169,8 @@ DRAFT_OUTLINE = False
 #: both whip builds are main's to the digit), but the held-out bob, whose keyframes it moves toward the truth,
 #: loses 0.39 / 0.42 dB at -45 / -90 (seed 0) and 0.28 at -45 (seed 1), and on the cluttered wall
 #: (where the plain registration already reads the turn ends long) the mesh subject's -90 0.70;
-#: ~2.6x the registrations' time. A stage `SKIN_POSE` names (both, by default) keeps the plain pose
-#: for its keyframes' `pose` whatever this says: turn that off to move every use of the pose
+#: ~2.6x the registrations' time. A stage `SKIN_POSE` names ("refine", by default) keeps the plain
+#: pose for its keyframes' `pose` whatever this says: turn that off to move every use of the pose
 HAIR_DISCOUNT = ()
 #: the registrations whose keyframes carry a second pose, for the bald layer (`multiview.Keyframe.
 #: skin_pose`): "turned" (`register_turned`), "refine" (`refine_keyframes`, both rounds). Each is
@@ -187,9 +187,14 @@ HAIR_DISCOUNT = ()
 #: main's; the held-out bob (seed 0) +0.09 at +90, -0.01 at the front, seed 1 main's to the digit;
 #: the sample avatar (seeds 0, 1) and both whip builds main's to the digit (no skin pose taken); on
 #: the cluttered wall the mesh subject main's, the sample avatar +0.11 / +0.12 at +-90. The
-#: registrations it names run the plain and the discounted search (~2.6x their time); the
-#: shared real clips have one keyframe and register nothing. () turns it off
-SKIN_POSE = ("turned", "refine")
+#: registrations it names run the plain and the discounted search; the shared real clips have
+#: one keyframe and register nothing. () turns it off. "turned" is left
+#: out: with `REFINE_TURNED` the refine rounds register the turned frames again and decide their
+#: skin pose, and the drafts keep the plain poses (`multiview.SKIN_POSE_IN_DRAFTS`), so the turned
+#: stage's skin pose is never used: the builds with ("turned", "refine") are the same to the bit
+#: (mesh subject and bob, seed 0) without the turned frames' double search (the mesh subject's
+#: register stage, one process: off 45.7 s, ("turned", "refine") 137.6 s, ("refine",) 100.5 s)
+SKIN_POSE = ("refine",)
 
 
 @dataclasses.dataclass
