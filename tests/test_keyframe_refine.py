@@ -251,6 +251,7 @@ def test_the_hair_discount_switch_reaches_the_registrations_it_names(scene, monk
     draft, camera, ref_pose, frame = scene
     seen, image, register_turned = _spied_turned(scene, monkeypatch, "discount_hair")
     monkeypatch.setattr(vb, "HAIR_DISCOUNT", stages)
+    monkeypatch.setattr(vb, "SKIN_POSE", ())
     register_turned()
     turned_pose = pose_from_params([math.radians(40.0), 0.0, 0.0, 0.0, -0.05, -0.5])
     vb.refine_keyframes(draft, VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0),
@@ -320,3 +321,113 @@ def test_only_the_turned_end_frames_relabel_strands_beyond_the_reach(monkeypatch
     monkeypatch.setattr(mv, "RELABEL_CONNECTED_IN", "all")
     views.register(fit, image, np.zeros((32, 32), np.int32))
     assert calls == [0.15, 0.15, 0.15]
+
+
+def test_skin_views_take_the_skin_pose_camera_outside_the_drafts(monkeypatch):
+    """`VideoViews.skin_views`: a keyframe with a `skin_pose` is seen by that pose's camera (and
+    head) for the bald layer, the rest are the same view objects; a registration draft keeps
+    every view when `SKIN_POSE_IN_DRAFTS` is off."""
+    import avatarkit.recon.multiview as mv
+    from avatarkit.recon.multiview import head_silhouette
+
+    monkeypatch.setattr(mv, "SKIN_POSE_IN_DRAFTS", False)
+    fit, vv, views, b = _outline_scene()
+    keys = vv.keyframes
+    keys[2].skin_pose = b
+    out = vv.skin_views(fit, views)
+    assert out[0] is views[0] and out[1] is views[1]
+    want = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), keys[0].pose, [b])[0]
+    np.testing.assert_allclose(out[2].camera.world_to_camera, want.world_to_camera, atol=1e-12)
+    np.testing.assert_array_equal(out[2].head, head_silhouette(fit.rest_vertices, fit.model.faces, want))
+    assert out[2].frame == 2 and out[2].image is keys[2].image
+    draft = dataclasses.replace(vv, info={"draft": True})
+    assert all(o is v for o, v in zip(draft.skin_views(fit, views), views))
+    monkeypatch.setattr(mv, "SKIN_POSE_IN_DRAFTS", True)
+    np.testing.assert_allclose(draft.skin_views(fit, views)[2].camera.world_to_camera, want.world_to_camera, atol=1e-12)
+
+
+@pytest.mark.parametrize("discounted", [True, False])
+def test_the_skin_pose_switch_keeps_the_plain_pose_and_hands_the_gated_one_to_the_bald_layer(scene, monkeypatch,
+                                                                                           discounted):
+    """`SKIN_POSE` (read at call time): its registrations discount the draft's hair and keep the
+    plain search (`keep_plain`); the keyframe's pose (or outline pose) is the plain search's, its
+    `skin_pose` the gated pose where the gate took the discounted one, else None."""
+    import avatarkit.track.keyframes as keyframes
+    import avatarkit.track.register as register
+    import avatarkit.track.video_build as vb
+
+    draft, camera, ref_pose, frame = scene
+    image = frame(0.0)[1]
+    plain = pose_from_params([math.radians(50.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    skin = pose_from_params([math.radians(58.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    seen = []
+
+    def spy(gaussians, image, reference_camera, reference_pose, guess, yaw_range, **kw):
+        seen.append((kw.get("discount_hair"), kw.get("keep_plain")))
+        return register.Registration(skin if discounted else plain, 0.0, 1, plain_pose=plain, discounted=discounted)
+
+    monkeypatch.setattr(register, "register_frame", spy)
+    monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
+    monkeypatch.setattr(vb, "SKIN_POSE", ("turned", "refine"))
+    result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
+    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
+    added, figures = vb.register_turned(draft, result, [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))],
+                                        views, "unused.mp4", 1.0)
+    np.testing.assert_array_equal(added[0].pose, plain)
+    assert (added[0].skin_pose is skin) if discounted else (added[0].skin_pose is None)
+    turned_pose = pose_from_params([math.radians(40.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    keys = [Keyframe(image, ref_pose, 1.0, 0), Keyframe(image, turned_pose, 1.0, 1, skin_pose=turned_pose),
+            Keyframe(image, turned_pose, 1.0, 2)]
+    vb.refine_keyframes(draft, VideoViews(np.zeros(10), keys), tracked=3, everywhere=frozenset({2}))
+    np.testing.assert_array_equal(keys[1].outline_pose, plain)
+    np.testing.assert_array_equal(keys[1].pose, turned_pose)
+    np.testing.assert_array_equal(keys[2].pose, plain)
+    for k in keys[1:]:
+        # this round decides: a skin pose from before is replaced (or dropped)
+        assert (k.skin_pose is skin) if discounted else (k.skin_pose is None)
+    assert seen == [(True, True)] * 3
+    # off: no keep_plain, no skin pose
+    monkeypatch.setattr(vb, "SKIN_POSE", ())
+    seen.clear()
+    added, _ = vb.register_turned(draft, result, [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))],
+                                  views, "unused.mp4", 1.0)
+    assert seen == [(False, False)] and added[0].skin_pose is None
+
+
+@pytest.mark.parametrize("recede_skin", [False, True])
+def test_the_colour_stage_samples_the_bald_layer_from_the_skin_views(monkeypatch, recede_skin):
+    """`VideoViews.colour`: `colour_from_views` gets the views for every layer and the skin views
+    for the bald rows (`bald_views`); `recede_outline` votes with the outline views, the skin
+    views where a keyframe has a skin pose when `SKIN_POSE_RECEDE`."""
+    import avatarkit.recon.multiview as mv
+    from avatarkit.gaussians.gaussian_set import GaussianSet
+
+    fit, vv, views, b = _outline_scene()
+    fit.model.regions = {}
+    vv.keyframes[2].skin_pose = b
+    got = {}
+
+    def colour_spy(bald, hair, views, normals, keep, body, scalp, drop_skin_hair=False, neck=None, bald_views=None):
+        got["views"], got["bald_views"] = views, bald_views
+        return bald, hair, {"_only_others": (np.zeros((0, 3)), np.zeros((0, 3), np.float32))}
+
+    def recede_spy(bald, hair, views, fit):
+        got["recede"] = views
+        return bald, {}
+
+    monkeypatch.setattr(mv, "colour_from_views", colour_spy)
+    monkeypatch.setattr(mv, "recede_outline", recede_spy)
+    monkeypatch.setattr(mv, "RECEDE_KEYFRAMES", True)
+    monkeypatch.setattr(mv, "SKIN_POSE_RECEDE", recede_skin)
+    g = GaussianSet.empty()
+    sdf = SimpleNamespace(query=lambda p: (np.zeros(len(p)), np.zeros((len(p), 3))))
+    vv.colour(g, g, views, fit, sdf)
+    skin = vv.skin_views(fit, views)
+    assert got["views"] is views
+    assert [x is y for x, y in zip(got["bald_views"], views)] == [True, True, False]
+    np.testing.assert_array_equal(got["bald_views"][2].camera.world_to_camera, skin[2].camera.world_to_camera)
+    outline = vv.outline_views(fit, views)
+    # the outline pose's view (no skin pose there)
+    np.testing.assert_array_equal(got["recede"][1].camera.world_to_camera, outline[1].camera.world_to_camera)
+    want = skin[2] if recede_skin else outline[2]
+    np.testing.assert_array_equal(got["recede"][2].camera.world_to_camera, want.camera.world_to_camera)

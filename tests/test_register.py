@@ -271,3 +271,99 @@ def test_the_hair_discount_weighs_each_pixel_by_the_share_that_is_not_hair(scene
     # a set without hair has no marker: the plain error
     assert hair_marker(gs.subset(part == 0)) is None
     assert hair_marker(gs.replace(extras={})) is None
+
+
+@pytest.fixture(scope="module")
+def split_registration(scene):
+    """The frame at 70 degrees registered against the draft whose hair is turned 20 degrees on
+    its head, with the hair discounted and the plain search kept (`keep_plain`, the video
+    build's `SKIN_POSE`), and plainly: (draft, both, plain)."""
+    gs, camera, ref_pose, truth, image = scene
+    draft = _hair_turned(gs, 20.0)
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    both = register_frame(draft, image, camera, ref_pose, guess, window, discount_hair=True, keep_plain=True)
+    plain = register_frame(draft, image, camera, ref_pose, guess, window)
+    return draft, both, plain
+
+
+def test_the_split_registration_returns_the_plain_pose_to_the_bit_and_the_skins(scene, split_registration):
+    """keep_plain: the plain search's pose rides along (`plain_pose`, the same search as a plain
+    registration's, to the bit) whichever pose the gate takes; here the discounted one (near
+    the truth, `discounted`)."""
+    gs, camera, ref_pose, truth, image = scene
+    _, both, plain = split_registration
+    np.testing.assert_array_equal(both.plain_pose, plain.pose)
+    assert both.discounted and not plain.discounted and plain.plain_pose is None
+    assert abs(math.degrees(params_from_pose(both.pose)[0] - params_from_pose(truth)[0])) < 2.0
+    assert params_from_pose(plain.pose)[0] < params_from_pose(truth)[0] - math.radians(5.0)
+
+
+@pytest.mark.parametrize("gate", [30.0, None])
+def test_the_split_registration_keeps_the_plain_pose_when_the_gate_does(scene, split_registration, monkeypatch, gate):
+    """A gate wider than the disagreement: `pose` is the plain search's, not discounted; no gate:
+    the discounted pose, the plain search still run for `plain_pose`."""
+    import avatarkit.track.register as register
+
+    gs, camera, ref_pose, truth, image = scene
+    monkeypatch.setattr(register, "HAIR_GATE", None if gate is None else math.radians(gate))
+    draft, both, plain = split_registration
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    found = register_frame(draft, image, camera, ref_pose, guess, (math.radians(40.0), math.radians(100.0)),
+                           discount_hair=True, keep_plain=True)
+    np.testing.assert_array_equal(found.plain_pose, plain.pose)
+    assert found.discounted == (gate is None)
+    np.testing.assert_array_equal(found.pose, plain.pose if gate else both.pose)
+
+
+def test_the_bald_layer_coloured_from_the_skin_pose_lands_where_the_truth_has_it(scene, split_registration):
+    """The layer split (`multiview.colour_from_views(bald_views=)`, docs/video-build.md, session
+    25): the frame is the avatar at 70 degrees, the draft's hair turned 20 degrees. The bald
+    discs sampled from the frame with the skin's (hair-discounted) pose take nearly the colours
+    the truth's pose samples, from the plain pose (several degrees short) they do not; the hair's samples are the
+    plain pose's either way. The bald layer is striped about the head's vertical axis (a
+    period of 40 degrees of azimuth) so that a pose a few degrees off reads other stripes."""
+    from avatarkit.recon.multiview import View, colour_from_views
+    from avatarkit.render import render
+
+    gs, camera, ref_pose, truth, _ = scene
+    _, both, plain = split_registration
+    part = np.asarray(gs.extras["part"])
+    centre = gs.means[part == 0].mean(0)
+    rel = np.asarray(gs.means, np.float64) - centre
+    stripes = 0.5 + 0.4 * np.sin(np.arctan2(rel[:, 0], rel[:, 2]) * 360.0 / 40.0)       # (N,)
+    rgb = np.asarray(gs.colors, np.float32).copy()
+    rgb[part == 0] = np.stack([stripes, 1.0 - stripes, np.full_like(stripes, 0.5)], 1)[part == 0]
+    gs = gs.with_colors(rgb)
+    frame = render(gs, pose_camera(camera, ref_pose, truth), background=(1.0, 1.0, 1.0))
+    image = (np.clip(frame.rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+    bald, hair = gs.subset(part == 0), gs.subset(part == 1)
+    normals = np.asarray(gs.means, np.float64)[np.r_[np.flatnonzero(part == 0), np.flatnonzero(part == 1)]] - centre
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    # the reference view: the frame itself at the reference pose would disagree; a blank view that
+    # sees nothing keeps the test to the turned keyframe
+    blank = View(np.full_like(image, 255), pose_camera(camera, ref_pose, ref_pose), None, 0.0, 0, True)
+    at = {name: View(image, pose_camera(camera, ref_pose, p), None, 1.0, 1, False)
+          for name, p in (("plain", plain.pose), ("skin", both.pose), ("truth", truth))}
+    grey = [g.with_colors(np.full((len(g), 3), 0.5, np.float32)) for g in (bald, hair)]
+
+    def coloured(views, bald_views=None):
+        b, h, _ = colour_from_views(grey[0], grey[1], views, normals, bald_views=bald_views)
+        return b.colors, h.colors
+
+    b_truth, _ = coloured([blank, at["truth"]])
+    b_plain, h_plain = coloured([blank, at["plain"]])
+    b_split, h_split = coloured([blank, at["plain"]], [blank, at["skin"]])
+    seen = (np.abs(b_truth - 0.5).sum(1) > 0) & (np.abs(b_plain - 0.5).sum(1) > 0) & (np.abs(b_split - 0.5).sum(1) > 0)
+    assert seen.sum() > 300
+
+    def off(c):
+        """mean absolute difference from the colours the truth's pose samples (the same frame)"""
+        return float(np.abs(np.asarray(c, np.float64)[seen] - np.asarray(b_truth, np.float64)[seen]).mean())
+
+    # from the skin pose (within 2 degrees) the discs take nearly the truth pose's colours
+    # (split 0.03), from the plain pose (6 or more degrees short) other stripes' (plain 0.10)
+    assert off(b_split) < 0.05, off(b_split)
+    assert off(b_plain) > 2.0 * off(b_split) + 0.03, (off(b_plain), off(b_split))
+    # the hair's colours are the plain pose's to the bit
+    np.testing.assert_array_equal(h_split, h_plain)

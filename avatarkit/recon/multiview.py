@@ -8,7 +8,9 @@ avatar lives in that fit's head frame, M_b. With M_r the joint fit's pose of the
 frame, keyframe k sees the avatar's rest frame through
     X_view_k = M_k M_r^-1 M_b X_avatar
 so every keyframe is registered to the build's own reference camera (`keyframe_cameras`). The
-head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyframes`).
+head is treated as rigid: keyframes are chosen with a neutral mouth (`track.keyframes`). A
+keyframe may carry a second pose for the bald layer (`Keyframe.skin_pose`, `VideoViews.skin_views`):
+the bald discs' colours and outline are then the skin's pose's, the hair's everything the pose's.
 
 Visibility (`view_samples`, with `recon.visibility.seen_from`): the union of bald and hair
 Gaussians is rendered from the keyframe's
@@ -245,6 +247,19 @@ RECEDE_SHARE = 0.3
 RECEDE_QUORUM = 0.3
 #: ... and it shows in at least this many keyframes
 RECEDE_MIN_FRAMES = 2
+#: The bald layer's colours come from a keyframe's `skin_pose` where it has one (`VideoViews.
+#: skin_views`; only `track.video_build.SKIN_POSE` sets one): a frame then has two poses, the
+#: plain registration's for the hair and everything the hair is made from, and the one found with
+#: the draft's hair discounted for the skin. Not in a registration draft (info["draft"]) unless
+#: this is True: coloured so, the second draft's skin is nearer the frames' and the plain poses
+#: round 2 registers against it read further (the mesh subject's +80 end 68.3 -> 69.3; its profile
+#: gain +2.66 -> +2.80, seed 1 +2.94), but the hair's poses move too and the held-out bob, whose
+#: build agrees with its plain poses, lost 0.12 dB at -90 (seed 1; session 25, docs/video-build.md)
+SKIN_POSE_IN_DRAFTS = False
+#: the bald outline's recession (`recede_outline`) votes with the keyframes' skin poses too (the
+#: outline the frames show over the wall is the skin's): the mesh subject +0.00..+0.03 dB, the bob
+#: as without (seed 0)
+SKIN_POSE_RECEDE = True
 
 _CV = np.diag([1.0, -1.0, -1.0])
 
@@ -769,7 +784,8 @@ def label_weights(means: np.ndarray, samples: list[Samples], views: list[View], 
 
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
                       body: np.ndarray | None = None, scalp: np.ndarray | None = None,
-                      drop_skin_hair: bool = False, neck: np.ndarray | None = None):
+                      drop_skin_hair: bool = False, neck: np.ndarray | None = None,
+                      bald_views: list[View] | None = None):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
@@ -780,13 +796,24 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     the reference shows edge-on that the other keyframes see on skin is dropped
     (`EDGE_HAIR_ON_SKIN`); neck: (N,) bool bald rows of the neck, of which those no view saw
     that are not kept and not its underside are filled from the nearest ones seen or kept
-    (`NECK_FILL`). Returns (bald, hair, figures)."""
+    (`NECK_FILL`); bald_views: the views (in views' order) the bald rows are sampled from where
+    one is not the same object as its view in `views` (a keyframe's `skin_pose`,
+    `VideoViews.skin_views`): the hair rows keep `views`' samples. Returns (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
     is_hair = np.zeros(len(both), bool)
     is_hair[len(bald):] = True
     samples = [view_samples(both, normals, v, hair=is_hair, body=body) for v in views]
+    split = 0
+    for i, b in enumerate(bald_views or []):
+        if b is not views[i]:
+            # the bald rows seen from the skin's pose: the union rendered from that camera (its
+            # depth and alpha decide the bald discs' visibility), the hair rows left to `views`
+            s, t = samples[i], view_samples(both, normals, b, hair=is_hair, body=body)
+            samples[i] = Samples(np.where(is_hair, s.seen, t.seen), np.where(is_hair, s.weight, t.weight),
+                                 np.where(is_hair[:, None], s.colour, t.colour))
+            split += 1
     colours, seen = blend_colours(both.colors, samples, keep)
     colours, filled = fill_hidden_hair(both.means, colours, is_hair & seen, is_hair & ~seen)
     # where the reference view looks at a grazing angle or from behind
@@ -827,7 +854,7 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
-               "hidden_neck_filled": int(neck_filled),
+               "hidden_neck_filled": int(neck_filled), "skin_pose_views": split,
                "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
@@ -886,13 +913,17 @@ class Keyframe:
     """A keyframe as the video build hands it over: image (H, W, 3) uint8; pose (4, 4) the
     joint fit's head pose in the view frame; sharpness in [0, 1]; frame: video frame number;
     outline_pose: (4, 4) the pose the hair's outline stage measures this keyframe's silhouette
-    with (`track.video_build.refine_keyframes`: registered against the draft build; None: pose)."""
+    with (`track.video_build.refine_keyframes`: registered against the draft build; None: pose);
+    skin_pose: (4, 4) the pose the bald layer's colours are sampled with (registered with the
+    draft's hair discounted, `track.video_build.SKIN_POSE`; None: pose). The hair keeps `pose`
+    (and `outline_pose`): each layer is coloured from the pose that registers that layer."""
 
     image: np.ndarray
     pose: np.ndarray
     sharpness: float
     frame: int
     outline_pose: np.ndarray | None = None
+    skin_pose: np.ndarray | None = None
 
 
 def _row_keys(points) -> np.ndarray:
@@ -993,6 +1024,32 @@ class VideoViews:
             out[i] = dataclasses.replace(v, camera=cam, head=head)
         return out
 
+    def uses_skin_poses(self) -> bool:
+        """Whether the bald layer takes the keyframes' `skin_pose`s (`skin_views`): not in a
+        registration draft (info["draft"]) unless `SKIN_POSE_IN_DRAFTS`."""
+        return bool(SKIN_POSE_IN_DRAFTS or not self.info.get("draft", False))
+
+    def skin_views(self, fit, views: list[View]) -> list[View]:
+        """`views` (as `register` made them, in the keyframes' order) with the camera of each
+        keyframe that has a `skin_pose` made from it instead, and the fitted head seen by that
+        camera (`View.head`, which `view_samples(body=)` reads); labels and image unchanged:
+        they are the frame's. The rest (and every view where `uses_skin_poses` is False) is the
+        same object as in `views`."""
+        import dataclasses
+
+        out = list(views)
+        which = [i for i, (k, v) in enumerate(zip(self.keyframes, views))
+                 if k.skin_pose is not None and not v.reference]
+        if not which or not self.uses_skin_poses():
+            return out
+        cams = keyframe_cameras(fit.camera, pose_matrix(fit.rotation, fit.translation), self.keyframes[0].pose,
+                                [self.keyframes[i].skin_pose for i in which])
+        for i, cam in zip(which, cams):
+            seen_head = views[i].head
+            head = None if seen_head is None else head_silhouette(fit.rest_vertices, fit.model.faces, cam)
+            out[i] = dataclasses.replace(views[i], camera=cam, head=head)
+        return out
+
     def keep_view_colours(self, bald, hair):
         """Bald and hair with the colours `colour` gave the Gaussians only the other keyframes
         saw (not the reference view) put back: the reference photo's colour matching comes
@@ -1075,11 +1132,17 @@ class VideoViews:
         return bool(hair_reassign.CLEAR_IN_DRAFTS or not self.info.get("draft", False))
 
     def colour(self, bald, hair, views: list[View], fit, sdf):
-        """Bald and hair recoloured from every view (`blend_colours`); returns (bald, hair,
-        figures); with `recedes`, the bald discs are first set in (`recede_outline`)."""
+        """Bald and hair recoloured from every view (`blend_colours`), the bald rows from the
+        skin views (`skin_views`); returns (bald, hair, figures); with `recedes`, the bald discs
+        are first set in (`recede_outline`; with `SKIN_POSE_RECEDE` voting with the skin views)."""
         receded = None
+        skin = self.skin_views(fit, views)
         if self.recedes():
-            bald, receded = recede_outline(bald, hair, self.recede_views(fit, views), fit)
+            recede = self.recede_views(fit, views)
+            if SKIN_POSE_RECEDE:
+                # the bald outline is the skin's: its keyframes' skin poses where they have one
+                recede = [s if s is not v else r for s, v, r in zip(skin, views, recede)]
+            bald, receded = recede_outline(bald, hair, recede, fit)
         _, normals = sdf.query(np.concatenate([bald.means, hair.means]))
         keep = self.neck_rows(bald, hair, fit)
         neck = keep.copy() if self.fills_neck() else None
@@ -1091,7 +1154,8 @@ class VideoViews:
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
         scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
-                                                drop_skin_hair=self.drops_skin_hair(), neck=neck)
+                                                drop_skin_hair=self.drops_skin_hair(), neck=neck,
+                                                bald_views=skin)
         self._only_others = figures.pop("_only_others")
         if receded is not None:
             figures["receded"] = receded
@@ -1099,7 +1163,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]

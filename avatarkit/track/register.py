@@ -68,6 +68,12 @@ class Registration:
     error: float
     evaluations: int
     coarse: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    #: `register_frame(discount_hair=True)` with its plain search run (`HAIR_GATE`, or keep_plain):
+    #: (4, 4) the plain search's pose (every pixel's error), whichever `pose` the gate took;
+    #: None where no plain search ran
+    plain_pose: np.ndarray | None = None
+    #: whether `pose` is the hair-discounted search's (False: the plain search's, or no discount)
+    discounted: bool = False
 
     @property
     def yaw_pitch_roll(self) -> np.ndarray:
@@ -184,7 +190,7 @@ def head_rows(vertices: np.ndarray, neck: np.ndarray | None, camera: Camera) -> 
 def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
                    yaw_range: tuple[float, float], size: int | None = None, coarse_step: float | None = None,
                    steps=None, rounds: int | None = None, above: float = 1.0,
-                   shifted: bool = False, discount_hair: bool = False) -> Registration:
+                   shifted: bool = False, discount_hair: bool = False, keep_plain: bool = False) -> Registration:
     """The head pose at which `gaussians` (the avatar at rest) best reproduce `image` (H, W, 3)
     uint8 (module docstring). guess (4, 4): the starting pose (its pitch, roll and translation
     start the search); yaw_range: (lo, hi) radians, the absolute yaws searched (the coarse grid
@@ -198,7 +204,10 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
     the rest of the pose then again at that yaw by every pixel's error (a set without hair: the
     plain search); with `HAIR_GATE` the plain search's pose is kept unless that yaw is turned
     further than its own by more than the gate. A draft's hair is its least faithful layer, and a turned frame's pose where
-    its wrong outline and streaks match best is short of the truth (`video_build.HAIR_DISCOUNT`)."""
+    its wrong outline and streaks match best is short of the truth (`video_build.HAIR_DISCOUNT`).
+    keep_plain: with discount_hair, the plain search runs even without a gate; its pose is the
+    result's `plain_pose` (with a gate too), `discounted` says which of the two `pose` is (the
+    video build's second pose per keyframe, `video_build.SKIN_POSE`)."""
     size = SIZE if size is None else size
     coarse_step = COARSE_STEP if coarse_step is None else coarse_step
     steps = REFINE_STEPS if steps is None else steps
@@ -225,13 +234,16 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
         held, held_err = pattern_search(cost, best, cost(best), steps, rounds + 1, allowed=lambda p: p[0] == yaw)
         best, err = held, held_err
         gate = HAIR_GATE
-        if gate is not None:
+        if gate is not None or keep_plain:
             plain, plain_err, plain_coarse = yaw_then_pattern_search(cost, params_from_pose(guess), yaw_range,
                                                                      coarse_step, steps, rounds,
                                                                      SHIFT_STEPS if shifted else None)
             r0 = params_from_pose(reference_pose)[0]
-            if abs(yaw - r0) <= abs(plain[0] - r0) + gate:
-                best, err, coarse = plain, plain_err, plain_coarse
+            if gate is not None and abs(yaw - r0) <= abs(plain[0] - r0) + gate:
+                return Registration(pose_from_params(plain), plain_err, n[0], plain_coarse,
+                                    pose_from_params(plain), False)
+            return Registration(pose_from_params(best), err, n[0], coarse, pose_from_params(plain), True)
+        return Registration(pose_from_params(best), err, n[0], coarse, None, True)
     return Registration(pose_from_params(best), err, n[0], coarse)
 
 
