@@ -517,3 +517,63 @@ def test_hair_the_reference_shows_edge_on_and_the_keyframes_see_on_skin_is_dropp
     monkeypatch.setattr(multiview, "EDGE_HAIR_ON_SKIN", 0.5)
     assert VideoViews(np.zeros(3), []).drops_skin_hair()
     assert not VideoViews(np.zeros(3), [], {"draft": True}).drops_skin_hair()
+
+
+def test_body_pixels_in_the_known_walls_colours_give_no_sample_in_a_turned_keyframe(planes, monkeypatch):
+    """`BODY_WALL`: a turned keyframe whose right half is labelled body shows there the poster
+    (top: the known wall's red) and shadowed hair (bottom: a brown the wall has nowhere). The
+    bald rows allowed the body pixels (`SCALP_BODY`) and the hair rows (renderer visibility)
+    take the brown and never the red; with the rule off both take the red; the skin half and
+    the reference view are sampled as before."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.segment import BODY, SKIN
+    from avatarkit.track.background_plate import Plate
+
+    back, _, _, _ = planes
+    normals = np.tile([0.0, 0.0, 1.0], (len(back), 1))
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    red, brown, skin = np.array([0.8, 0.15, 0.12]), np.array([0.2, 0.1, 0.05]), np.array([0.8, 0.6, 0.5])
+    img = _image(skin)
+    img[: SIZE // 2, SIZE // 2:] = (red * 255).astype(np.uint8)
+    img[SIZE // 2:, SIZE // 2:] = (brown * 255).astype(np.uint8)
+    labels = np.full((SIZE, SIZE), SKIN, np.int32)
+    labels[:, SIZE // 2:] = BODY
+    # the plate knows the poster's red in a band at the frame's top, nothing else
+    colour = np.zeros((SIZE, SIZE, 3), np.uint8)
+    colour[:12] = (red * 255).astype(np.uint8)
+    support = np.zeros((SIZE, SIZE), np.int32)
+    support[:12] = 10
+    plate = Plate(colour, support, support.copy(), 20)
+    wall = multiview.wall_palette_pixels(plate, img)
+    assert wall[: SIZE // 2, SIZE // 2:].all() and not wall[SIZE // 2:].any() and not wall[:, : SIZE // 2].any()
+    assert multiview.wall_palette_pixels(None, img) is None
+
+    x, y = back.means[:, 0], back.means[:, 1]
+    # the camera's image y grows downwards: the top half of the image is y > 0 in the world
+    poster = (x > 0.02) & (x < 0.08) & (y > 0.02) & (y < 0.08)
+    shadow = (x > 0.02) & (x < 0.08) & (y < -0.02) & (y > -0.08)
+    face = (x < -0.02) & (x > -0.08) & (np.abs(y) < 0.08)
+    assert poster.any() and shadow.any()
+    allowed = np.ones(len(back), bool)
+
+    def view(reference=False):
+        v = View(img, cam, labels, 1.0, reference=reference, head=np.ones((SIZE, SIZE), bool))
+        v.info["wall_coloured"] = wall
+        return v
+
+    for kw in (dict(body=allowed), dict(hair=allowed)):
+        s = view_samples(back, normals, view(), **kw)
+        assert not s.seen[poster].any()
+        assert s.seen[shadow].all() and s.seen[face].all()
+        np.testing.assert_allclose(s.colour[shadow], np.tile(brown, (int(shadow.sum()), 1)), atol=0.01)
+        monkeypatch.setattr(multiview, "BODY_WALL", False)
+        off = view_samples(back, normals, view(), **kw)
+        monkeypatch.setattr(multiview, "BODY_WALL", True)
+        assert off.seen[poster].all()
+        np.testing.assert_allclose(off.colour[poster], np.tile(red, (int(poster.sum()), 1)), atol=0.01)
+        far = (x < -0.01) | (y < -0.01)                     # away from the poster quadrant
+        np.testing.assert_array_equal(off.seen[far], s.seen[far])
+        np.testing.assert_array_equal(off.weight[far], s.weight[far])
+    # the reference view's pixels are the portrait's: the rule leaves them alone
+    ref = view_samples(back, normals, view(reference=True), hair=allowed)
+    assert ref.seen[poster].all()

@@ -134,6 +134,16 @@ RELABEL_PLATE: float | None = 0.01
 #: wall above the head": on a plain wall the plate is the wall model's colour and nothing changes)
 RELABEL_PLATE_NEAR: float | None = 0.03
 RELABEL_PLATE_MATCHES = 3
+#: a turned keyframe's body-labelled pixels in the colours of the video's known wall (the plate's
+#: palette far from the head, `background_plate._wall_palette`) give no colour sample: the band of
+#: wall behind a turned head's back lies inside the tracked head's zone in every frame (the plate
+#: never knows it) and the segmentation calls it body; `SCALP_BODY` and the hair's renderer
+#: visibility sampled it, and the hidden hair and scalp fills spread a handful of such samples
+#: over the back of the head (the cluttered wall's poster red and book green: 22 Gaussians seen,
+#: 211 filled). Skin and hair pixels are sampled as before; on a plain wall the palette is the
+#: wall's one colour (session 25, second round, docs/video-build.md "The poster on the back of
+#: the head"; False: body pixels sampled whatever their colour)
+BODY_WALL = True
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
 #: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
@@ -400,6 +410,21 @@ def plate_wall(plate, image: np.ndarray):
     return wall, colour
 
 
+def wall_palette_pixels(plate, image: np.ndarray):
+    """(H, W) bool: the pixels of a keyframe's image (H, W, 3) uint8 whose colour is in the
+    palette of the video's known wall far from the head (`background_plate._wall_palette`), or
+    None without a plate (or with no known wall)."""
+    from avatarkit.track import background_plate
+
+    if plate is None:
+        return None
+    colour, known = plate.at(np.asarray(image).shape[:2])
+    if not known.any():
+        return None
+    table = background_plate._wall_palette(known, colour)
+    return background_plate._in_palette(table, np.asarray(image))
+
+
 def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r: int) -> np.ndarray:
     """(H, W) bool: the pixels of image (H, W, 3) uint8 the plate does not know (`known` (H, W)
     bool, its colour (H, W, 3)) where at least `RELABEL_PLATE_MATCHES` known plate pixels within
@@ -630,6 +655,13 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
             & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
         seen = np.where(hair, inside & (vis >= HAIR_VISIBLE), seen)
         weight = np.where(hair, vis, weight)
+    wall_coloured = view.info.get("wall_coloured")
+    if BODY_WALL and wall_coloured is not None and view.labels is not None and not view.reference:
+        from avatarkit.recon.segment import BODY
+
+        # the wall seen past a turned head, labelled body (`BODY_WALL`): no sample, any layer
+        on = (np.asarray(view.labels) == BODY) & np.asarray(wall_coloured, bool)
+        seen &= ~on[ix[:, 1], ix[:, 0]]
     weight = np.where(seen, weight * float(view.sharpness), 0.0)
     if soft is not None:
         weight *= _person_weight(soft, px)
@@ -984,6 +1016,9 @@ class VideoViews:
                 v.info["turned_end"] = True
             connected = RELABEL_CONNECTED if (RELABEL_CONNECTED_IN == "all" or k.frame in turned_end) else None
             wall = plate_wall(self.plate, k.image)
+            wall_coloured = wall_palette_pixels(self.plate, k.image)
+            if wall_coloured is not None:
+                v.info["wall_coloured"] = wall_coloured
             try:
                 analysis = analyze_portrait(k.image, None, detector=detector)
                 v.labels = np.asarray(segment_portrait(k.image, analysis, plate=self.plate).labels, np.int32)
@@ -1162,8 +1197,8 @@ class VideoViews:
         return bald, hair, figures
 
 
-__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
            "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
-           "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples"]
+           "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]
