@@ -135,7 +135,7 @@ RELABEL_PLATE: float | None = 0.01
 RELABEL_PLATE_NEAR: float | None = 0.03
 RELABEL_PLATE_MATCHES = 3
 #: a turned keyframe's body-labelled pixels in the colours of the video's known wall (the plate's
-#: palette far from the head, `background_plate._wall_palette`) give no colour sample: the band of
+#: palette far from the head, `background_plate.wall_palette`) give no colour sample: the band of
 #: wall behind a turned head's back lies inside the tracked head's zone in every frame (the plate
 #: never knows it) and the segmentation calls it body; `SCALP_BODY` and the hair's renderer
 #: visibility sampled it, and the hidden hair and scalp fills spread a handful of such samples
@@ -412,7 +412,7 @@ def plate_wall(plate, image: np.ndarray):
 
 def wall_palette_pixels(plate, image: np.ndarray):
     """(H, W) bool: the pixels of a keyframe's image (H, W, 3) uint8 whose colour is in the
-    palette of the video's known wall far from the head (`background_plate._wall_palette`), or
+    palette of the video's known wall far from the head (`background_plate.wall_palette`), or
     None without a plate (or with no known wall)."""
     from avatarkit.track import background_plate
 
@@ -421,8 +421,8 @@ def wall_palette_pixels(plate, image: np.ndarray):
     colour, known = plate.at(np.asarray(image).shape[:2])
     if not known.any():
         return None
-    table = background_plate._wall_palette(known, colour)
-    return background_plate._in_palette(table, np.asarray(image))
+    table = background_plate.wall_palette(known, colour)
+    return background_plate.in_palette(table, np.asarray(image))
 
 
 def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r: int) -> np.ndarray:

@@ -76,7 +76,7 @@ CONTINUE_REACH = 0.015
 #: ...and how many of the wall pixels there must match it (one stray pixel does not vouch)
 CONTINUE_MATCHES = 3
 #: ...and only in the colours of the known wall at least this far (share of the longer side) from
-#: what the plate does not know (`_wall_palette`, bins of `PALETTE_BIN` levels and their
+#: what the plate does not know (`wall_palette`, bins of `PALETTE_BIN` levels and their
 #: neighbours), grown from known pixels of those colours
 CONTINUE_DEEP = 0.025
 PALETTE_BIN = 8
@@ -187,7 +187,7 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     continues the wall `known` (h, w) bool of colour `colour` (h, w, 3): grown from it a ring at a
     time, a pixel joins where at least `CONTINUE_MATCHES` wall pixels (known or joined) within
     `CONTINUE_REACH` are within `AGREE` of its colour in every channel; only pixels (candidates and
-    the known wall they grow from) of the far wall's colours (`_wall_palette`)."""
+    the known wall they grow from) of the far wall's colours (`wall_palette`)."""
     import cv2
 
     h, w = known.shape
@@ -196,9 +196,9 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     offsets = [(dy - r, dx - r) for dy, dx in zip(*np.nonzero(disc)) if (dy, dx) != (r, r)]
     cc = np.asarray(c_colour, np.int16)
     col = np.where(known[..., None], np.asarray(colour, np.int16), cc)     # (h, w, 3) the wall's colour
-    table = _wall_palette(known, colour)
-    wall = known & _in_palette(table, col)
-    candidate = candidate & _in_palette(table, cc)
+    table = wall_palette(known, colour)
+    wall = known & in_palette(table, col)
+    candidate = candidate & in_palette(table, cc)
     pad_w = np.pad(wall, r)
     pad_c = np.pad(col, ((r, r), (r, r), (0, 0)))
     while True:
@@ -219,7 +219,7 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     return wall & ~known
 
 
-def _wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
+def wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
     """(32768,) bool: the colour bins (`PALETTE_BIN` levels a channel; with their 26 neighbours)
     of the known wall far from what the plate does not know: the known pixels at least
     `CONTINUE_DEEP` of the longer side from an unknown one. A still head's flyaway top of the hair
@@ -237,8 +237,8 @@ def _wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
     return ndimage.binary_dilation(table.reshape(n, n, n), np.ones((3, 3, 3), bool)).ravel()
 
 
-def _in_palette(table: np.ndarray, colour: np.ndarray) -> np.ndarray:
-    """(...) bool: colours (..., 3) whose bin is in the palette `table` (`_wall_palette`)."""
+def in_palette(table: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """(...) bool: colours (..., 3) whose bin is in the palette `table` (`wall_palette`)."""
     n = 256 // PALETTE_BIN
     q = (np.asarray(colour) // PALETTE_BIN).astype(np.intp)
     return table[(q[..., 0] * n + q[..., 1]) * n + q[..., 2]]
@@ -341,4 +341,4 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
 
 
 __all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
-           "ZONE_START", "Plate", "person_zone", "plate_from_frames", "video_plate"]
+           "ZONE_START", "Plate", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
