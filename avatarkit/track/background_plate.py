@@ -79,6 +79,8 @@ CONTINUE_MATCHES = 3
 #: what the plate does not know (`wall_palette`, bins of `PALETTE_BIN` levels and their
 #: neighbours), grown from known pixels of those colours
 CONTINUE_DEEP = 0.025
+#: ...in bins of this many levels a channel (a bin and its 26 neighbours: a wall's colour within
+#: about 8-16 levels of one the far wall shows)
 PALETTE_BIN = 8
 #: the torso below the jaw (from this share of the outline's height down) widens this many px a row
 ZONE_START = 0.75
