@@ -442,11 +442,7 @@ def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r
         return out
     pk = np.pad(known, r)
     pc = np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0)))
-    c = np.asarray(image, np.int16)[ys, xs]
-    count = np.zeros(len(ys), np.int32)
-    for dy, dx in zip(*np.nonzero(disc)):
-        yy, xx = ys + dy, xs + dx
-        count += pk[yy, xx] & (np.abs(pc[yy, xx] - c).max(axis=1) <= background_plate.AGREE)
+    count = background_plate.agreeing(pk, pc, ys, xs, np.asarray(image, np.int16)[ys, xs], disc)
     out[ys, xs] = count >= RELABEL_PLATE_MATCHES
     return out
 

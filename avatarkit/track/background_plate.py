@@ -195,7 +195,6 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
     h, w = known.shape
     r = max(1, int(round(CONTINUE_REACH * max(h, w))))
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
-    offsets = [(dy - r, dx - r) for dy, dx in zip(*np.nonzero(disc)) if (dy, dx) != (r, r)]
     cc = np.asarray(c_colour, np.int16)
     col = np.where(known[..., None], np.asarray(colour, np.int16), cc)     # (h, w, 3) the wall's colour
     table = wall_palette(known, colour)
@@ -208,17 +207,26 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
         ys, xs = np.nonzero(ring)
         if len(ys) == 0:
             break
-        c = cc[ys, xs]                                                     # (N, 3)
-        count = np.zeros(len(ys), np.int32)
-        for dy, dx in offsets:
-            yy, xx = ys + r + dy, xs + r + dx
-            count += pad_w[yy, xx] & (np.abs(pad_c[yy, xx] - c).max(axis=1) <= AGREE)
-        join = count >= CONTINUE_MATCHES
+        # the ring's own pixels are not wall yet: the disc's centre counts nothing
+        join = agreeing(pad_w, pad_c, ys, xs, cc[ys, xs], disc) >= CONTINUE_MATCHES
         if not join.any():
             break
         wall[ys[join], xs[join]] = True
         pad_w[ys[join] + r, xs[join] + r] = True
     return wall & ~known
+
+
+def agreeing(wall: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarray, c: np.ndarray,
+             disc: np.ndarray) -> np.ndarray:
+    """(N,) int: for each pixel (ys, xs) (N,) of colour c (N, 3) int16, how many pixels of `wall`
+    within `disc` ((2r + 1, 2r + 1) bool, centred on it) are within `AGREE` of c in every channel;
+    wall (h + 2r, w + 2r) bool and colour (h + 2r, w + 2r, 3) int16 padded by r (so (ys, xs)
+    index the disc's corner)."""
+    count = np.zeros(len(ys), np.int32)
+    for dy, dx in zip(*np.nonzero(disc)):
+        yy, xx = ys + dy, xs + dx
+        count += wall[yy, xx] & (np.abs(colour[yy, xx] - c).max(axis=1) <= AGREE)
+    return count
 
 
 def wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
@@ -343,4 +351,4 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
 
 
 __all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
-           "ZONE_START", "Plate", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
+           "ZONE_START", "Plate", "agreeing", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
