@@ -58,7 +58,10 @@ BLUR_WEIGHT = 0.1
 #: `tracking_edge` reads). The smoother rounds off a turn that reverses at full speed: on the
 #: 32-frame whip clip (a turn to +-46 degrees at ~275 degrees/s) the mesh subject's -46 end
 #: reads -34.8 smoothed and -44.4 raw, so the choice took the frame after it (-42.0, read -36.9)
-#: and the ends' neighbours (docs/video-build.md, "The whip clip (session 26)")
+#: and the ends' neighbours. "clip" (session 26, docs/video-build.md "The whip clip (session
+#: 26)"): "raw" leaves the whip's profile gain where it was (the end it takes registers as short)
+#: and changes the eased clips' choice, the held-out bob's -45 view -0.47 dB, the mesh subject's
+#: front -0.13
 KEYFRAME_POSE = "clip"
 
 
