@@ -197,7 +197,8 @@ DRAFT_SCALP_FILL = False
 #: edge-on, keeps the photo's colour (filled there, the darker side's colour rimmed the front
 #: view's cheeks and ears: the mesh subject's front -0.05 dB on the whip clip). Off: it lifts the
 #: whip clip's mesh subject (profile gain +1.88 -> +2.09, seed 1 +1.80 -> +2.04) and nothing else,
-#: and the eased clip's mesh subject loses 0.03 of gain (-90 -0.04). Session 26 (docs/video-build.md,
+#: the eased clip's mesh subject loses 0.03 of gain (-90 -0.04), the cluttered wall's sample avatar
+#: 0.09 at -90. Session 26 (docs/video-build.md,
 #: "The whip clip (session 26)")
 HIDDEN_BALD_FILL = False
 #: ... the share of a Gaussian's footprint the reference camera must show for it to keep its
