@@ -4,6 +4,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from avatarkit.track.keyframes import choose_keyframes, face_sharpness, yaw_pitch
 
@@ -195,3 +196,40 @@ def test_ineligible_stretches_match_a_plain_walk():
     for _ in range(500):
         ok = rng.random(rng.integers(0, 30)) < rng.random()
         assert ineligible_stretches(ok) == walk(ok)
+
+
+def _whip(n=32):
+    """The whip clip's yaw (`synthetic.turning_video.turning_clip(32)`): 0 -> 0.8 rad in 4 frames,
+    -> -0.8 in 8, back to 0 in 12 (slower), then still; and that yaw smoothed over 5 frames, as a
+    tracker's temporal filter rounds off a turn that reverses at full speed."""
+    a, b = n * 3 // 8, n * 3 // 4
+    y = np.concatenate([np.linspace(0, 0.8, n // 8 + 1)[:-1], np.linspace(0.8, -0.8, a - n // 8 + 1)[:-1],
+                        np.linspace(-0.8, 0, b - a + 1)[:-1], np.zeros(n - b)])
+    smooth = np.convolve(np.pad(y, 2, mode="edge"), np.full(5, 0.2), mode="valid")
+    return y, smooth
+
+
+def test_raw_keyframe_pose_takes_the_whips_turn_end_the_smoothed_pose_rounds_off(monkeypatch):
+    from scipy.spatial.transform import Rotation
+
+    from avatarkit.track import keyframes
+
+    y, smooth = _whip()
+    assert np.argmin(y) == 12 and np.argmin(smooth) == 13      # the smoother moves the end a frame on
+    r = _tracking(smooth)
+    r.raw = {"rotation": Rotation.from_euler("YXZ", np.stack([y, 0 * y, 0 * y], 1)).as_rotvec()}
+    monkeypatch.setattr(keyframes, "KEYFRAME_POSE", "clip")
+    k = choose_keyframes(r, count=3)
+    assert 13 in k.clip_index.tolist() and 12 not in k.clip_index.tolist()
+    monkeypatch.setattr(keyframes, "KEYFRAME_POSE", "raw")
+    k = choose_keyframes(r, count=3)
+    assert 12 in k.clip_index.tolist() and 4 in k.clip_index.tolist()
+    np.testing.assert_allclose(sorted(k.yaw_pitch[1:, 0]), [-0.8, 0.8], atol=1e-9)   # the frames' own fits
+    # a frame without its own fit falls back to the clip's pose (never a NaN in the choice)
+    r.raw["rotation"][12] = np.nan
+    k = choose_keyframes(r, count=3)
+    assert np.isfinite(k.yaw_pitch).all() and len(k) == 3
+    assert 13 in k.clip_index.tolist() and 12 not in k.clip_index.tolist()
+    monkeypatch.setattr(keyframes, "KEYFRAME_POSE", "smoothed")
+    with pytest.raises(ValueError):
+        choose_keyframes(r, count=3)

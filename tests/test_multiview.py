@@ -577,3 +577,67 @@ def test_body_pixels_in_the_known_walls_colours_give_no_sample_in_a_turned_keyfr
     # the reference view's pixels are the portrait's: the rule leaves them alone
     ref = view_samples(back, normals, view(reference=True), hair=allowed)
     assert ref.seen[poster].all()
+
+
+def test_the_bald_layer_no_view_saw_off_the_neck_takes_the_seen_bald_colour_where_the_reference_looks_away(planes):
+    """`colour_from_views(hidden_bald=)` (`HIDDEN_BALD_FILL`): two views on +Z, a grey reference
+    and a dark keyframe. The back plane's right part, turned to face +X (the side of a head
+    behind the ear), no view sees and the reference looks away from it: it takes the blend of
+    the seen bald rows beside it instead of keeping the portrait's fill. The back plane behind
+    the front one faces the reference (only hidden) and keeps the fill; so does the turned part
+    left out of `hidden_bald` (the neck), and every row without it. The turned rows lie outside
+    the reference camera's picture; left where its camera shows them (if only edge-on, at the
+    photo's outline: `HIDDEN_BALD_SHOWN`) they keep the fill too. Rows the scalp fill took are
+    left to it."""
+    from avatarkit.recon.multiview import colour_from_views
+
+    back, front, _, _ = planes
+    fill = (0.8, 0.6, 0.5)
+    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
+    hair = front.subset(np.zeros(len(front), bool))
+    nb = len(back)
+    x = back.means[:, 0]
+    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
+    turned = x > 0.035
+    normals[:nb][turned] = [1.0, 0.0, 0.0]
+    behind = x < -0.02
+    neck = turned & (back.means[:, 1] > 0.045)                       # turned away too, but left out
+    turned &= ~neck
+    rows = np.ones(len(bald), bool)
+    rows[:nb] &= ~neck
+    views, blend = _grey_and_dark_views()
+    # shown by the reference camera (in its picture, facing +Z): not filled
+    _, _, shown = colour_from_views(bald, hair, views, normals, hidden_bald=rows)
+    assert shown["hidden_bald_filled"] == 0
+    # the turned rows moved out of the picture (the side of the head the photo does not show)
+    means = np.asarray(bald.means, np.float64).copy()
+    means[:nb][turned | neck] += [0.5, 0.0, 0.0]
+    bald = bald.replace(means=means.astype(np.asarray(bald.means).dtype))
+
+    plain, _, f0 = colour_from_views(bald, hair, views, normals)
+    filled, _, figures = colour_from_views(bald, hair, views, normals, hidden_bald=rows)
+    pc, fc = plain.colors[:nb], filled.colors[:nb]
+    np.testing.assert_allclose(pc[turned], np.tile(fill, (int(turned.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[turned], np.tile(blend, (int(turned.sum()), 1)), atol=0.02)
+    np.testing.assert_allclose(fc[behind], np.tile(fill, (int(behind.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[neck], np.tile(fill, (int(neck.sum()), 1)), atol=1e-3)
+    np.testing.assert_allclose(fc[~turned], pc[~turned])                # the rest as without it
+    np.testing.assert_allclose(filled.colors[nb:], plain.colors[nb:])
+    assert figures["hidden_bald_filled"] == int(turned.sum()) and f0["hidden_bald_filled"] == 0
+    # the scalp's own fill comes first: the rows it filled are not filled again
+    scalp = np.zeros(len(bald), bool)
+    scalp[:nb] = ~neck
+    _, _, f2 = colour_from_views(bald, hair, views, normals, scalp=scalp, hidden_bald=rows)
+    assert f2["hidden_scalp_filled"] == int(turned.sum()) and f2["hidden_bald_filled"] == 0
+
+
+def test_the_registration_drafts_do_not_fill_the_hidden_bald_layer(monkeypatch):
+    """`VideoViews.fills_hidden_bald`: off by default; on, the final build fills and a draft the
+    video build registers against (info["draft"]) does not."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert not final.fills_hidden_bald() and not draft.fills_hidden_bald()
+    monkeypatch.setattr(multiview, "HIDDEN_BALD_FILL", True)
+    assert final.fills_hidden_bald() and not draft.fills_hidden_bald()

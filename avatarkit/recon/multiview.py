@@ -186,6 +186,24 @@ SCALP_FILL = True
 #: -67.6 with it, -0.21 dB at the front; the mesh subject's turned frames came 2-5 degrees nearer
 #: their true +-80, +0.05 dB of profile gain)
 DRAFT_SCALP_FILL = False
+#: the bald Gaussians outside the neck that no keyframe saw and that the scalp fill leaves (the
+#: skin behind the ears, the nape under the hair's edge, the back of the ears), where the reference
+#: view looks away (cos < `MIN_COS`), take the mean colour of the `HAIR_NEIGHBOURS` nearest bald
+#: Gaussians outside the neck a keyframe did see (`fill_hidden_hair`), instead of keeping the
+#: portrait build's fill, the lit front's skin carried round the head: what the turned keyframes
+#: show beside them is the side of the head in its own shade. Not in the registration drafts
+#: (info["draft"]), nor where the reference camera shows at least `HIDDEN_BALD_SHOWN` of the
+#: Gaussian's footprint (`footprint_visibility`, as `NECK_SHOWN`): the photo's outline, seen
+#: edge-on, keeps the photo's colour (filled there, the darker side's colour rimmed the front
+#: view's cheeks and ears: the mesh subject's front -0.05 dB on the whip clip). Off: it lifts the
+#: whip clip's mesh subject (profile gain +1.88 -> +2.09, seed 1 +1.80 -> +2.04) and nothing else,
+#: the eased clip's mesh subject loses 0.03 of gain (-90 -0.04), the cluttered wall's sample avatar
+#: 0.09 at -90. Session 26 (docs/video-build.md,
+#: "The whip clip (session 26)")
+HIDDEN_BALD_FILL = False
+#: ... the share of a Gaussian's footprint the reference camera must show for it to keep its
+#: colour under `HIDDEN_BALD_FILL`
+HIDDEN_BALD_SHOWN = 0.02
 #: a hair Gaussian the reference view shows edge-on (cos between the head's outward normal there
 #: and the direction to the reference camera < `MIN_COS`) whose samples in the other labelled
 #: keyframes fall on skin-labelled pixels for more than this share of their weight (skin + hair
@@ -813,7 +831,7 @@ def label_weights(means: np.ndarray, samples: list[Samples], views: list[View], 
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
                       body: np.ndarray | None = None, scalp: np.ndarray | None = None,
                       drop_skin_hair: bool = False, neck: np.ndarray | None = None,
-                      bald_views: list[View] | None = None):
+                      bald_views: list[View] | None = None, hidden_bald: np.ndarray | None = None):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
@@ -826,7 +844,11 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     that are not kept and not its underside are filled from the nearest ones seen or kept
     (`NECK_FILL`); bald_views: the views (in views' order) the bald rows are sampled from where
     one is not the same object as its view in `views` (a keyframe's `skin_pose`,
-    `VideoViews.skin_views`): the hair rows keep `views`' samples. Returns (bald, hair, figures)."""
+    `VideoViews.skin_views`): the hair rows keep `views`' samples; hidden_bald: (N,) bool bald rows
+    (outside the neck) of which those no view saw, not kept, not filled as scalp, facing away
+    from the reference view and not shown by its camera are filled from the nearest seen ones
+    (`HIDDEN_BALD_FILL`, `HIDDEN_BALD_SHOWN`). Returns
+    (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
@@ -857,6 +879,20 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
             scalp &= ~np.asarray(keep, bool)
         hidden = scalp & ~seen & away
         colours, scalp_filled = fill_hidden_hair(both.means, colours, scalp & seen, hidden)
+    bald_filled = 0
+    if hidden_bald is not None:
+        # the rest of the bald layer no view saw, from what the views saw beside it
+        # (`HIDDEN_BALD_FILL`), where the reference view does not face it; the scalp's own fill
+        # and the rows kept stay as they are
+        rows = np.asarray(hidden_bald, bool) & ~is_hair
+        done = (np.asarray(scalp, bool) & ~seen & away) if scalp is not None else np.zeros(len(both), bool)
+        if keep is not None:
+            done |= np.asarray(keep, bool)
+        target = rows & ~seen & away & ~done
+        if target.any():
+            # what the reference photo shows, if only edge-on at its outline, keeps its colour
+            target &= footprint_visibility(both, views[0].camera) < float(HIDDEN_BALD_SHOWN)
+        colours, bald_filled = fill_hidden_hair(both.means, colours, rows & seen, target)
     neck_filled = 0
     if neck is not None:
         # the neck no view saw, from the neck that has a colour: the views' blend or, where
@@ -882,6 +918,7 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
+               "hidden_bald_filled": int(bald_filled),
                "hidden_neck_filled": int(neck_filled), "skin_pose_views": split,
                "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
@@ -1133,6 +1170,11 @@ class VideoViews:
         `DRAFT_SCALP_FILL`."""
         return bool(SCALP_FILL and (DRAFT_SCALP_FILL or not self.info.get("draft", False)))
 
+    def fills_hidden_bald(self) -> bool:
+        """Whether `colour` fills the bald layer outside the neck that no keyframe saw
+        (`HIDDEN_BALD_FILL`): not in a registration draft (info["draft"])."""
+        return bool(HIDDEN_BALD_FILL and not self.info.get("draft", False))
+
     def recedes(self) -> bool:
         """Whether `colour` sets the bald outline in where the keyframes show it over the wall
         (`RECEDE_KEYFRAMES`, `recede_outline`): not in a registration draft (info["draft"])."""
@@ -1184,9 +1226,14 @@ class VideoViews:
             keep = neck_kept(keep, both, views[0].camera, NECK_SHOWN)
         body = self.scalp_rows(bald, hair, fit) if SCALP_BODY else None
         scalp = self.scalp_rows(bald, hair, fit) if self.fills_scalp() else None
+        hidden_bald = None
+        if self.fills_hidden_bald():
+            hidden_bald = np.zeros(len(bald) + len(hair), bool)
+            hidden_bald[:len(bald)] = True
+            hidden_bald &= ~self.neck_rows(bald, hair, fit)
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
                                                 drop_skin_hair=self.drops_skin_hair(), neck=neck,
-                                                bald_views=skin)
+                                                bald_views=skin, hidden_bald=hidden_bald)
         self._only_others = figures.pop("_only_others")
         if receded is not None:
             figures["receded"] = receded
@@ -1194,7 +1241,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]

@@ -53,6 +53,16 @@ MIN_GAP = 3
 EXPRESSION_WEIGHT = 0.25
 #: radians of pose spread a fully blurred frame (sharpness 0) gives up (~6 degrees)
 BLUR_WEIGHT = 0.1
+#: the head pose the farthest-point choice measures (`keyframe_pose`): "clip", the tracked clip's
+#: (temporally smoothed), or "raw", each frame's own landmark fit (`result.raw["rotation"]`, what
+#: `tracking_edge` reads). The smoother rounds off a turn that reverses at full speed: on the
+#: 32-frame whip clip (a turn to +-46 degrees at ~275 degrees/s) the mesh subject's -46 end
+#: reads -34.8 smoothed and -44.4 raw, so the choice took the frame after it (-42.0, read -36.9)
+#: and the ends' neighbours. "clip" (session 26, docs/video-build.md "The whip clip (session
+#: 26)"): "raw" leaves the whip's profile gain where it was (the end it takes registers as short)
+#: and changes the eased clips' choice, the held-out bob's -45 view -0.47 dB, the mesh subject's
+#: front -0.13
+KEYFRAME_POSE = "clip"
 
 
 @dataclass
@@ -163,6 +173,19 @@ def tracking_edge(result) -> np.ndarray:
     return edge
 
 
+def keyframe_pose(result) -> np.ndarray:
+    """(T, 2) radians: the yaw and pitch the keyframe choice measures (`KEYFRAME_POSE`, read at
+    call time); "raw" falls back to the clip's where a frame's own fit is missing or not finite."""
+    pose = yaw_pitch(clip_head_rotation(result.clip))
+    if KEYFRAME_POSE == "raw" and getattr(result, "raw", None) is not None and "rotation" in result.raw:
+        raw = yaw_pitch(np.asarray(result.raw["rotation"], np.float64))
+        ok = np.isfinite(raw).all(axis=1) & np.asarray(result.found, bool)
+        pose = np.where(ok[:, None], raw, pose)
+    elif KEYFRAME_POSE not in ("clip", "raw"):
+        raise ValueError(f"keyframes.KEYFRAME_POSE must be 'clip' or 'raw', got {KEYFRAME_POSE!r}")
+    return pose
+
+
 def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int | None = None,
                      min_spread: float | None = None, min_gap: int | None = None) -> Keyframes:
     """Keyframes of a `TrackResult` (module docstring). sharpness: (T,) raw face sharpness per
@@ -178,7 +201,7 @@ def choose_keyframes(result, sharpness: np.ndarray | None = None, count: int | N
     # side views from the first build the frames past the tracking register against (session
     # 10: the held-out bob's profile gain +1.68 -> +1.26 dB), docs/video-build.md
     eligible = eligible_frames(result)
-    pose = yaw_pitch(clip_head_rotation(result.clip))
+    pose = keyframe_pose(result)
     s = np.ones(T) if sharpness is None else np.asarray(sharpness, np.float64).reshape(T)
     top = s[eligible].max() if eligible.any() else 0.0
     sharp = np.clip(s / top, 0.0, 1.0) if top > 0 else np.ones(T)
@@ -230,5 +253,5 @@ def read_frames(video, frame_index) -> dict[int, np.ndarray]:
     return out
 
 
-__all__ = ["EDGE_MARGIN", "KEYFRAMES", "TURNED_EDGE", "Keyframes", "choose_keyframes", "eligible_frames",
-           "face_sharpness", "ineligible_stretches", "read_frames", "tracking_edge", "video_sharpness", "yaw_pitch"]
+__all__ = ["EDGE_MARGIN", "KEYFRAME_POSE", "KEYFRAMES", "TURNED_EDGE", "Keyframes", "choose_keyframes", "eligible_frames",
+           "face_sharpness", "ineligible_stretches", "keyframe_pose", "read_frames", "tracking_edge", "video_sharpness", "yaw_pitch"]
