@@ -264,7 +264,11 @@ RECEDE_MIN_FRAMES = 2
 #: stands out of the surface, yet without this it counts against the move: the profile's discs
 #: (the face's profile line, the back of the neck), which only the turned keyframes see at their
 #: outline, showed in 6-8 keyframes and were voted out by 2-3 of them, under the quorum. None:
-#: every keyframe that shows a disc counts (session 23's rule)
+#: every keyframe that shows a disc counts (session 23's rule). Off (session 26, docs/video-build.md
+#: "The profile's outline seen at the keyframes' outlines"): at 4 px the mesh subject's profile gain
+#: +2.66 / +2.93 / +2.88 -> +2.73 / +3.01 / +2.99 (seeds 0 / 1 / 2), the bob within 0.04 dB, but one
+#: keyframe's vote now moves a disc, and where a keyframe's pose is off the sample avatar loses:
+#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall
 RECEDE_EDGE = None
 #: with `RECEDE_EDGE`, the keyframes a disc must lie near the outline of (instead of
 #: `RECEDE_MIN_FRAMES`): one, since a contour is seen edge-on by few keyframes
