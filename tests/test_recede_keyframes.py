@@ -159,3 +159,95 @@ def test_the_scalp_stays_under_the_hair(sphere, monkeypatch):
     monkeypatch.setattr(multiview, "RECEDE_SCALP", True)
     every, _ = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces, scalp))
     assert (np.linalg.norm(np.asarray(every.means) - np.asarray(bald.means), axis=1)[on_scalp] > 0).sum() > 50
+
+
+# `RECEDE_EDGE`: only the keyframes that see a disc at their outline count in its quorum. Five
+# cameras across the front (0, +-15, +-30 degrees) and one at the side (+90), all with the true
+# sphere's silhouette: the side camera's outline runs over the sphere's front and back (the
+# profile line), which the front cameras see face on (the front) or not at all (the back).
+PROFILE_YAWS = (0.0, 15.0, -15.0, 30.0, -30.0, 90.0)
+
+
+def _front_end(bald, cam: Camera) -> float:
+    """How far (px) the alpha-0.5 render reaches beyond the true sphere at the end of `cam`'s
+    middle rows where the sphere's front (+Z, the point the front cameras face) lies (the side
+    camera at +90 sees it at the image's left), averaged over the 5 rows about the centre."""
+    alpha = np.asarray(render(bald.replace(extras={}), cam, (1.0, 1.0, 1.0)).alpha)
+    c = WIDTH // 2
+    left = np.mean([np.flatnonzero(row).min() for row in alpha[c - 2:c + 3] > 0.5])
+    front = cam.project(np.array([[0.0, 0.0, RADIUS]]))[0][0, 0]
+    assert front < c       # the sphere's front at the left of the side camera's image
+    return front - left
+
+
+def _profile_views(v, faces, masks=None) -> list[View]:
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    masks = [head_silhouette(v, faces, cam) for cam in cams] if masks is None else masks
+    return [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), cam, np.where(m, SKIN, 0).astype(np.int32))
+            for cam, m in zip(cams, masks)]
+
+
+def test_the_profile_line_seen_at_one_keyframes_outline_sets_in_with_the_edge_rule(sphere, monkeypatch):
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    views = _profile_views(v, faces)
+    side = views[-1].camera
+    before = _front_end(bald, side)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    new, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    # every keyframe that shows a disc counting, the front of the profile line (shown face on by
+    # the five front cameras, voted out by the side one: 1 in 6) stays out; counted only where a
+    # keyframe sees it at its outline, it sets in with the side camera's vote
+    assert before > 1.5, before
+    assert _front_end(old, side) > before - 0.2, (before, _front_end(old, side))
+    assert _front_end(new, side) < 0.5, (before, _front_end(new, side), figures)
+    # the front cameras' own outlines (the sphere's sides) set in as before
+    front = views[0].camera
+    assert abs(_overshoot(new, front) - _overshoot(old, front)) < 0.3, (_overshoot(new, front), _overshoot(old, front))
+    # each moved disc straight inward along its face's normal
+    shift = np.asarray(new.means, np.float64) - np.asarray(bald.means, np.float64)
+    depth = np.linalg.norm(shift, axis=1)
+    radial = np.einsum("nc,nc->n", shift, np.asarray(bald.means, np.float64)) / np.linalg.norm(bald.means, axis=1)
+    assert (radial[depth > 0] < -0.9 * depth[depth > 0]).all()
+    np.testing.assert_array_equal(new.quats, bald.quats)
+    # with the edge rule a keyframe votes at RECEDE_EDGE_SHARE, not RECEDE_SHARE: past all of a
+    # disc's weight no keyframe votes, and nothing moves
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_SHARE", 1.01)
+    none, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    np.testing.assert_array_equal(none.means, bald.means)
+
+
+def test_with_the_edge_rule_a_truth_that_overshoots_as_the_discs_do_still_leaves_them(sphere, monkeypatch):
+    v, faces, bald = sphere
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    views = _profile_views(v, faces, [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5
+                                      for c in cams])
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    moved, figures = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces))
+    for cam in cams:
+        assert _overshoot(bald, cam) - _overshoot(moved, cam) < 0.25, figures
+    assert _front_end(bald, cams[-1]) - _front_end(moved, cams[-1]) < 0.3, figures
+
+
+def test_near_outline_is_the_distance_to_the_renders_outline(sphere):
+    from avatarkit.track.frame_hull import near_outline
+
+    v, faces, bald = sphere
+    cam = _camera(0.0)
+    g = bald.replace(extras={})
+    means = np.asarray(bald.means, np.float64)
+    px, z = cam.project(means)
+    px = np.asarray(px, np.float64)
+    r_px = np.linalg.norm(px - WIDTH / 2, axis=1)
+    circle = cam.fy * math.tan(math.asin(RADIUS / DISTANCE))
+    front = means[:, 2] > 0
+    near = near_outline(g, cam, 4.0)
+    # the discs facing the camera within the circle's inner part are far from the outline (which
+    # stands ~1.8 px beyond the circle), the ones projecting within a pixel of the circle near it
+    assert not near[front & (r_px < circle - 8)].any()
+    assert (front & (r_px > circle - 1)).sum() > 50 and near[front & (r_px > circle - 1)].all()
+    # behind the camera: never near (a camera at the same place looking away)
+    away = Camera.look_at((0.0, 0.0, DISTANCE), (0.0, 0.0, 2 * DISTANCE), fov_deg=30.0, width=WIDTH, height=WIDTH)
+    assert not near_outline(g, away, 4.0).any()

@@ -275,6 +275,26 @@ RECEDE_SHARE = 0.3
 RECEDE_QUORUM = 0.3
 #: ... and it shows in at least this many keyframes
 RECEDE_MIN_FRAMES = 2
+#: pixels (of a keyframe's image): a keyframe counts in a disc's quorum, shown or voting, only where
+#: the disc's centre lies within this of that keyframe's render outline (`frame_hull.near_outline`),
+#: and a disc so counted by at least `RECEDE_EDGE_FRAMES` keyframes moves as the quorum says. A
+#: keyframe that sees a disc face on, well inside the avatar's outline, cannot tell whether it
+#: stands out of the surface, yet without this it counts against the move: the profile's discs
+#: (the face's profile line, the back of the neck), which only the turned keyframes see at their
+#: outline, showed in 6-8 keyframes and were voted out by 2-3 of them, under the quorum. None:
+#: every keyframe that shows a disc counts (session 23's rule). Off (session 26, docs/video-build.md
+#: "The profile's outline seen at the keyframes' outlines"): at 4 px the mesh subject's profile gain
+#: +2.66 / +2.93 / +2.88 -> +2.73 / +3.01 / +2.99 (seeds 0 / 1 / 2), the bob within 0.04 dB, but one
+#: keyframe's vote now moves a disc, and where a keyframe's pose is off the sample avatar loses:
+#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall
+RECEDE_EDGE = None
+#: with `RECEDE_EDGE`, the keyframes a disc must lie near the outline of (instead of
+#: `RECEDE_MIN_FRAMES`): one, since a contour is seen edge-on by few keyframes
+RECEDE_EDGE_FRAMES = 1
+#: with `RECEDE_EDGE`, a keyframe votes a disc outside when this share of its blending weight there
+#: is on the wall (instead of `RECEDE_SHARE`): one keyframe may now decide, so its vote asks for a
+#: clearer overshoot
+RECEDE_EDGE_SHARE = 0.3
 #: The bald layer's colours come from a keyframe's `skin_pose` where it has one (`VideoViews.
 #: skin_views`; only `track.video_build.SKIN_POSE` sets one): a frame then has two poses, the
 #: plain registration's for the hair and everything the hair is made from, and the one found with
@@ -966,9 +986,11 @@ def recede_outline(bald, hair, views: list[View], fit):
         return [_Posed(both, v.camera) for v in views]
 
     movable = np.ones(nb, bool) if RECEDE_SCALP else ~_region_rows(bald, GaussianSet.empty(), fit, "scalp", every=False)[:nb]
+    edge = RECEDE_EDGE
     receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
-                                share=RECEDE_SHARE, quorum=RECEDE_QUORUM,
-                                min_frames=RECEDE_MIN_FRAMES)
+                                share=RECEDE_SHARE if edge is None else RECEDE_EDGE_SHARE, quorum=RECEDE_QUORUM,
+                                min_frames=RECEDE_MIN_FRAMES if edge is None else RECEDE_EDGE_FRAMES,
+                                near=edge)
     moved = bald.replace(means=(rest + receded.offsets).astype(np.float32))
     return moved, {**receded.info, "step_m": round(float(step), 6), "margin_px": RECEDE_MARGIN}
 
@@ -1241,7 +1263,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_SHARE", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]

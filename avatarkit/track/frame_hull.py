@@ -192,9 +192,12 @@ def _voted(seen: np.ndarray, out: np.ndarray, min_frames: int, quorum: float) ->
     return (seen >= min_frames) & (out >= quorum * np.maximum(seen, 1))
 
 
-def _tally(views, walls: list, cleared: np.ndarray | None, share: float) -> tuple[np.ndarray, np.ndarray]:
+def _tally(views, walls: list, cleared: np.ndarray | None, share: float,
+           near: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Over the views whose wall is not None: (seen (N,): frames the Gaussian shows in, out (N,):
-    frames that vote it outside), the `cleared` (N,) bool Gaussians drawn with opacity 0."""
+    frames that vote it outside), the `cleared` (N,) bool Gaussians drawn with opacity 0. With
+    `near` (pixels), a frame counts a Gaussian as shown only where its centre lies within `near`
+    of its render's outline (`near_outline`) or it votes it outside."""
     n = len(views[0].gaussians) if views else 0
     seen = np.zeros(n)
     out = np.zeros(n)
@@ -205,9 +208,34 @@ def _tally(views, walls: list, cleared: np.ndarray | None, share: float) -> tupl
         if cleared is not None and cleared.any():
             g = g.replace(opacities=np.where(cleared, 0.0, g.opacities).astype(np.float32))
         shows, outside = wall_votes(g, v.camera, wall, share)
+        if near is not None:
+            # a frame that puts a Gaussian over its wall sees it at its outline whatever the
+            # distance of its centre (a large disc); one that shows it well inside does not count
+            shows = shows & (near_outline(g, v.camera, near) | outside)
         seen += shows
         out += outside
     return seen, out
+
+
+def near_outline(gaussians, camera, pixels: float) -> np.ndarray:
+    """(N,) bool: the Gaussians whose centre projects within `pixels` of the render's outline as
+    `camera` sees them all (the distance from the centre's pixel to the nearest pixel the render
+    leaves at alpha <= 0.5; 0 on and beyond the outline); False behind the camera or outside the
+    image. Where a frame sees a disc face on, well inside the outline, its silhouette cannot tell
+    whether the disc stands out of the surface: only the frames that see it at their outline can."""
+    from scipy import ndimage
+
+    from avatarkit.render import render
+
+    covered = np.asarray(render(gaussians, camera, (0.0, 0.0, 0.0)).alpha) > 0.5      # (H, W)
+    dist = ndimage.distance_transform_edt(covered)                                     # (H, W) px
+    px, z = camera.project(np.asarray(gaussians.means, np.float64))
+    px = np.asarray(px, np.float64)
+    h, w = covered.shape
+    ok = np.isfinite(px).all(axis=1) & (np.asarray(z) > 0)
+    ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    ix = np.clip(np.floor(np.where(ok[:, None], px, 0)).astype(np.int64), 0, [w - 1, h - 1])
+    return ok & (dist[ix[:, 1], ix[:, 0]] <= pixels)
 
 
 def _tally_pair(views, walls: list, other_walls: list, share: float):
@@ -261,7 +289,7 @@ def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray
 def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float | None = None,
            rounds: int | None = None, share: float | None = None, quorum: float | None = None,
            min_frames: int | None = None, other_walls: list | None = None,
-           other: np.ndarray | None = None) -> Receded:
+           other: np.ndarray | None = None, near: float | None = None) -> Receded:
     """The movable Gaussians the frames show over the wall moved inward (module docstring):
     pose(offsets (M, 3)) -> the views (as `carve`'s, their first M Gaussians the movable set's
     M, moved by `offsets` in the rest pose); walls: per view an (H, W) int32 `wall_image` or
@@ -269,7 +297,11 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     other (M,) bool: these vote with `other_walls` (per view, as walls) instead.
     Each round the views are posed with the moves so far and vote as in `carve`; a Gaussian
     voted outside moves `step` (None: `STEP`) further along its normal, `rounds` (None:
-    `RECEDE_ROUNDS`) times at most."""
+    `RECEDE_ROUNDS`) times at most. near (pixels, None: every frame that shows a Gaussian): a
+    frame counts a Gaussian as shown only where its centre lies within `near` of that frame's
+    render outline (`near_outline`) or it votes it outside (not with `other`)."""
+    if near is not None and other is not None:
+        raise ValueError("recede: near= is not taken with other=")
     share = SHARE if share is None else share
     quorum = QUORUM if quorum is None else quorum
     min_frames = MIN_FRAMES if min_frames is None else min_frames
@@ -289,7 +321,7 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
             seen, out, seen2, out2 = _tally_pair(views, walls, other_walls, share)
             seen, out = np.where(other, seen2[:m], seen[:m]), np.where(other, out2[:m], out[:m])
         else:
-            seen, out = _tally(views, walls, None, share)
+            seen, out = _tally(views, walls, None, share, near=near)
             seen, out = seen[:m], out[:m]
         new = movable & _voted(seen, out, min_frames, quorum)
         per_round.append(int(new.sum()))
@@ -401,5 +433,5 @@ def carve_frames(views, margin: int | None = None, labels: bool = False, **kwarg
 
 
 __all__ = ["BALD", "CARVE", "CLOTHES_NECK", "Carved", "MARGIN", "MIN_FRAMES", "MIN_WEIGHT", "QUORUM", "RECEDE", "RECEDE_REGIONS", "RECEDE_ROUNDS",
-           "ROUNDS", "SEGMENT_THREADS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "neck_walls", "person_labels", "person_masks", "recede",
+           "ROUNDS", "SEGMENT_THREADS", "Receded", "SHARE", "STEP", "carve", "carve_frames", "inward_normals", "near_outline", "neck_walls", "person_labels", "person_masks", "recede",
            "wall_image", "wall_votes", "wall_votes_pair"]
