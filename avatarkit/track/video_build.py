@@ -195,6 +195,24 @@ HAIR_DISCOUNT = ()
 #: (mesh subject and bob, seed 0) without the turned frames' double search (the mesh subject's
 #: register stage, one process: off 45.7 s, ("turned", "refine") 137.6 s, ("refine",) 100.5 s)
 SKIN_POSE = ("refine",)
+#: the registrations that composite the draft's render over the video's wall plate
+#: (`register.plate_background`: the plate's colour where it knows a wall unlike the frame's border,
+#: the border's colour elsewhere) instead of over the border's colour: "turned"
+#: (`register_turned`), "refine" (`refine_keyframes`, both rounds). On a busy wall the flat colour
+#: leaves the poster and the post beside the head to be explained by the head's pose, and the wall
+#: dominates the error (the sample avatar on the cluttered wall, seed 0: its -80 turn end's error
+#: against the first draft 43.6-44.8e-3 at every yaw, flat within 3 %, registered at -30; over the
+#: plate 11.3e-3 at the true yaw, 15.5 at -20; session 26, docs/video-build.md "The turn ends over
+#: the wall"). A plain wall's plate adds nothing and the registration is the flat one, to the bit
+REGISTER_PLATE = ("turned", "refine")
+#: a frame at a turn's end whose registered yaw lies at its own search's end (`BOUND_TOLERANCE` of
+#: the range `register_turned` searched, `TurnedFrame.lo` / `hi`) is no minimum: the draft prefers a
+#: pose outside what was searched. "keep" (use it as any other), "drop" (not a keyframe), "beyond"
+#: (at the far end: searched once more over the next `SEARCH_BEYOND` beyond it, dropped if that ends
+#: at a bound too; at the near end, a pose less turned than the tracked edge the frame was lost
+#: beyond, dropped). The cluttered wall's -80 end over the border's colour went to the near end,
+#: -31 (the edge -36), and was coloured there (session 26, docs/video-build.md)
+TURNED_AT_BOUND = "drop"
 
 
 @dataclasses.dataclass
@@ -559,7 +577,8 @@ def refine_keyframes(draft, views, tracked: int, everywhere: bool | frozenset = 
         split = "refine" in SKIN_POSE
         reg = register_frame(gs, k.image, camera, ref.pose, k.pose, (min(near, far), max(near, far)),
                              size=size or REFINE_SIZE, steps=REFINE_STEPS[:REFINE_SEARCH], above=above,
-                             discount_hair="refine" in HAIR_DISCOUNT or split, keep_plain=split)
+                             discount_hair="refine" in HAIR_DISCOUNT or split, keep_plain=split,
+                             plate=views.plate if "refine" in REGISTER_PLATE else None)
         pose, skin = _split_poses(reg, split)
         found = params_from_pose(pose)[0]
         # a yaw at the search's end is no minimum: the draft prefers a pose beyond what was
@@ -576,7 +595,8 @@ def refine_keyframes(draft, views, tracked: int, everywhere: bool | frozenset = 
             k.skin_pose = skin
         figures.append({"frame": k.frame, "yaw_deg": round(float(np.degrees(y)), 2),
                         "registered_deg": round(float(np.degrees(found - p[0] + y)), 2),
-                        "error": round(reg.error, 5), "renders": reg.evaluations, "at_bound": bool(bounded)})
+                        "error": round(reg.error, 5), "renders": reg.evaluations, "at_bound": bool(bounded),
+                        "over_plate": reg.over_plate})
         if split:
             figures[-1]["skin_deg"] = None if skin is None else \
                 round(float(np.degrees(params_from_pose(skin)[0] - p[0] + y)), 2)
@@ -615,25 +635,57 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
         guess = turned_guess(result, t.edge, int(ref_row), ref.pose)
         above = head_rows(draft.rest_head_vertices, neck, pose_camera(camera, ref.pose, guess))
         split = "turned" in SKIN_POSE and REGISTER_MODE == "plain"
+
+        def search(start, yaws):
+            return register_frame(gs, images[f], camera, ref.pose, start, yaws, above=above,
+                                  shifted=REGISTER_SHIFTED, discount_hair="turned" in HAIR_DISCOUNT or split,
+                                  keep_plain=split, plate=views.plate if "turned" in REGISTER_PLATE else None)
+
         if REGISTER_MODE == "plain":
-            reg = register_frame(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), above=above,
-                                 shifted=REGISTER_SHIFTED, discount_hair="turned" in HAIR_DISCOUNT or split,
-                                 keep_plain=split)
+            reg = search(guess, (t.lo, t.hi))
         else:
             centre = draft.rest_head_vertices[~neck].mean(0) if neck is not None else draft.rest_head_vertices.mean(0)
             reg = register_aligned(gs, images[f], camera, ref.pose, guess, (t.lo, t.hi), centre, above=above)
         pose, skin = _split_poses(reg, split)
+        # the range the search used (its yaw is the pose's own decomposition, as the search's;
+        # the tracker's yaw of the same rotation differs by ~0.2 degree)
+        end = at_bound(params_from_pose(pose)[0], t.lo, t.hi, 1.0 if t.hi > 0 else -1.0)
+        renders = reg.evaluations
+        if end == "far" and TURNED_AT_BOUND == "beyond" and REGISTER_MODE == "plain":
+            side = 1.0 if t.hi > 0 else -1.0
+            lo, hi = sorted((t.hi if side > 0 else t.lo, (t.hi if side > 0 else t.lo) + side * SEARCH_BEYOND))
+            reg = search(pose, (lo, hi))
+            pose, skin = _split_poses(reg, split)
+            renders += reg.evaluations
+            end = at_bound(params_from_pose(pose)[0], lo, hi, side)
         y, p, _ = np.degrees(params_from_pose(pose)[:3])
         figures.append({"frame": f, "yaw_deg": round(float(y), 2), "pitch_deg": round(float(p), 2),
-                        "error": round(reg.error, 5), "renders": reg.evaluations})
+                        "error": round(reg.error, 5), "renders": renders, "at_bound": end,
+                        "over_plate": reg.over_plate})
         if split:
             figures[-1]["skin_yaw_deg"] = None if skin is None else round(float(np.degrees(params_from_pose(skin)[0])), 2)
+        if end is not None and TURNED_AT_BOUND in ("drop", "beyond"):
+            figures[-1]["dropped"] = True
+            continue
         out.append(Keyframe(images[f], pose, sharpness, f, skin_pose=skin))
     return out, figures
 
 
-__all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "HAIR_DISCOUNT", "SKIN_POSE", "SEGMENT_PLATE", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
+def at_bound(yaw: float, lo: float, hi: float, side: float) -> str | None:
+    """Whether a yaw (radians) found by a search over [lo, hi] lies at one of its ends
+    (`BOUND_TOLERANCE`): "near" (the end nearer the front for a turn to `side`, +1 / -1), "far",
+    or None."""
+    tol = BOUND_TOLERANCE
+    near, far = (lo, hi) if side > 0 else (hi, lo)
+    if abs(yaw - far) < tol:
+        return "far"
+    if abs(yaw - near) < tol:
+        return "near"
+    return None
+
+
+__all__ = ["StageCount", "BOUND_TOLERANCE", "FIRST_BUILD_COUNTS", "FRAME_COLOURS", "HAIR_DISCOUNT", "SKIN_POSE", "REGISTER_PLATE", "TURNED_AT_BOUND", "SEGMENT_PLATE", "IDENTITY_EXPR", "JAW_CORRECTIVE", "DRAFT_OUTLINE", "OPEN_MOUTH", "OUTLINE_POSES", "REFINE_BEFORE",
            "REFINE_BEYOND", "REFINE_MIN_YAW", "REFINE_SEARCH", "REFINE_SIZE", "REFINE_TURNED", "REGISTER_SHIFTED", "REGISTER_TURNED", "SEARCH_BEFORE", "SECOND_ROUND", "SKIP_AT_BOUND", "SEARCH_BEYOND",
            "TurnedFrame",
-           "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
+           "at_bound", "build_tracking", "build_video_avatar", "joint_identity", "refine_keyframes", "register_turned", "turned_frames", "unregistered_turned",
            "turned_guess"]
