@@ -451,13 +451,14 @@ def test_the_plate_switch_hands_the_videos_plate_to_the_registrations_it_names(s
     assert seen == [plate if "turned" in stages else None, plate if "refine" in stages else None]
 
 
-@pytest.mark.parametrize("rule", ["keep", "drop", "beyond"])
+@pytest.mark.parametrize("rule", ["keep", "far", "drop", "beyond"])
 @pytest.mark.parametrize("window", [(40.0, 60.0), (76.0, 100.0)])
 def test_a_turn_end_registered_at_its_searchs_end_is_no_minimum(scene, monkeypatch, rule, window):
     """A frame turned 70 degrees searched over 40..60 (its minimum beyond the far end) or 76..100
     (before the near end): the yaw found lies at the search's end (`at_bound`, against the range
-    searched). "keep" keeps the keyframe there, "drop" drops it, "beyond" searches the next
-    `SEARCH_BEYOND` past a far end (and finds the frame's yaw) and drops a near end's."""
+    searched). "keep" keeps the keyframe there, "drop" drops it, "far" drops it at the far end
+    only, "beyond" searches the next `SEARCH_BEYOND` past a far end (and finds the frame's yaw) and
+    drops a near end's."""
     import avatarkit.track.keyframes as keyframes
     import avatarkit.track.video_build as vb
 
@@ -472,7 +473,7 @@ def test_a_turn_end_registered_at_its_searchs_end_is_no_minimum(scene, monkeypat
     added, figures = vb.register_turned(draft, result, [vb.TurnedFrame(2, 1, lo, hi)], views, "unused.mp4", 1.0)
     end = "far" if window[1] < 70 else "near"
     assert figures[0]["at_bound"] == (end if rule != "beyond" or end == "near" else None)
-    if rule == "keep":
+    if rule == "keep" or (rule == "far" and end == "near"):
         assert [k.frame for k in added] == [9]
         assert abs(figures[0]["yaw_deg"] - (window[1] if end == "far" else window[0])) < 0.3
     elif rule == "beyond" and end == "far":

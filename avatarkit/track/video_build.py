@@ -211,12 +211,15 @@ SKIN_POSE = ("refine",)
 REGISTER_PLATE = ("turned", "refine")
 #: a frame at a turn's end whose registered yaw lies at its own search's end (`BOUND_TOLERANCE` of
 #: the range `register_turned` searched, `TurnedFrame.lo` / `hi`) is no minimum: the draft prefers a
-#: pose outside what was searched. "keep" (use it as any other), "drop" (not a keyframe), "beyond"
-#: (at the far end: searched once more over the next `SEARCH_BEYOND` beyond it, dropped if that ends
-#: at a bound too; at the near end, a pose less turned than the tracked edge the frame was lost
-#: beyond, dropped). The cluttered wall's -80 end over the border's colour went to the near end,
-#: -31 (the edge -36), and was coloured there (session 26, docs/video-build.md)
-TURNED_AT_BOUND = "drop"
+#: pose outside what was searched. "keep" (use it as any other), "far" (not a keyframe at the far
+#: end; kept at the near end), "drop" (not a keyframe at either end), "beyond" (at the far end:
+#: searched once more over the next `SEARCH_BEYOND` beyond it, dropped if that ends at a bound too;
+#: at the near end dropped). The near end is kept: a fast turn's end lies a few degrees past its
+#: tracked edge, and the whip clip's sample avatar registers its -46 end there (dropped: -0.96 dB at
+#: +45). Over the border colour the cluttered wall's +80 end went to its far end (+98.8, 32.7 degrees
+#: of pitch): dropped, the sample avatar's -90 view +0.65 dB (seed 0); over the plate
+#: (`REGISTER_PLATE`) no build measured ends at a bound (session 26, docs/video-build.md)
+TURNED_AT_BOUND = "far"
 
 
 @dataclasses.dataclass
@@ -668,7 +671,7 @@ def register_turned(draft, result, turned: list[TurnedFrame], views, video, shar
                         "over_plate": reg.over_plate})
         if split:
             figures[-1]["skin_yaw_deg"] = None if skin is None else round(float(np.degrees(params_from_pose(skin)[0])), 2)
-        if end is not None and TURNED_AT_BOUND in ("drop", "beyond"):
+        if (end is not None and TURNED_AT_BOUND in ("drop", "beyond")) or (end == "far" and TURNED_AT_BOUND == "far"):
             figures[-1]["dropped"] = True
             continue
         out.append(Keyframe(images[f], pose, sharpness, f, skin_pose=skin))
