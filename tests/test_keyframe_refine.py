@@ -208,7 +208,7 @@ def test_without_a_draft_the_turned_keyframes_are_not_trusted_by_the_outline():
     assert unregistered_turned(VideoViews(np.zeros(10), keys)) == [2, 3]
 
 
-def _spied_turned(scene, monkeypatch, keyword):
+def _spied_turned(scene, monkeypatch, keyword, plate=None):
     """`register.register_frame` replaced by a spy that records the `keyword` argument of each
     call (and returns the guess), and one turned frame (clip index 2, video frame 9) of a
     one-keyframe view to register: (seen, image, call) where call() runs `register_turned`."""
@@ -227,7 +227,7 @@ def _spied_turned(scene, monkeypatch, keyword):
     monkeypatch.setattr(register, "register_frame", spy)
     monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
     result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
-    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)])
+    views = VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0)], {}, plate)
     turned = [vb.TurnedFrame(2, 1, math.radians(40.0), math.radians(100.0))]
     return seen, image, lambda: vb.register_turned(draft, result, turned, views, "unused.mp4", 1.0)
 
@@ -432,3 +432,52 @@ def test_the_colour_stage_samples_the_bald_layer_from_the_skin_views(monkeypatch
     np.testing.assert_array_equal(got["recede"][1].camera.world_to_camera, outline[1].camera.world_to_camera)
     want = skin[2] if recede_skin else outline[2]
     np.testing.assert_array_equal(got["recede"][2].camera.world_to_camera, want.camera.world_to_camera)
+
+
+@pytest.mark.parametrize("stages", [(), ("turned",), ("refine",), ("turned", "refine")])
+def test_the_plate_switch_hands_the_videos_plate_to_the_registrations_it_names(scene, monkeypatch, stages):
+    """`REGISTER_PLATE` (read at call time): "turned" for `register_turned`, "refine" for
+    `refine_keyframes`; each hands the views' wall plate to `register_frame` or none."""
+    import avatarkit.track.video_build as vb
+
+    draft, camera, ref_pose, frame = scene
+    plate = object()
+    seen, image, register_turned = _spied_turned(scene, monkeypatch, "plate", plate)
+    monkeypatch.setattr(vb, "REGISTER_PLATE", stages)
+    register_turned()
+    turned_pose = pose_from_params([math.radians(40.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    vb.refine_keyframes(draft, VideoViews(np.zeros(10), [Keyframe(image, ref_pose, 1.0, 0),
+                                                         Keyframe(image, turned_pose, 1.0, 1)], {}, plate),
+                        tracked=2)
+    assert seen == [plate if "turned" in stages else None, plate if "refine" in stages else None]
+
+
+@pytest.mark.parametrize("rule", ["keep", "far", "drop", "beyond"])
+@pytest.mark.parametrize("window", [(40.0, 60.0), (76.0, 100.0)])
+def test_a_turn_end_registered_at_its_searchs_end_is_no_minimum(scene, monkeypatch, rule, window):
+    """A frame turned 70 degrees searched over 40..60 (its minimum beyond the far end) or 76..100
+    (before the near end): the yaw found lies at the search's end (`at_bound`, against the range
+    searched). "keep" keeps the keyframe there, "drop" drops it, "far" drops it at the far end
+    only, "beyond" searches the next `SEARCH_BEYOND` past a far end (and finds the frame's yaw) and
+    drops a near end's."""
+    import avatarkit.track.keyframes as keyframes
+    import avatarkit.track.video_build as vb
+
+    draft, camera, ref_pose, frame = scene
+    truth, image = frame(70.0)
+    monkeypatch.setattr(keyframes, "read_frames", lambda video, frames: {int(f): image for f in frames})
+    monkeypatch.setattr(vb, "TURNED_AT_BOUND", rule)
+    monkeypatch.setattr(vb, "SKIN_POSE", ())
+    result = SimpleNamespace(frame_index=np.array([0, 7, 9]), raw={"rotation": np.zeros((3, 3))})
+    views = VideoViews(np.zeros(10), [Keyframe(frame(0.0)[1], ref_pose, 1.0, 0)])
+    lo, hi = (math.radians(v) for v in window)
+    added, figures = vb.register_turned(draft, result, [vb.TurnedFrame(2, 1, lo, hi)], views, "unused.mp4", 1.0)
+    end = "far" if window[1] < 70 else "near"
+    assert figures[0]["at_bound"] == (end if rule != "beyond" or end == "near" else None)
+    if rule == "keep" or (rule == "far" and end == "near"):
+        assert [k.frame for k in added] == [9]
+        assert abs(figures[0]["yaw_deg"] - (window[1] if end == "far" else window[0])) < 0.3
+    elif rule == "beyond" and end == "far":
+        assert [k.frame for k in added] == [9] and abs(figures[0]["yaw_deg"] - 70.0) < 2.5
+    else:
+        assert added == [] and figures[0]["dropped"]

@@ -367,3 +367,81 @@ def test_the_bald_layer_coloured_from_the_skin_pose_lands_where_the_truth_has_it
     assert off(b_plain) > 2.0 * off(b_split) + 0.03, (off(b_plain), off(b_split))
     # the hair's colours are the plain pose's to the bit
     np.testing.assert_array_equal(h_split, h_plain)
+
+
+def _busy_wall_frame(gs, camera, ref_pose, pose):
+    """A frame of the avatar at `pose` in front of a busy wall (blue stripes, a red poster beside
+    the face, a dark post behind the head), and that wall's plate as a video would know it: every
+    pixel but the head's own (support 10 of 10 frames there, none under the head)."""
+    from avatarkit.render import render
+    from avatarkit.track.background_plate import Plate
+
+    H, W = camera.height, camera.width
+    yy, xx = np.mgrid[:H, :W]
+    wall = np.ones((H, W, 3)) * np.array([0.93, 0.9, 0.85])
+    wall[(xx // 8) % 2 == 0] = [0.55, 0.7, 0.9]
+    wall[(xx > 80) & (yy < 70)] = [0.8, 0.15, 0.1]
+    wall[(xx < 40) & (xx > 28)] = [0.25, 0.15, 0.08]
+    r = render(gs, pose_camera(camera, ref_pose, pose), background=(0.0, 0.0, 0.0))
+    image = (np.clip(r.rgb + (1 - r.alpha[..., None]) * wall, 0, 1) * 255 + 0.5).astype(np.uint8)
+    n = np.where(r.alpha > 0.02, 0, 10).astype(np.int32)
+    return image, Plate((wall * 255 + 0.5).astype(np.uint8), n, n.copy(), 10)
+
+
+def test_a_turned_frame_before_a_busy_wall_registers_over_the_plate_and_not_over_a_flat_colour(scene):
+    """The render composited over the video's plate (`plate_background`): the wall explains
+    itself and only the head is matched. Over the border's median colour the poster and the post
+    are the head pose's to explain: the search runs off (the cluttered wall's turn ends, session
+    26)."""
+    gs, camera, ref_pose, truth, _ = scene
+    image, plate = _busy_wall_frame(gs, camera, ref_pose, truth)
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(40.0), math.radians(100.0))
+    want = np.degrees(params_from_pose(truth)[:3])
+    over = register_frame(gs, image, camera, ref_pose, guess, window, shifted=True, plate=plate)
+    found = np.degrees(params_from_pose(over.pose)[:3])
+    assert abs(found[0] - want[0]) < 2.5 and abs(found[1] - want[1]) < 2.5, (found, want)
+    flat = register_frame(gs, image, camera, ref_pose, guess, window, shifted=True)
+    off = np.degrees(params_from_pose(flat.pose)[:3])
+    assert abs(off[0] - want[0]) > 8.0 or abs(off[1] - want[1]) > 8.0, (off, want)
+
+
+def test_a_plain_walls_plate_leaves_the_registration_as_the_flat_colours_to_the_bit(scene):
+    from avatarkit.track.background_plate import AGREE, Plate
+    from avatarkit.track.register import plate_background
+
+    gs, camera, ref_pose, truth, image = scene
+    H, W = image.shape[:2]
+    n = np.full((H, W), 10, np.int32)
+    # a white wall the plate knows a few levels off the border's white: nothing to add
+    plain = Plate(np.full((H, W, 3), 255 - AGREE + 2, np.uint8), n, n.copy(), 10)
+    assert plate_background(plain, (H, W), (96, 96), np.ones(3)).shape == (3,)
+    guess = pose_from_params([math.radians(60.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    window = (math.radians(60.0), math.radians(80.0))
+    a = register_frame(gs, image, camera, ref_pose, guess, window, plate=plain)
+    b = register_frame(gs, image, camera, ref_pose, guess, window)
+    np.testing.assert_array_equal(a.pose, b.pose)
+    assert a.error == b.error
+    # a wall the plate knows in another colour where it is known: the plate's colour there, scaled
+    # by area as the frame is, the flat colour where it is not known
+    grey = Plate(np.full((H, W, 3), 100, np.uint8), np.where(np.arange(W) < W // 2, 10, 0)[None].repeat(H, 0).astype(np.int32),
+                 n.copy(), 10)
+    bg = plate_background(grey, (H, W), (H // 2, W // 2), np.ones(3))
+    assert bg.shape == (H // 2, W // 2, 3)
+    np.testing.assert_allclose(bg[:, :W // 4 - 1], 100 / 255.0)
+    np.testing.assert_allclose(bg[:, W // 4 + 1:], 1.0)
+
+
+def test_the_plate_is_scaled_as_the_frame_is():
+    """A wall of one-pixel stripes: at half the size the frame (`_target`, area averaging) is
+    their mean, and so is the plate the registration composites over (not every other stripe)."""
+    from avatarkit.track.background_plate import Plate
+    from avatarkit.track.register import _target, plate_background
+
+    H, W = 64, 64
+    wall = np.zeros((H, W, 3), np.uint8)
+    wall[:, ::2] = (200, 40, 30)
+    n = np.full((H, W), 10, np.int32)
+    target = _target(wall, 32)
+    bg = plate_background(Plate(wall, n, n.copy(), 10), (H, W), target.shape[:2], np.ones(3))
+    np.testing.assert_allclose(bg, target, atol=1.0 / 255)

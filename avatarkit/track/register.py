@@ -5,8 +5,9 @@ synthetic eased turn to 80 degrees at 192 px: the tracker loses the face from ~5
 on, docs/video-build.md), so a video build's keyframes never see the back half of the head.
 Such a frame is registered against an avatar built from the frames that are well tracked: the
 avatar is rendered (our CPU splat renderer) at a candidate head pose over the frame's
-background colour, and the pose that best reproduces the frame (mean squared colour error
-over the whole image: the silhouette and the colours both count) is kept.
+background colour (or over the video's wall plate where it knows a busy wall: `plate_background`),
+and the pose that best reproduces the frame (mean squared colour error over the whole image: the
+silhouette and the colours both count) is kept.
 
 Poses are the tracker's (`track.tracker`, X_view = R X + t, Y-X-Z Euler yaw/pitch/roll as
 `track.keyframes.yaw_pitch`), relative to the video build's reference keyframe: a pose P gives
@@ -74,6 +75,9 @@ class Registration:
     plain_pose: np.ndarray | None = None
     #: whether `pose` is the hair-discounted search's (False: the plain search's, or no discount)
     discounted: bool = False
+    #: whether the render was composited over the video's wall plate (`plate_background`: the
+    #: plate knew a wall unlike the border's colour), not over the flat border colour
+    over_plate: bool = False
 
     @property
     def yaw_pitch_roll(self) -> np.ndarray:
@@ -117,20 +121,57 @@ def background_colour(image: np.ndarray) -> np.ndarray:
     return np.median(border, axis=0)
 
 
+def plate_background(plate, frame_shape: tuple[int, int], shape: tuple[int, int], flat) -> np.ndarray:
+    """What a registration composites its render over, from a video's wall plate
+    (`track.background_plate.Plate`, None: no plate): (3,) the flat colour `flat` where the plate
+    adds nothing (no plate, or its known pixels all within `background_plate.AGREE` of `flat` in
+    every channel: a plain wall), else (H, W, 3) float in [0, 1] at `shape` (H, W): the plate's
+    colour where it is known and differs from `flat`, `flat` elsewhere (behind the head, where
+    no frame showed the wall). The plate is taken at the frame's size `frame_shape` (H, W) and
+    scaled as `_target` scales the frame (area averaging: a textured wall scaled otherwise does
+    not match the frame's pixels); a pixel is the plate's only where every frame pixel it averages
+    is. A cluttered wall's poster and post beside a turned head are then the background's, not a
+    head pose's to explain (`video_build.REGISTER_PLATE`, docs/video-build.md)."""
+    import cv2
+
+    flat = np.asarray(flat, np.float64)
+    if plate is None:
+        return flat
+    from avatarkit.track import background_plate
+
+    colour, known = plate.at(tuple(int(v) for v in frame_shape))
+    colour = colour.astype(np.float64) / 255.0
+    differs = known & (np.abs(colour - flat).max(axis=-1) > background_plate.AGREE / 255.0)
+    if not differs.any():
+        return flat
+    h, w = (int(v) for v in shape)
+    if (h, w) != differs.shape:
+        colour = cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA)
+        differs = cv2.resize(differs.astype(np.float64), (w, h), interpolation=cv2.INTER_AREA) > 1.0 - 1e-6
+    return np.where(differs[..., None], colour, flat)
+
+
 def photometric_error(gaussians, camera: Camera, target: np.ndarray, background, above: float = 1.0,
                       hair=None) -> float:
     """Mean squared difference between the render of `gaussians` by `camera` over `background`
-    and target (H, W, 3) float in [0, 1] (the camera's size), over the image rows above
+    ((3,) a colour, or (H, W, 3) an image in [0, 1]: `plate_background`) and target (H, W, 3)
+    float in [0, 1] (the camera's size), over the image rows above
     `above` (share of the height from the top: the head without the neck, `register_frame`).
     hair: None (every pixel weighs 1) or `hair_marker(gaussians)`: each pixel weighs the share
     of the render that is not hair (`hair_share`), the mean taken over those weights."""
     from avatarkit.render import render
 
-    r = render(gaussians, camera, background=tuple(float(x) for x in background))
+    bg = np.asarray(background, np.float64)
+    if bg.ndim == 1:
+        rgb = render(gaussians, camera, background=tuple(float(x) for x in bg)).rgb
+    else:
+        # the render over black is its premultiplied colour; the image shows through 1 - alpha
+        r = render(gaussians, camera, background=(0.0, 0.0, 0.0))
+        rgb = r.rgb + (1.0 - r.alpha[..., None]) * bg
     rows = max(1, int(round(above * camera.height)))
     if hair is None:
-        return float(np.mean((np.clip(r.rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2))
-    err = np.mean((np.clip(r.rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2, axis=-1)     # (rows, W)
+        return float(np.mean((np.clip(rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2))
+    err = np.mean((np.clip(rgb[:rows], 0.0, 1.0) - target[:rows]) ** 2, axis=-1)     # (rows, W)
     w = 1.0 - hair_share(hair, camera)[:rows]
     # a render that is all hair has nothing else to compare: the plain mean
     return float(np.sum(w * err) / np.sum(w)) if np.sum(w) > 1e-6 else float(np.mean(err))
@@ -190,7 +231,8 @@ def head_rows(vertices: np.ndarray, neck: np.ndarray | None, camera: Camera) -> 
 def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, reference_pose, guess,
                    yaw_range: tuple[float, float], size: int | None = None, coarse_step: float | None = None,
                    steps=None, rounds: int | None = None, above: float = 1.0,
-                   shifted: bool = False, discount_hair: bool = False, keep_plain: bool = False) -> Registration:
+                   shifted: bool = False, discount_hair: bool = False, keep_plain: bool = False,
+                   plate=None) -> Registration:
     """The head pose at which `gaussians` (the avatar at rest) best reproduce `image` (H, W, 3)
     uint8 (module docstring). guess (4, 4): the starting pose (its pitch, roll and translation
     start the search); yaw_range: (lo, hi) radians, the absolute yaws searched (the coarse grid
@@ -207,13 +249,17 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
     its wrong outline and streaks match best is short of the truth (`video_build.HAIR_DISCOUNT`).
     keep_plain: with discount_hair, the plain search runs even without a gate; its pose is the
     result's `plain_pose` (with a gate too), `discounted` says which of the two `pose` is (the
-    video build's second pose per keyframe, `video_build.SKIN_POSE`)."""
+    video build's second pose per keyframe, `video_build.SKIN_POSE`).
+    plate: the video's wall plate (`track.background_plate.Plate`; None: none): the render is
+    composited over it where it knows a wall that is not the border's colour
+    (`plate_background`), else over the border's colour (`background_colour`)."""
     size = SIZE if size is None else size
     coarse_step = COARSE_STEP if coarse_step is None else coarse_step
     steps = REFINE_STEPS if steps is None else steps
     rounds = REFINE_ROUNDS if rounds is None else rounds
     target = _target(image, size)
-    bg = background_colour(target)
+    bg = plate_background(plate, np.asarray(image).shape[:2], target.shape[:2], background_colour(target))
+    over = np.ndim(bg) == 3
     cam0 = reference_camera.with_size(target.shape[1], target.shape[0])
     n = [0]
     hair = hair_marker(gaussians) if discount_hair else None
@@ -241,10 +287,10 @@ def register_frame(gaussians, image: np.ndarray, reference_camera: Camera, refer
             r0 = params_from_pose(reference_pose)[0]
             if gate is not None and abs(yaw - r0) <= abs(plain[0] - r0) + gate:
                 return Registration(pose_from_params(plain), plain_err, n[0], plain_coarse,
-                                    pose_from_params(plain), False)
-            return Registration(pose_from_params(best), err, n[0], coarse, pose_from_params(plain), True)
-        return Registration(pose_from_params(best), err, n[0], coarse, None, True)
-    return Registration(pose_from_params(best), err, n[0], coarse)
+                                    pose_from_params(plain), False, over)
+            return Registration(pose_from_params(best), err, n[0], coarse, pose_from_params(plain), True, over)
+        return Registration(pose_from_params(best), err, n[0], coarse, None, True, over)
+    return Registration(pose_from_params(best), err, n[0], coarse, over_plate=over)
 
 
 def yaw_then_pattern_search(cost, start: np.ndarray, yaw_range: tuple[float, float], coarse_step: float, steps,
@@ -474,6 +520,6 @@ def register_aligned(gaussians, image: np.ndarray, reference_camera: Camera, ref
 
 
 __all__ = ["ALIGN_SCALES", "ALIGN_SHIFT", "COARSE_STEP", "SILHOUETTE_STEP", "align_silhouette", "aligned_error",
-           "pose_with_alignment", "register_aligned", "silhouette", "REFINE_ROUNDS", "REFINE_STEPS", "SHIFT_STEPS", "SIZE", "HAIR_GATE", "Registration", "background_colour", "hair_marker", "hair_share", "head_rows",
+           "pose_with_alignment", "register_aligned", "silhouette", "REFINE_ROUNDS", "REFINE_STEPS", "SHIFT_STEPS", "SIZE", "HAIR_GATE", "Registration", "background_colour", "hair_marker", "hair_share", "head_rows", "plate_background",
            "params_from_pose", "photometric_error", "pose_camera", "pose_from_params", "register_frame",
            "pattern_search", "register_frame_exhaustive", "yaw_then_pattern_search"]
