@@ -437,6 +437,16 @@ def test_the_registration_drafts_do_not_fill_the_neck(monkeypatch):
     assert final.fills_neck() and not draft.fills_neck()
 
 
+def test_the_registration_drafts_keep_the_coverage_of_the_wall_coloured_skin():
+    """`VideoViews.covers_plate`: the final build's coverage leaves the skin pixels that continue
+    the known wall without discs (`coverage.COVER_PLATE`), a draft the video build registers
+    against (info["draft"]) covers them as before."""
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert final.covers_plate() and not draft.covers_plate()
+
+
 def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
     registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""

@@ -306,3 +306,86 @@ def test_under_jaw_is_the_neck_and_what_hangs_below_the_jaw(scene):
     assert not under_jaw(c(jaw) + side, jaw, model, v).any()
     assert not under_jaw(c(jaw) + up, jaw, model, v).any()
     assert not under_jaw(c(still) + down, still, model, v).any()
+
+
+def test_wall_a_video_segmentation_took_in_beside_the_jaw_gets_no_disc_where_it_continues_the_plate(scene, monkeypatch):
+    """`COVER_PLATE`: the skin label spills 4 px into a plaster wall beside the lower right of
+    the head, with a dark blue shelf just past it (the cluttered wall's books beside the jaw):
+    unmixed against the shelf, the plaster is all head (a = 1) and got opaque plaster discs,
+    pale specks beside the jaw at every view. The video's wall plate knows the plaster from 7 px
+    past the spill on: in a video build (`views=True`) the spill's colour continues it and gets no
+    disc, every other disc (the ear's, the tuft's, the head's rim) as before; a single-frame
+    build, and a plate of a white wall, change nothing."""
+    from scipy import ndimage
+
+    from avatarkit.track.background_plate import Plate
+
+    from avatarkit.recon import coverage
+
+    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)      # off by default (the white mesh subject)
+    fit, bald, hair, image, labels, ear, tuft = scene
+    plaster, shelf_rgb = np.array([210, 195, 170], np.uint8), np.array([40, 70, 110], np.uint8)
+    person = np.isin(labels, (SKIN, HAIR))
+    ys, xs = np.nonzero((labels == SKIN) & ~ear)
+    yy, xx = np.mgrid[:128, :128]
+    lower_right = (xx > xs.mean()) & (yy > ys.mean())
+    spill = ndimage.binary_dilation(person, iterations=4) & ~person & lower_right
+    shelf = ndimage.binary_dilation(person | spill, iterations=2) & ~(person | spill) & lower_right
+    img = image.copy()
+    img[~person] = plaster
+    img[shelf] = shelf_rgb
+    lab = labels.copy()
+    lab[spill] = SKIN
+    known = ~ndimage.binary_dilation(person, iterations=10)
+    seen = np.full((128, 128), 10, np.int32)
+    plate = Plate(img.copy(), np.where(known, 10, 0).astype(np.int32), seen, 10)
+    assert spill.sum() >= 30 and (plate.known == known).all()
+
+    def added(views, plate):
+        out = np.zeros((128, 128), bool)
+        b, h, info = cover_silhouette(bald, hair, fit, img, lab, views=views, plate=plate, neck_out=out)
+        info["left_out"] = out
+        add = b.subset(np.arange(len(bald), len(b)))
+        p, _ = fit.camera.project(add.means)
+        ij = np.clip(np.floor(p).astype(int), 0, 127)
+        return add, h, spill[ij[:, 1], ij[:, 0]], info
+
+    before, hair_before, on_spill, _ = added(True, None)
+    assert on_spill.sum() >= 20                                          # the rule before: plaster discs
+    assert np.median(np.abs(before.colors[on_spill] - plaster / 255.0).max(axis=1)) < 0.01
+    assert np.median(before.opacities[on_spill]) > 0.8 * COVER_OPACITY
+    after, hair_after, on_after, info = added(True, plate)
+    assert not on_after.any() and info["wall_dropped"] >= on_spill.sum()
+    # off (the default), the plate changes nothing
+    monkeypatch.setattr(coverage, "COVER_PLATE", None)
+    off, _, _, off_info = added(True, plate)
+    np.testing.assert_array_equal(off.means, before.means)
+    assert "wall_dropped" not in off_info and not off_info["left_out"].any()
+    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)
+    # ... and the spill is left out of the photo's colour matching (the rim's discs matched to it
+    # took the plaster's colour), the head's own pixels are not
+    assert info["left_out"][spill].mean() > 0.9 and not info["left_out"][person].any()
+    # the others (the ear's, the head's rim) and the tuft's hair exactly as before
+    np.testing.assert_array_equal(after.means, before.means[~on_spill])
+    np.testing.assert_array_equal(after.colors, before.colors[~on_spill])
+    np.testing.assert_array_equal(after.opacities, before.opacities[~on_spill])
+    np.testing.assert_array_equal(hair_after.means, hair_before.means)
+    assert len(hair_after) > 0
+    # a single-frame build is not reached; a white wall's plate (unlike the skin) changes nothing
+    single, _, _, _ = added(False, plate)
+    np.testing.assert_array_equal(single.means, added(False, None)[0].means)
+    white = Plate(np.full((128, 128, 3), 255, np.uint8), np.where(known, 10, 0).astype(np.int32), seen, 10)
+    plain, _, _, info = added(True, white)
+    np.testing.assert_array_equal(plain.means, before.means)
+    np.testing.assert_array_equal(plain.colors, before.colors)
+    assert info["wall_dropped"] == 0 and not info["left_out"].any()
+    # a white wall taken in beside the jaw: next to the same white wall the unmixing reads it as
+    # background already (no disc), and the white-wall builds stay as they were (matched as before)
+    img[~person] = 255
+    white_before, _, _, _ = added(True, None)
+    plate_w = Plate(img.copy(), np.where(known, 10, 0).astype(np.int32), seen, 10)
+    assert ((np.abs(img.astype(int) - 255).max(axis=2) <= 12) & spill).sum() == spill.sum()
+    plain, _, _, info = added(True, plate_w)
+    np.testing.assert_array_equal(plain.means, white_before.means)
+    np.testing.assert_array_equal(plain.colors, white_before.colors)
+    assert not info["left_out"].any()

@@ -103,6 +103,59 @@ NECK_RIM_PX = 2.0
 #: +45 / -45 / +90 / -90; its single-frame build +0.01) with them dropped: not understood, so
 #: the rule stays with the single-frame builds (the shared clips, every portrait)
 COVER_NECK_VIDEO = True
+#: a video build's (`cover_silhouette(views=True, plate=)`) skin pixels whose colour continues the
+#: video's known wall get no disc and are left out of the photo's colour matching (`neck_out`):
+#: at least `COVER_PLATE_MATCHES` pixels the wall plate knows (`track.background_plate`) within
+#: this share of the longer side are within `background_plate.AGREE` of the pixel's colour in
+#: every channel (`wall_continued`; None: no such test), where the unmixing reads the pixel as the
+#: head's (`head_share` at least `COVER_MIN_SHARE`: a wall-coloured pixel next to the same wall
+#: is background already, no disc; the white-wall sample avatar and bob are unchanged to the
+#: digit, the white-wall mesh subject is not: below). Skin pixels only: between a strand's hairs the hair label shows the wall as a
+#: matter of course (the white-wall bob's rim moved 0.15 dB with its hair pixels tested too). A
+#: portrait segmentation takes in wall of
+#: a skin-like colour beside the jaw (the cluttered wall's plaster, 6-17 px from any pixel the
+#: plate knows: the head's zone covers it in every frame); the unmixing (`head_share`) read most
+#: of it as all head, the discs stood opaque in the plaster's colour, and the rim's own discs
+#: were matched to it: pale specks beside the jaw and down the neck at
+#: every preview (session 26, second round, docs/video-build.md "The wall's specks beside the
+#: jaw"). The head's own rim is not the wall's colour to within AGREE levels in every channel: on
+#: the cluttered wall's sample avatar none of its 52 other discs' pixels has 3 such pixels within
+#: 0.1, every one of its 31 plaster discs' 18 or more. The pipeline hands the plate to the final
+#: build only, not to the registration drafts (`multiview.VideoViews.covers_plate`). Single-frame
+#: builds (the shared real clips build from one keyframe) are not reached. Off (None; measured at
+#: 0.1): it clears the specks (the cluttered wall's sample avatar front +0.53 / +0.47 dB, seeds 0 /
+#: 1) but the white-wall mesh subject's reference skin label runs into its white wall by the ear
+#: (session 23's white crescent), which continues the white plate: its discs dropped there, front
+#: -0.22 dB (-45 +0.40, -90 +0.22)
+COVER_PLATE: float | None = None
+COVER_PLATE_MATCHES = 3
+
+
+def wall_continued(plate, image: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels of `region` (H, W) bool of image (H, W, 3) uint8 whose colour
+    agrees (`background_plate.AGREE`, every channel) with at least `COVER_PLATE_MATCHES` pixels
+    the wall `plate` knows within `COVER_PLATE` of the longer side (`COVER_PLATE`); all False
+    without a plate, with no known pixel or with `COVER_PLATE` None."""
+    import cv2
+
+    from avatarkit.track import background_plate
+
+    region = np.asarray(region, bool)
+    out = np.zeros(region.shape, bool)
+    reach = COVER_PLATE
+    if plate is None or reach is None or not region.any():
+        return out
+    colour, known = plate.at(region.shape)
+    if not known.any():
+        return out
+    r = max(1, int(round(float(reach) * max(region.shape))))
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2).astype(bool)
+    ys, xs = np.nonzero(region)
+    count = background_plate.agreeing(np.pad(np.asarray(known, bool), r),
+                                      np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0))),
+                                      ys, xs, np.asarray(image, np.int16)[ys, xs], disc)
+    out[ys, xs] = count >= COVER_PLATE_MATCHES
+    return out
 
 
 def under_jaw(means: np.ndarray, ids: np.ndarray, model, vertices: np.ndarray) -> np.ndarray:
@@ -200,14 +253,16 @@ def head_share(image: np.ndarray, labels: np.ndarray, covered: np.ndarray, ys: n
 
 def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarray, labels: np.ndarray,
                      margin: float | None = None, neck_out: np.ndarray | None = None,
-                     views: bool = False) -> tuple[GaussianSet, GaussianSet, dict]:
+                     views: bool = False, plate=None) -> tuple[GaussianSet, GaussianSet, dict]:
     """(bald, hair, figures) with Gaussians added on the uncovered head pixels (module
     docstring). image: (H, W, 3) uint8 seen by `fit.camera`; labels: (H, W) segmentation labels.
     neck_out: an (H, W) bool array or None; with `COVER_NECK` off, the pixels left without a
     disc under the jaw (`under_jaw`) are set True in it (the colour matching leaves them out:
     matched there, the neck's edge discs behind would take the photo's colour at the alpha's
     shortfall, an orange streak). views: a video build's (`COVER_NECK_VIDEO` instead of
-    `COVER_NECK`)."""
+    `COVER_NECK`). plate: the video's wall plate (`track.background_plate`), or None: with views,
+    the head pixels whose colour continues its known wall get no disc and are set True in
+    neck_out (left out of the colour matching; `COVER_PLATE`)."""
     from scipy import ndimage
 
     from avatarkit.recon.assemble import HAIR_MARGIN
@@ -231,12 +286,28 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
     head = np.isin(labels, (SKIN, HAIR))
     hole = head & (r.alpha < COVER_ALPHA)
     known = (r.alpha >= COVER_ALPHA) & (r.depth > 0)
+    wall = None
+    if views and plate is not None and COVER_PLATE is not None:
+        # the wall the segmentation took in beside the head, where the unmixing reads it as head
+        # (`head_share`: a wall-coloured pixel next to the same wall is background already): no
+        # disc, and left out of the colour matching too (`COVER_PLATE`): matched there, the
+        # rim's own discs took the wall's colour
+        wall = wall_continued(plate, image, labels == SKIN)
+        if wall.any() and known.any():
+            wy, wx = np.nonzero(wall)
+            a, _ = head_share(image, labels, known, wy, wx, np.asarray(image, np.float64)[wy, wx] / 255.0)
+            wall[wy[a < COVER_MIN_SHARE], wx[a < COVER_MIN_SHARE]] = False
+        if neck_out is not None:
+            neck_out[wall] = True
     info["uncovered"] = int(hole.sum())
     if not hole.any() or not known.any():
         return bald, hair, info
     gap, (iy, ix) = ndimage.distance_transform_edt(~known, return_indices=True)
     hole &= gap <= COVER_REACH * cam.fx / np.maximum(r.depth[iy, ix], 1e-6)
     info["beyond_reach"] = info["uncovered"] - int(hole.sum())
+    if wall is not None:
+        info["wall_dropped"] = int((hole & wall).sum())
+        hole &= ~wall
     if not hole.any():
         return bald, hair, info
     ys, xs = np.nonzero(hole)
@@ -307,5 +378,5 @@ def cover_silhouette(bald: GaussianSet, hair: GaussianSet, fit, image: np.ndarra
 
 
 __all__ = ["COVER_ALPHA", "COVER_BG_GAP", "COVER_FLATNESS", "COVER_HEAD_INSIDE", "COVER_MIN_CONTRAST", "COVER_MIN_SHARE", "COVER_NECK", "COVER_NECK_VIDEO", "COVER_OPACITY",
-           "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "NECK_RIM_PX", "UNDER_JAW_WEIGHT", "cover_silhouette", "head_share",
-           "under_jaw"]
+           "COVER_PLATE", "COVER_PLATE_MATCHES", "COVER_REACH", "COVER_WIDTH_PX", "MAX_COVER", "NECK_RIM_PX", "UNDER_JAW_WEIGHT", "cover_silhouette", "head_share",
+           "under_jaw", "wall_continued"]

@@ -468,7 +468,8 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
 
             neck = np.zeros(matched.shape, bool)
             bald, hair, report.info["coverage"] = cover_silhouette(bald, hair, fit, image, segmentation.labels,
-                                                                   neck_out=neck, views=bool(keyviews))
+                                                                   neck_out=neck, views=bool(keyviews),
+                                                                   plate=plate if keyviews and views.covers_plate() else None)
             matched &= ~neck
         if outline_trim.SHARPEN_OUTLINE:
             # before the colours are matched: the outline discs narrowed, not recoloured to hide on the wall
