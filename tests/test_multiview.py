@@ -326,6 +326,21 @@ def _grey_and_dark_views():
     return views, (REFERENCE_WEIGHT * 0.5 + np.asarray(dark)) / (REFERENCE_WEIGHT + 1)
 
 
+def _turned_planes(planes):
+    """The planes fixture as a bald layer in one fill colour (no hair), its back plane's part at x >
+    0.035 turned to face +X: -> (back, bald, hair, fill, nb, x (nb,), normals (N, 3), turned (nb,))."""
+    back, front, _, _ = planes
+    fill = (0.8, 0.6, 0.5)
+    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
+    hair = front.subset(np.zeros(len(front), bool))
+    nb = len(back)
+    x = back.means[:, 0]
+    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
+    turned = x > 0.035
+    normals[:nb][turned] = [1.0, 0.0, 0.0]
+    return back, bald, hair, fill, nb, x, normals, turned
+
+
 def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_reference_looks_away(planes):
     """`colour_from_views(scalp=)` (`SCALP_FILL`): the back plane is scalp, the front plane (its
     left half's cover) is not. Two views on +Z, grey reference and a dark keyframe: the back
@@ -336,15 +351,7 @@ def test_the_scalp_no_view_saw_takes_the_colour_of_the_seen_scalp_where_the_refe
     `scalp`."""
     from avatarkit.recon.multiview import colour_from_views
 
-    back, front, _, _ = planes
-    fill = (0.8, 0.6, 0.5)
-    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
-    hair = front.subset(np.zeros(len(front), bool))
-    nb = len(back)
-    x = back.means[:, 0]
-    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
-    turned = x > 0.035
-    normals[:nb][turned] = [1.0, 0.0, 0.0]
+    back, bald, hair, fill, nb, x, normals, turned = _turned_planes(planes)
     open_strip = (x > 0.015) & (x < 0.035)
     behind = x < -0.02
     off_scalp = turned & (back.means[:, 1] > 0.045)                  # turned away too, but not scalp
@@ -601,15 +608,7 @@ def test_the_bald_layer_no_view_saw_off_the_neck_takes_the_seen_bald_colour_wher
     left to it."""
     from avatarkit.recon.multiview import colour_from_views
 
-    back, front, _, _ = planes
-    fill = (0.8, 0.6, 0.5)
-    bald = GaussianSet.concat([back, front]).with_colors(np.tile(np.float32(fill), (len(back) + len(front), 1)))
-    hair = front.subset(np.zeros(len(front), bool))
-    nb = len(back)
-    x = back.means[:, 0]
-    normals = np.tile([0.0, 0.0, 1.0], (len(bald), 1))
-    turned = x > 0.035
-    normals[:nb][turned] = [1.0, 0.0, 0.0]
+    back, bald, hair, fill, nb, x, normals, turned = _turned_planes(planes)
     behind = x < -0.02
     neck = turned & (back.means[:, 1] > 0.045)                       # turned away too, but left out
     turned &= ~neck
