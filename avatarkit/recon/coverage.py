@@ -136,8 +136,6 @@ def wall_continued(plate, image: np.ndarray, region: np.ndarray) -> np.ndarray:
     agrees (`background_plate.AGREE`, every channel) with at least `COVER_PLATE_MATCHES` pixels
     the wall `plate` knows within `COVER_PLATE` of the longer side (`COVER_PLATE`); all False
     without a plate, with no known pixel or with `COVER_PLATE` None."""
-    import cv2
-
     from avatarkit.track import background_plate
 
     region = np.asarray(region, bool)
@@ -149,13 +147,8 @@ def wall_continued(plate, image: np.ndarray, region: np.ndarray) -> np.ndarray:
     if not known.any():
         return out
     r = max(1, int(round(float(reach) * max(region.shape))))
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2).astype(bool)
-    ys, xs = np.nonzero(region)
-    count = background_plate.agreeing(np.pad(np.asarray(known, bool), r),
-                                      np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0))),
-                                      ys, xs, np.asarray(image, np.int16)[ys, xs], disc)
-    out[ys, xs] = count >= COVER_PLATE_MATCHES
-    return out
+    count = background_plate.continuing(known, colour, image, region, r)
+    return region & (count >= COVER_PLATE_MATCHES)
 
 
 def under_jaw(means: np.ndarray, ids: np.ndarray, model, vertices: np.ndarray) -> np.ndarray:

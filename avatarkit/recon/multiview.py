@@ -471,18 +471,9 @@ def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r
 
     from avatarkit.track import background_plate
 
-    H, W = known.shape
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
     todo = ~known & (cv2.dilate(known.astype(np.uint8), disc) > 0)
-    ys, xs = np.nonzero(todo)
-    out = np.zeros((H, W), bool)
-    if len(ys) == 0:
-        return out
-    pk = np.pad(known, r)
-    pc = np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0)))
-    count = background_plate.agreeing(pk, pc, ys, xs, np.asarray(image, np.int16)[ys, xs], disc)
-    out[ys, xs] = count >= RELABEL_PLATE_MATCHES
-    return out
+    return todo & (background_plate.continuing(known, colour, image, todo, r) >= RELABEL_PLATE_MATCHES)
 
 
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,

@@ -229,6 +229,27 @@ def agreeing(wall: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarra
     return count
 
 
+def continuing(known: np.ndarray, colour: np.ndarray, image: np.ndarray, region: np.ndarray,
+               r: int) -> np.ndarray:
+    """(H, W) int32: for each pixel of `region` (H, W) bool, how many pixels the plate knows
+    (`known` (H, W) bool, of colour `colour` (H, W, 3)) within r px (a disc) are within `AGREE` of
+    image's (H, W, 3) colour there in every channel (`agreeing`); 0 outside region. How far a
+    pixel's colour continues the known wall beside it (the turned keyframes' relabelling, the video
+    build's coverage)."""
+    import cv2
+
+    region = np.asarray(region, bool)
+    out = np.zeros(region.shape, np.int32)
+    ys, xs = np.nonzero(region)
+    if len(ys) == 0:
+        return out
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    out[ys, xs] = agreeing(np.pad(np.asarray(known, bool), r),
+                           np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0))),
+                           ys, xs, np.asarray(image, np.int16)[ys, xs], disc)
+    return out
+
+
 def wall_palette(known: np.ndarray, colour: np.ndarray) -> np.ndarray:
     """(32768,) bool: the colour bins (`PALETTE_BIN` levels a channel; with their 26 neighbours)
     of the known wall far from what the plate does not know: the known pixels at least
@@ -351,4 +372,4 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
 
 
 __all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
-           "ZONE_START", "Plate", "agreeing", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
+           "ZONE_START", "Plate", "agreeing", "continuing", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]

@@ -593,7 +593,7 @@ def refine_keyframes(draft, views, tracked: int, everywhere: bool | frozenset = 
         # a yaw at the search's end is no minimum: the draft prefers a pose beyond what was
         # searched, and neither pose is to be trusted (the whip clip's keyframe at a true 38
         # degrees went to the near end, 29)
-        bounded = min(abs(found - near), abs(found - far)) < BOUND_TOLERANCE
+        bounded = at_bound(found, min(near, far), max(near, far), side) is not None
         if everywhere is True or (everywhere is not False and k.frame in everywhere):
             k.pose = pose
         else:
