@@ -144,6 +144,17 @@ RELABEL_PLATE_MATCHES = 3
 #: wall's one colour (session 25, second round, docs/video-build.md "The poster on the back of
 #: the head"; False: body pixels sampled whatever their colour)
 BODY_WALL = True
+#: ...and neither do the body-labelled pixels within this share of the frame's longer side of
+#: such a pixel (None: only those): the pixels at the outline between a turned head and the wall
+#: behind it are a blend of the two (the camera's and the codec's mixing, a strand's fringe over
+#: the wall), in neither the wall's palette nor the head's colours, and labelled body with the
+#: wall; the person mask runs on into that wall, so `person_weight` does not weigh them down. On
+#: the cluttered wall a few dozen such samples of the -80 degree frame (the poster's red mixed
+#: with the hair's edge) were the only colour the scalp at the back of the crown saw, and the
+#: scalp fill spread them over it (the red cast at the profile; session 27, docs/video-build.md
+#: "The red at the back of the crown"). On a plain wall no body pixel is in the wall's palette
+#: and nothing changes
+BODY_WALL_FRINGE: float | None = 0.01
 #: the neck's Gaussians keep the portrait build's colour only where the reference view shows at
 #: least this share of their footprint (`footprint_visibility`, `neck_kept`); the rest of the
 #: neck (its sides and back, which the photo never shows) takes the keyframes' blend as the head
@@ -685,7 +696,17 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
         from avatarkit.recon.segment import BODY
 
         # the wall seen past a turned head, labelled body (`BODY_WALL`): no sample, any layer
-        on = (np.asarray(view.labels) == BODY) & np.asarray(wall_coloured, bool)
+        body_px = np.asarray(view.labels) == BODY
+        on = body_px & np.asarray(wall_coloured, bool)
+        fringe = BODY_WALL_FRINGE
+        if fringe is not None and on.any():
+            import cv2
+
+            # ...nor the body pixels beside it: the head's outline blended with that wall
+            # (`BODY_WALL_FRINGE`)
+            r = max(1, int(round(float(fringe) * max(on.shape))))
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+            on = body_px & (cv2.dilate(on.astype(np.uint8), disc) > 0)
         seen &= ~on[ix[:, 1], ix[:, 0]]
     weight = np.where(seen, weight * float(view.sharpness), 0.0)
     if soft is not None:
@@ -1260,7 +1281,7 @@ class VideoViews:
         return bald, hair, figures
 
 
-__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
+__all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "BODY_WALL_FRINGE", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
            "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_SHARE", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
