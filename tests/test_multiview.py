@@ -454,6 +454,22 @@ def test_the_registration_drafts_keep_the_coverage_of_the_wall_coloured_skin():
     assert final.covers_plate() and not draft.covers_plate()
 
 
+def test_the_registration_drafts_sample_the_body_pixels_beside_the_wall(monkeypatch):
+    """`VideoViews.fringes_wall`: off by default (`BODY_WALL_FRINGE` None); on, the final build's
+    keyframes give no sample from the body pixels beside the known wall's colours, a draft the
+    video build registers against (info["draft"]) samples them as before unless
+    `BODY_WALL_FRINGE_IN_DRAFTS`."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert not final.fringes_wall() and not draft.fringes_wall()
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", 0.01)
+    assert final.fringes_wall() and not draft.fringes_wall()
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE_IN_DRAFTS", True)
+    assert final.fringes_wall() and draft.fringes_wall()
+
+
 def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
     registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""
@@ -654,6 +670,10 @@ def test_body_pixels_beside_the_wall_a_turned_keyframe_shows_give_no_sample(plan
         np.testing.assert_allclose(on.colour[below], np.tile(brown, (int(below.sum()), 1)), atol=0.01)
     # the reference view's pixels are the portrait's: the rule leaves them alone
     assert samples(img, labels, wall, 0.05, reference=True, hair=allowed).seen[fringe].all()
+    # ...and so does a view that says so (a registration draft's, `VideoViews.fringes_wall`)
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", 0.05)
+    v = View(img, cam, labels, 1.0, head=np.ones((SIZE, SIZE), bool), info={"wall_coloured": wall, "wall_fringe": False})
+    assert view_samples(back, normals, v, hair=allowed).seen[fringe].all()
 
     # a plain white wall, labelled background, above the same blended rows and hair (the
     # person's outline there: `person_weight` weighs the blend down as it should)
