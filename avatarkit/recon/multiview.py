@@ -154,8 +154,8 @@ BODY_WALL = True
 #: scalp fill spread them over it: the red cast at the profile (the CLI's build: 501 Gaussians
 #: facing away from the photo with red minus green > 0.3 -> 6). Session 27 (docs/video-build.md,
 #: "The red at the back of the crown"), at 0.01 (drafts left out): the cluttered wall's sample
-#: avatar +0.26 / +0.17 dB at +90 (seeds 0 / 1), the bob +0.16 / +0.18 at +-90, no view of the
-#: cluttered walls below -0.01; the white and teal walls the same to the digit; the dark wall's
+#: avatar +0.26 / +0.17 dB at +90 (seeds 0 / 1), the bob and the mesh subject within 0.01, no
+#: view of the cluttered walls below -0.02; the white and teal walls the same to the digit; the dark wall's
 #: sample avatar +0.09 at -90 (its grey wall, labelled body beside the back of the head, blended
 #: the same way). Off only because the dark wall moves (the house keeps a plain wall's build as
 #: it is); 0.01 turns it on
