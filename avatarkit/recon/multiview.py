@@ -155,9 +155,9 @@ BODY_WALL = True
 #: facing away from the photo with red minus green > 0.3 -> 6). Session 27 (docs/video-build.md,
 #: "The red at the back of the crown"), at 0.01 (drafts left out): the cluttered wall's sample
 #: avatar +0.26 / +0.17 dB at +90 (seeds 0 / 1), the bob and the mesh subject within 0.01, no
-#: view of the cluttered walls below -0.02; the white and teal walls the same to the digit; the dark wall's
-#: sample avatar +0.09 at -90 (its grey wall, labelled body beside the back of the head, blended
-#: the same way). Off only because the dark wall moves (the house keeps a plain wall's build as
+#: view of the cluttered walls below -0.02; the white and teal walls the same to the digit; the
+#: dark wall's sample avatar +0.09 at -90 (its grey wall, labelled body beside the back of the
+#: head, blended the same way). Off only because the dark wall moves (the house keeps a plain wall's build as
 #: it is); 0.01 turns it on
 BODY_WALL_FRINGE: float | None = None
 #: ...in the drafts a video build registers its turned keyframes against (info["draft"]) too
