@@ -454,6 +454,22 @@ def test_the_registration_drafts_keep_the_coverage_of_the_wall_coloured_skin():
     assert final.covers_plate() and not draft.covers_plate()
 
 
+def test_the_registration_drafts_sample_the_body_pixels_beside_the_wall(monkeypatch):
+    """`VideoViews.fringes_wall`: off by default (`BODY_WALL_FRINGE` None); on, the final build's
+    keyframes give no sample from the body pixels beside the known wall's colours, a draft the
+    video build registers against (info["draft"]) samples them as before unless
+    `BODY_WALL_FRINGE_IN_DRAFTS`."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert not final.fringes_wall() and not draft.fringes_wall()
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", 0.01)
+    assert final.fringes_wall() and not draft.fringes_wall()
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE_IN_DRAFTS", True)
+    assert final.fringes_wall() and draft.fringes_wall()
+
+
 def test_the_registration_drafts_do_not_fill_the_scalp(monkeypatch):
     """`VideoViews.fills_scalp`: the final build fills (`SCALP_FILL`), a draft the video build
     registers against (info["draft"]) does not unless `DRAFT_SCALP_FILL`; off, neither does."""
@@ -594,6 +610,85 @@ def test_body_pixels_in_the_known_walls_colours_give_no_sample_in_a_turned_keyfr
     # the reference view's pixels are the portrait's: the rule leaves them alone
     ref = view_samples(back, normals, view(reference=True), hair=allowed)
     assert ref.seen[poster].all()
+
+
+def test_body_pixels_beside_the_wall_a_turned_keyframe_shows_give_no_sample(planes, monkeypatch):
+    """`BODY_WALL_FRINGE`: a turned keyframe whose right half is labelled body shows the poster
+    (the known wall's red) above, three rows of the head's outline blended with it (a colour neither
+    the wall's palette nor the head's) and shadowed hair below. The blended rows give no sample
+    to any layer (with the rule off both layers take its colour); the hair below, the skin half
+    (beside the poster too: only body pixels) and the reference view are sampled as before. A white wall labelled background above the same
+    rows (a plain wall: no body pixel in its colours) leaves every sample as it was."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.segment import BACKGROUND, BODY, SKIN
+    from avatarkit.track.background_plate import Plate
+
+    back, _, _, _ = planes
+    normals = np.tile([0.0, 0.0, 1.0], (len(back), 1))
+    cam = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    red, blend, brown = np.array([0.8, 0.15, 0.12]), np.array([0.55, 0.3, 0.2]), np.array([0.2, 0.1, 0.05])
+    edge = 30                                               # the blended rows: 30-32
+    img = _image((0.8, 0.6, 0.5))
+    img[:edge, SIZE // 2:] = (red * 255).astype(np.uint8)
+    img[edge:edge + 3, SIZE // 2:] = (blend * 255).astype(np.uint8)
+    img[edge + 3:, SIZE // 2:] = (brown * 255).astype(np.uint8)
+    labels = np.full((SIZE, SIZE), SKIN, np.int32)
+    labels[:, SIZE // 2:] = BODY
+    colour = np.zeros((SIZE, SIZE, 3), np.uint8)
+    colour[:8] = (red * 255).astype(np.uint8)               # the plate knows the poster's top
+    support = np.zeros((SIZE, SIZE), np.int32)
+    support[:8] = 10
+    wall = multiview.wall_palette_pixels(Plate(colour, support, support.copy(), 20), img)
+    assert wall[:edge, SIZE // 2:].all() and not wall[edge:].any()
+
+    px, _ = cam.project(back.means)
+    ix = np.floor(np.asarray(px)).astype(int)
+    right = ix[:, 0] >= SIZE // 2 + 2
+    py = np.asarray(px)[:, 1]
+    fringe = right & (py >= edge + 0.5) & (py <= edge + 2.5)     # bilinear: the blend alone
+    below = right & (py >= edge + 4)
+    skin = ix[:, 0] < SIZE // 2 - 2
+    beside = (ix[:, 0] == SIZE // 2 - 2) & (py < edge - 2)     # skin 2 px from the poster
+    assert fringe.any() and below.any() and skin.any() and beside.any()
+    allowed = np.ones(len(back), bool)
+
+    def samples(image, lab, wall_coloured, rule, reference=False, **kw):
+        monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", rule)
+        v = View(image, cam, lab, 1.0, reference=reference, head=np.ones((SIZE, SIZE), bool))
+        v.info["wall_coloured"] = wall_coloured
+        return view_samples(back, normals, v, **kw)
+
+    for kw in (dict(body=allowed), dict(hair=allowed)):
+        # 0.05 of 64 px: the three rows beside the red
+        on, off = samples(img, labels, wall, 0.05, **kw), samples(img, labels, wall, None, **kw)
+        assert not on.seen[fringe].any()
+        assert off.seen[fringe].all()
+        np.testing.assert_allclose(off.colour[fringe], np.tile(blend, (int(fringe.sum()), 1)), atol=0.01)
+        for rows in (below, skin, beside):                 # only body pixels are the wall's fringe
+            assert on.seen[rows].all()
+            np.testing.assert_array_equal(on.weight[rows], off.weight[rows])
+        np.testing.assert_allclose(on.colour[below], np.tile(brown, (int(below.sum()), 1)), atol=0.01)
+    # the reference view's pixels are the portrait's: the rule leaves them alone
+    assert samples(img, labels, wall, 0.05, reference=True, hair=allowed).seen[fringe].all()
+    # ...and so does a view that says so (a registration draft's, `VideoViews.fringes_wall`)
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", 0.05)
+    v = View(img, cam, labels, 1.0, head=np.ones((SIZE, SIZE), bool), info={"wall_coloured": wall, "wall_fringe": False})
+    assert view_samples(back, normals, v, hair=allowed).seen[fringe].all()
+
+    # a plain white wall, labelled background, above the same blended rows and hair (the
+    # person's outline there: `person_weight` weighs the blend down as it should)
+    white = img.copy()
+    white[:edge, SIZE // 2:] = 255
+    plain = labels.copy()
+    plain[:edge, SIZE // 2:] = BACKGROUND
+    colour[:8] = 255
+    wall = multiview.wall_palette_pixels(Plate(colour, support, support.copy(), 20), white)
+    assert wall[:edge, SIZE // 2:].all()
+    for kw in (dict(body=allowed), dict(hair=allowed)):
+        on, off = samples(white, plain, wall, 0.05, **kw), samples(white, plain, wall, None, **kw)
+        np.testing.assert_array_equal(on.seen, off.seen)
+        np.testing.assert_array_equal(on.weight, off.weight)
+        assert on.seen[below].all()
 
 
 def test_the_bald_layer_no_view_saw_off_the_neck_takes_the_seen_bald_colour_where_the_reference_looks_away(planes):
