@@ -134,7 +134,7 @@ COVER_NECK_VIDEO = True
 #: benchmark renders on white, the wall's colour: they paint the wall over the build's cheek where
 #: it stands past the truth's outline. Scored on black (the web player's background) or mid-grey
 #: the rule's mesh subject front gains 0.88 / 0.45 dB, and a white blob shows on main's cheek
-#: (seed 1 alike; the whip clip's sample avatar and mesh subject show the crescent too: front
+#: (seeds 1 and 2 alike; the whip clip's sample avatar and mesh subject show the crescent too: front
 #: -0.16 / -0.17 on white, +0.90 / +0.85 on black, -45 +1.07 / +0.43 on white). A
 #: rule sparing the pixels the unmixing cannot read would spare the plaster with them
 COVER_PLATE: float | None = None
