@@ -455,7 +455,7 @@ def test_the_registration_drafts_keep_the_coverage_of_the_wall_coloured_skin():
 
 
 def test_the_registration_drafts_sample_the_body_pixels_beside_the_wall(monkeypatch):
-    """`VideoViews.fringes_wall`: off by default (`BODY_WALL_FRINGE` None); on, the final build's
+    """`VideoViews.fringes_wall`: on by default (`BODY_WALL_FRINGE` 0.01), the final build's
     keyframes give no sample from the body pixels beside the known wall's colours, a draft the
     video build registers against (info["draft"]) samples them as before unless
     `BODY_WALL_FRINGE_IN_DRAFTS`."""
@@ -463,9 +463,10 @@ def test_the_registration_drafts_sample_the_body_pixels_beside_the_wall(monkeypa
     from avatarkit.recon.multiview import VideoViews
 
     final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    assert final.fringes_wall() and not draft.fringes_wall()
+    monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", None)
     assert not final.fringes_wall() and not draft.fringes_wall()
     monkeypatch.setattr(multiview, "BODY_WALL_FRINGE", 0.01)
-    assert final.fringes_wall() and not draft.fringes_wall()
     monkeypatch.setattr(multiview, "BODY_WALL_FRINGE_IN_DRAFTS", True)
     assert final.fringes_wall() and draft.fringes_wall()
 

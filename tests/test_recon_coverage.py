@@ -322,7 +322,7 @@ def test_wall_a_video_segmentation_took_in_beside_the_jaw_gets_no_disc_where_it_
 
     from avatarkit.recon import coverage
 
-    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)      # off by default (the white mesh subject)
+    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)      # the default, held against later changes
     fit, bald, hair, image, labels, ear, tuft = scene
     plaster, shelf_rgb = np.array([210, 195, 170], np.uint8), np.array([40, 70, 110], np.uint8)
     person = np.isin(labels, (SKIN, HAIR))
@@ -356,7 +356,7 @@ def test_wall_a_video_segmentation_took_in_beside_the_jaw_gets_no_disc_where_it_
     assert np.median(before.opacities[on_spill]) > 0.8 * COVER_OPACITY
     after, hair_after, on_after, info = added(True, plate)
     assert not on_after.any() and info["wall_dropped"] >= on_spill.sum()
-    # off (the default), the plate changes nothing
+    # off (None), the plate changes nothing
     monkeypatch.setattr(coverage, "COVER_PLATE", None)
     off, _, _, off_info = added(True, plate)
     np.testing.assert_array_equal(off.means, before.means)
@@ -441,7 +441,7 @@ def test_wall_taken_in_past_the_overshoot_is_one_case_on_a_white_wall_and_a_skin
     assert covered[inner].all() and outer.sum() >= 15
     known = ~ndimage.binary_dilation(person, iterations=10)              # the head's zone unknown
     plate = Plate(img.copy(), np.where(known, 10, 0).astype(np.int32), np.full((128, 128), 10, np.int32), 10)
-    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)                   # off by default (below)
+    monkeypatch.setattr(coverage, "COVER_PLATE", 0.1)                   # the default, held (below)
 
     def added(plate):
         left = np.zeros((128, 128), bool)
