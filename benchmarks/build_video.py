@@ -62,9 +62,12 @@ from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its fol
 
 def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
            multiview_hair: bool, subject: str = "avatar", register: bool = True, seed: int = 0,
-           switches: tuple[str, ...] = ()) -> tuple[dict, dict, float]:
+           switches: tuple[str, ...] = ()) -> tuple[dict, dict, float, dict]:
     """One build of the synthetic video (kind "video") or of its reference frame ("single") and
-    its novel-view PSNR against the known avatar: (psnr by azimuth, provenance, wall s). Run in a
+    its novel-view PSNR against the known avatar: (psnr by azimuth over white, provenance, wall s,
+    psnr by azimuth over black). White is the benchmark's score since session 5; black (the web
+    player's background) is printed beside it because a white score cannot see Gaussians in a
+    white wall's colour (session 27: wall-coloured discs on the white mesh subject's cheek). Run in a
     fresh process: a build made after another one in the same process used to measure
     differently (GrabCut drew from OpenCV's global RNG; `recon.segment` now resets it), and a
     process of its own keeps any other state from leaking between the two builds."""
@@ -108,9 +111,12 @@ def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style
     if subject == "mesh":
         from avatarkit.synthetic.mesh_head import MeshHead, view_psnr
 
-        return view_psnr(avatar, MeshHead.make(), size), avatar.provenance, wall
+        subject = MeshHead.make()
+        return (view_psnr(avatar, subject, size), avatar.provenance, wall,
+                view_psnr(avatar, subject, size, background=(0.0, 0.0, 0.0)))
     truth = make_sample_avatar(n_hair=3000, n_bald=12000, style=style, cage_vertices=200)
-    return novel_view_psnr(avatar, truth, size), avatar.provenance, wall
+    return (novel_view_psnr(avatar, truth, size), avatar.provenance, wall,
+            novel_view_psnr(avatar, truth, size, background=(0.0, 0.0, 0.0)))
 
 
 def _in_own_process(*args):
@@ -156,12 +162,12 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
         write_turning_video(truth, path, size=size, clip=clip, background=background)
         what = f"sample avatar with {style} hair"
     what += f", {wall} wall" if wall != "white" else ""
-    pv, prov, tv = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register, seed,
+    pv, prov, tv, pv_black = _in_own_process("video", path, None, counts, style, size, multiview_hair, subject, register, seed,
                                    tuple(switches))
     ref = prov["source_video"]["frame"]
     png = os.path.join(tmp, "ref.png")
     write_png(png, read_frame(path, ref).rgb)
-    ps, _, ts = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject, True, seed,
+    ps, _, ts, ps_black = _in_own_process("single", path, png, counts, style, size, multiview_hair, subject, True, seed,
                                 tuple(switches))
     keys = [k["frame"] for k in prov["source_video"]["keyframes"]]
     print(f"synthetic turning video ({clip_kind} clip, {frames} frames {size}x{size}, {what}; keyframes "
@@ -208,12 +214,16 @@ def synthetic(size: int, frames: int | None, counts: tuple[int, int], tmp: str, 
         last = jaw["rounds"][-1] if jaw.get("rounds") else {}
         print(f"  jaw corrective: {jaw.get('vertices', 0)} vertices, at most {jaw.get('max_mm_at_0.3_rad', 0.0)} mm "
               f"at 0.3 rad; the fitted opening's 5-95th percentiles {last.get('opening_p5_p95')}")
-    print(f"  {'azimuth':>8s} {'single dB':>10s} {'video dB':>10s} {'gain':>7s}")
+    print(f"  {'':8s} {'over white (the score)':^30s}   {'over black':^30s}")
+    print(f"  {'azimuth':>8s} {'single dB':>10s} {'video dB':>10s} {'gain':>7s}   {'single dB':>10s} {'video dB':>10s} "
+          f"{'gain':>7s}")
     for az in pv:
-        print(f"  {az:8.0f} {ps[az]:10.2f} {pv[az]:10.2f} {pv[az] - ps[az]:+7.2f}")
+        print(f"  {az:8.0f} {ps[az]:10.2f} {pv[az]:10.2f} {pv[az] - ps[az]:+7.2f}   {ps_black[az]:10.2f} "
+              f"{pv_black[az]:10.2f} {pv_black[az] - ps_black[az]:+7.2f}")
     prof = np.mean([pv[a] - ps[a] for a in pv if abs(a) == 90])
-    print(f"  profile gain (mean of +-90): {prof:+.2f} dB (target >= +3 dB); build wall: video "
-          f"{tv:.1f} s, single {ts:.1f} s")
+    prof_black = np.mean([pv_black[a] - ps_black[a] for a in pv if abs(a) == 90])
+    print(f"  profile gain (mean of +-90): {prof:+.2f} dB (target >= +3 dB; over black {prof_black:+.2f}); build "
+          f"wall: video {tv:.1f} s, single {ts:.1f} s")
 
 
 def real(videos: list[str], counts: tuple[int, int], tmp: str) -> None:
