@@ -251,3 +251,106 @@ def test_near_outline_is_the_distance_to_the_renders_outline(sphere):
     # behind the camera: never near (a camera at the same place looking away)
     away = Camera.look_at((0.0, 0.0, DISTANCE), (0.0, 0.0, 2 * DISTANCE), fov_deg=30.0, width=WIDTH, height=WIDTH)
     assert not near_outline(g, away, 4.0).any()
+
+
+# `RECEDE_EDGE_TURN`: only the far-turned keyframes lead the edge rule. The profile cameras again,
+# the side one (+90) with the true silhouette; the four front ones at +-15, +-30 with a silhouette
+# made of the discs' own render (a truth that overshoots as they do: the sample avatar's), and the
+# reference (0) with the true silhouette eroded by 2 px (a keyframe whose pose or segmentation is
+# off by that much at the cheeks).
+def _half_width(bald, cam: Camera) -> float:
+    """How far (px) the alpha-0.5 render's middle rows reach beyond the true sphere on either
+    side (half their width less the circle's radius), averaged over the 5 rows about the centre."""
+    alpha = np.asarray(render(bald.replace(extras={}), cam, (1.0, 1.0, 1.0)).alpha) > 0.5
+    c = WIDTH // 2
+    width = np.mean([np.flatnonzero(row).max() - np.flatnonzero(row).min() + 1 for row in alpha[c - 2:c + 3]])
+    return width / 2 - cam.fx * math.tan(math.asin(RADIUS / DISTANCE))
+
+
+def test_with_the_turned_keyframes_leading_the_profile_sets_in_and_a_near_frontal_keyframe_alone_does_not(
+        sphere, monkeypatch):
+    import cv2
+
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    tight = cv2.erode(head_silhouette(v, faces, cams[0]).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    masks = ([tight] + [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5 for c in cams[1:5]]
+             + [head_silhouette(v, faces, cams[5])])
+    views = _profile_views(v, faces, masks)
+    views[0].reference = True
+    front, side = cams[0], cams[5]
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)
+    every, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert figures["lead"] == [views[5].frame]
+    # the profile line, which only the side camera sees at its outline: set in as with every
+    # keyframe leading (2 px out before), not with session 23's quorum
+    assert _front_end(bald, side) > 1.5 and _front_end(old, side) > _front_end(bald, side) - 0.2
+    assert _front_end(led, side) < 0.5, (_front_end(led, side), figures)
+    # the front camera's sides, which the reference alone votes out (the others' silhouettes
+    # overshoot as the discs do): with every keyframe leading they set in past the others' by
+    # 0.7 px; led by the turned keyframes, as session 23's quorum leaves them
+    assert _half_width(every, front) < _half_width(old, front) - 0.5, (_half_width(every, front), _half_width(old, front))
+    assert abs(_half_width(led, front) - _half_width(old, front)) < 0.15, (_half_width(led, front), _half_width(old, front))
+    # each moved disc straight inward along its face's normal
+    shift = np.asarray(led.means, np.float64) - np.asarray(bald.means, np.float64)
+    depth = np.linalg.norm(shift, axis=1)
+    radial = np.einsum("nc,nc->n", shift, np.asarray(bald.means, np.float64)) / np.linalg.norm(bald.means, axis=1)
+    assert (radial[depth > 0] < -0.9 * depth[depth > 0]).all()
+    # the lead keyframe votes at RECEDE_EDGE_SHARE: past all of a disc's weight it votes nothing,
+    # and the quorum's moves are all that is left
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_SHARE", 1.01)
+    quorum, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    np.testing.assert_array_equal(quorum.means, old.means)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_SHARE", 0.3)
+    # the side camera's silhouette 8 px off (its pose wrong): the sphere's inside lies over its
+    # wall, so it does not lead, and the quorum's moves are all that is left; with no test it leads
+    shifted = [m for m in masks]
+    shifted[5] = np.roll(masks[5], 8, axis=1)
+    off = _profile_views(v, faces, shifted)
+    off[0].reference = True
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old_off, _ = recede_outline(bald, GaussianSet.empty(), off, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    kept, figures = recede_outline(bald, GaussianSet.empty(), off, fit)
+    assert figures["lead"] == []
+    np.testing.assert_array_equal(kept.means, old_off.means)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_AGREE", None)
+    untested, figures = recede_outline(bald, GaussianSet.empty(), off, fit)
+    assert figures["lead"] == [off[5].frame]
+    assert not np.array_equal(untested.means, old_off.means)
+
+
+def test_deep_disagreement_counts_the_wall_under_the_renders_inside(sphere):
+    from avatarkit.track import frame_hull
+
+    v, faces, bald = sphere
+    g = bald.replace(extras={})
+    cam = _camera(0.0)
+    alpha = np.asarray(render(g, cam, (1.0, 1.0, 1.0)).alpha) > 0.5
+    # the render's own silhouette: no wall under it; the true sphere's (1.8 px inside it on
+    # average): a few pixels deeper than 2 px, under RECEDE_EDGE_AGREE (such a keyframe leads)
+    assert multiview.deep_disagreement(g, cam, frame_hull.wall_image(alpha, 0)) == 0.0
+    assert multiview.deep_disagreement(g, cam, frame_hull.wall_image(head_silhouette(v, faces, cam), 0)) < 0.06
+    # the silhouette 6 px to the side: a crescent up to 6 px deep, (6 - 2) / pi per outline px on average
+    moved = multiview.deep_disagreement(g, cam, frame_hull.wall_image(np.roll(alpha, 6, axis=1), 0))
+    assert 0.8 < moved < 1.6, moved
+
+
+def test_turned_yaws_are_the_cameras_turns_from_the_reference(sphere):
+    v, faces, _ = sphere
+    views = _profile_views(v, faces)
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [0, 15, 15, 30, 30, 90], atol=1e-6)
+    # from the marked reference (+30), whichever view comes first; the turn's sign left out
+    views[3].reference = True
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [30, 15, 45, 0, 60, 60], atol=1e-6)
+    # a camera pitched over the head is not turned; one behind it is turned 180
+    up = Camera.look_at((0.0, -DISTANCE * math.sin(0.5), DISTANCE * math.cos(0.5)), (0.0, 0.0, 0.0), fov_deg=30.0,
+                        width=WIDTH, height=WIDTH)
+    views = [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), c, None) for c in (_camera(0.0), up, _camera(180.0))]
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [0, 0, 180], atol=1e-6)
