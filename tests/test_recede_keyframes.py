@@ -180,11 +180,16 @@ def _front_end(bald, cam: Camera) -> float:
     return front - left
 
 
-def _profile_views(v, faces, masks=None) -> list[View]:
+SKIN_RGB = (200, 150, 130)
+
+
+def _profile_views(v, faces, masks=None, wall=(255, 255, 255)) -> list[View]:
+    """The profile cameras' views: the person mask skin-coloured over a plain `wall` colour."""
     cams = [_camera(y) for y in PROFILE_YAWS]
     masks = [head_silhouette(v, faces, cam) for cam in cams] if masks is None else masks
-    return [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), cam, np.where(m, SKIN, 0).astype(np.int32))
-            for cam, m in zip(cams, masks)]
+    return [View(np.where(m[..., None], np.array(SKIN_RGB, np.uint8), np.array(wall, np.uint8)).astype(np.uint8), cam,
+                 np.where(m, SKIN, 0).astype(np.int32), frame=i)
+            for i, (cam, m) in enumerate(zip(cams, masks))]
 
 
 def test_the_profile_line_seen_at_one_keyframes_outline_sets_in_with_the_edge_rule(sphere, monkeypatch):
@@ -354,3 +359,83 @@ def test_turned_yaws_are_the_cameras_turns_from_the_reference(sphere):
                         width=WIDTH, height=WIDTH)
     views = [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), c, None) for c in (_camera(0.0), up, _camera(180.0))]
     np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [0, 0, 180], atol=1e-6)
+
+
+def test_the_turned_keyframes_lead_their_own_rounds_past_the_quorums(sphere, monkeypatch):
+    # RECEDE_ROUNDS 1, RECEDE_EDGE_ROUNDS 3: the quorum's discs one step in, the side camera's
+    # profile line up to three
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    views = _profile_views(v, faces)
+    views[0].reference = True
+    step = multiview.RECEDE_STEP * bald_discs.camera_pixel(views[0].camera, np.asarray(bald.means, np.float64))
+    monkeypatch.setattr(multiview, "RECEDE_ROUNDS", 1)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_ROUNDS", 3)
+    led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    depth = np.linalg.norm(np.asarray(led.means, np.float64) - np.asarray(bald.means, np.float64), axis=1)
+    assert len(figures["moved"]) == 3 and depth.max() <= 3 * step * 1.001 and (depth > 2.5 * step).any(), figures
+    # the discs past one step are the side camera's: the sphere's sides at the equator (the front
+    # camera's outline, which the side camera sees face on or not at all) stay at one
+    means = np.asarray(bald.means, np.float64)
+    sides = (np.abs(means[:, 1]) < 0.01) & (np.abs(means[:, 2]) < 0.01)
+    assert sides.sum() > 10 and (depth[sides] <= 1.001 * step).all()
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_ROUNDS", None)
+    two, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert len(figures["moved"]) <= 1
+
+
+
+def test_a_leading_keyframe_votes_only_over_the_wall_unlike_the_person(sphere, monkeypatch):
+    # the side camera's silhouette the true sphere's, 1.8 px inside the discs' outline (as a
+    # segmentation's edge a pixel or two tight would be): over a white wall it leads the profile
+    # line in; over a wall within RECEDE_EDGE_LIKE levels of the skin it votes nothing that
+    # would move, and the profile line stays out
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    masks = [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5 for c in cams[:5]]
+    masks.append(head_silhouette(v, faces, cams[5]))
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    ends = {}
+    for name, wall in (("white", (255, 255, 255)), ("beige", (215, 175, 150))):
+        views = _profile_views(v, faces, masks, wall)
+        views[0].reference = True
+        monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+        old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+        monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+        led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+        assert figures["lead"] == [5]
+        ends[name] = (_front_end(old, cams[5]), _front_end(led, cams[5]))
+    # white: the profile line's front end comes in by more than a pixel; beige: it stays out as
+    # session 23's quorum leaves it (the side camera votes over none of its wall)
+    assert ends["white"][1] < ends["white"][0] - 1.0, ends
+    assert ends["beige"][1] > ends["beige"][0] - 0.3, ends
+    # RECEDE_EDGE_LIKE None: the labels' wall, whatever its colour
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_LIKE", None)
+    views = _profile_views(v, faces, masks, (215, 175, 150))
+    views[0].reference = True
+    anyway, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert _front_end(anyway, cams[5]) < ends["beige"][0] - 1.0
+
+
+def test_the_sure_wall_leaves_out_the_wall_that_looks_like_the_person_beside_it():
+    person = np.zeros((40, 40), bool)
+    person[10:30, 10:30] = True
+    image = np.full((40, 40, 3), 255, np.uint8)
+    image[person] = SKIN_RGB
+    image[:, :5] = (190, 160, 120)          # a strip of wall within 40 levels of the skin
+    # the frame's blends of skin and white at the edge: the person's last column, the wall's first
+    image[10:30, 29] = (228, 203, 193)
+    image[10:30, 30] = (240, 230, 225)
+    wall = (~person).astype(np.int32)
+    sure = multiview.sure_wall(wall, image, person, 40)
+    assert (sure[:, :5] == 0).all()                                # like the skin: left out
+    # white, and the wall's blend (like the person's blended edge, not its skin inside): kept
+    assert (sure[:, 5:][~person[:, 5:]] == 1).all()
+    assert (sure[person] == 0).all()
+    assert (multiview.sure_wall(wall, image, person, 0)[:, 5:][~person[:, 5:]] == 1).all()

@@ -320,6 +320,13 @@ RECEDE_EDGE_TURN = None
 RECEDE_EDGE_AGREE = 0.1
 #: ... pixels: the outline's band `RECEDE_EDGE_AGREE` leaves out (the overshoot the recession mends)
 RECEDE_EDGE_DEEP = 2.0
+#: with `RECEDE_EDGE_TURN`: a leading keyframe's wall leaves out the pixels whose colour lies within
+#: this many levels (of 255, every channel) of the person's nearest to them (`sure_wall`): where the
+#: wall looks like the skin beside it the segmentation's edge is a guess, and one keyframe's guess
+#: would move the outline (the cluttered wall's beige plaster behind the sample avatar's neck at its
+#: +80 end: the wall label a pixel inside the neck's back, -0.10 dB at -90). On a white wall the
+#: skin's outline is 40+ levels off it even where the frame blends the two. None: the labels' wall
+RECEDE_EDGE_LIKE = 40
 #: with `RECEDE_EDGE_TURN`: the rounds the turned keyframes' votes set discs in (None:
 #: `RECEDE_ROUNDS`); the rounds past `RECEDE_ROUNDS` move only the discs they lead
 RECEDE_EDGE_ROUNDS = None
@@ -1015,6 +1022,10 @@ def recede_outline(bald, hair, views: list[View], fit):
             posed = pose(np.zeros((nb, 3)))
             turns = np.array([t if w is None or t < turn or deep_disagreement(p.gaussians, p.camera, w) <= agree
                               else -1.0 for t, w, p in zip(turns, walls, posed)])
+        if RECEDE_EDGE_LIKE is not None:
+            # the leading keyframes vote only over the wall that does not look like the person
+            walls = [sure_wall(w, v.image, v.labels != BACKGROUND, RECEDE_EDGE_LIKE) if w is not None and t >= turn
+                     else w for w, v, t in zip(walls, views, turns)]
         receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
                                     share=RECEDE_SHARE, quorum=RECEDE_QUORUM, min_frames=RECEDE_MIN_FRAMES,
                                     near=edge, lead=[bool(t >= turn) for t in turns],
@@ -1044,6 +1055,22 @@ def deep_disagreement(gaussians, camera, wall: np.ndarray) -> float:
     outline = covered & ~ndimage.binary_erosion(covered, np.ones((3, 3), bool), border_value=0)
     deep = (np.asarray(wall) == 1) & (inside > float(RECEDE_EDGE_DEEP))
     return float(deep.sum()) / max(int(outline.sum()), 1)
+
+
+def sure_wall(wall: np.ndarray, image: np.ndarray, person: np.ndarray, levels: float, inset: int = 3) -> np.ndarray:
+    """(H, W) int32: `wall` ((H, W) int32 1s, `frame_hull.wall_image`) less the pixels whose colour
+    in `image` (H, W, 3) uint8 lies within `levels` in every channel of the person's nearest to
+    them, taken `inset` px inside `person` (H, W) bool (the frame blends the wall and the person in
+    the pixel or two at its edge)."""
+    from scipy import ndimage
+
+    core = ndimage.binary_erosion(np.asarray(person, bool), np.ones((2 * inset + 1,) * 2, bool))
+    if not core.any():
+        return np.asarray(wall, np.int32)
+    _, (iy, ix) = ndimage.distance_transform_edt(~core, return_indices=True)     # the nearest core pixel
+    img = np.asarray(image, np.int16)
+    like = (np.abs(img - img[iy, ix]) <= levels).all(axis=-1)
+    return np.where(like, 0, np.asarray(wall, np.int32)).astype(np.int32)
 
 
 def turned_yaws(views: list[View], centre: np.ndarray) -> np.ndarray:
@@ -1338,7 +1365,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "deep_disagreement", "recede_outline", "turned_yaws",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "deep_disagreement", "recede_outline", "sure_wall", "turned_yaws",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]
