@@ -201,6 +201,7 @@ def test_the_profile_line_seen_at_one_keyframes_outline_sets_in_with_the_edge_ru
     monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
     old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
     monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)      # session 26's rule: every keyframe leads
     new, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
     # every keyframe that shows a disc counting, the front of the profile line (shown face on by
     # the five front cameras, voted out by the side one: 1 in 6) stays out; counted only where a
@@ -230,6 +231,7 @@ def test_with_the_edge_rule_a_truth_that_overshoots_as_the_discs_do_still_leaves
     views = _profile_views(v, faces, [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5
                                       for c in cams])
     monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)
     moved, figures = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces))
     for cam in cams:
         assert _overshoot(bald, cam) - _overshoot(moved, cam) < 0.25, figures

@@ -286,8 +286,10 @@ RECEDE_MIN_FRAMES = 2
 #: "The profile's outline seen at the keyframes' outlines"): at 4 px the mesh subject's profile gain
 #: +2.66 / +2.93 / +2.88 -> +2.73 / +3.01 / +2.99 (seeds 0 / 1 / 2), the bob within 0.04 dB, but one
 #: keyframe's vote now moves a disc, and where a keyframe's pose is off the sample avatar loses:
-#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall
-RECEDE_EDGE = None
+#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall. On
+#: since session 27 with only the far-turned keyframes leading it (`RECEDE_EDGE_TURN`; docs/
+#: video-build.md "The profile's outline led by the turn ends (session 27)")
+RECEDE_EDGE = 4.0
 #: with `RECEDE_EDGE`, the keyframes a disc must lie near the outline of (instead of
 #: `RECEDE_MIN_FRAMES`): one, since a contour is seen edge-on by few keyframes
 RECEDE_EDGE_FRAMES = 1
@@ -306,8 +308,11 @@ RECEDE_EDGE_SHARE = 0.3
 #: outline of several of them, and there session 23's agreement (the turned keyframes that see it
 #: face on counted) stays: on the disc-made sample avatar, whose truth overshoots as the build does,
 #: their votes alone set the outline in past the truth (the whip clip's +45 -0.46 dB). None: every
-#: keyframe leads (session 26's rule)
-RECEDE_EDGE_TURN = None
+#: keyframe leads (session 26's rule). 60 (session 27): the mesh subject's profile gain +2.66 /
+#: +2.93 / +2.88 -> +2.77 / +3.07 / +3.01 (seeds 0 / 1 / 2), the sample avatar and the bob on
+#: every clip and wall within 0.01 dB of session 26's (docs/video-build.md "The profile's outline
+#: led by the turn ends (session 27)")
+RECEDE_EDGE_TURN = 60.0
 #: with `RECEDE_EDGE_TURN`: a turned keyframe leads only where its silhouette agrees with the
 #: avatar's beyond the outline's band: at most this many pixels of its wall lie under the avatar's
 #: render more than `RECEDE_EDGE_DEEP` pixels inside the render's outline, per pixel of that outline
