@@ -309,16 +309,16 @@ RECEDE_EDGE_SHARE = 0.3
 #: face on counted) stays: on the disc-made sample avatar, whose truth overshoots as the build does,
 #: their votes alone set the outline in past the truth (the whip clip's +45 -0.46 dB). None: every
 #: keyframe leads (session 26's rule). 60 (session 27): the mesh subject's profile gain +2.66 /
-#: +2.93 / +2.88 -> +2.77 / +3.07 / +3.01 (seeds 0 / 1 / 2), the sample avatar and the bob on
-#: every clip and wall within 0.01 dB of session 26's (docs/video-build.md "The profile's outline
-#: led by the turn ends (session 27)")
+#: +2.93 / +2.88 -> +2.77 / +3.07 / +3.00 (seeds 0 / 1 / 2), the sample avatar and the bob on
+#: the white and cluttered walls and the whip clip within 0.02 dB of main's, none of their views
+#: lower by more (docs/video-build.md "The profile's outline led by the turn ends (session 27)")
 RECEDE_EDGE_TURN = 60.0
 #: with `RECEDE_EDGE_TURN`: a turned keyframe leads only where its silhouette agrees with the
 #: avatar's beyond the outline's band: at most this many pixels of its wall lie under the avatar's
 #: render more than `RECEDE_EDGE_DEEP` pixels inside the render's outline, per pixel of that outline
 #: (`deep_disagreement`). The recession mends a pixel or two of overshoot; a keyframe that puts the
 #: avatar's inside over its wall disagrees by more than that (its pose or its segmentation is off:
-#: the cluttered wall's sample avatar's -80 end, registered 12 degrees long, 1.0; the bob's +80
+#: the cluttered wall's sample avatar's -80 end, read 92 degrees from the reference, 1.0; the bob's +80
 #: end, whose hair's strands the segmentation cuts, 0.23), and its near-outline votes would move
 #: the outline where it is wrong. The keyframes whose silhouettes fit (0.00-0.02 at the white
 #: wall's turn ends; the mesh subject's tracking edge 0.09) lead. None: no test
