@@ -318,10 +318,10 @@ RECEDE_EDGE_TURN = 60.0
 #: render more than `RECEDE_EDGE_DEEP` pixels inside the render's outline, per pixel of that outline
 #: (`deep_disagreement`). The recession mends a pixel or two of overshoot; a keyframe that puts the
 #: avatar's inside over its wall disagrees by more than that (its pose or its segmentation is off:
-#: the cluttered wall's sample avatar's -80 end, read 92 degrees from the reference, 1.0; the bob's +80
-#: end, whose hair's strands the segmentation cuts, 0.23), and its near-outline votes would move
-#: the outline where it is wrong. The keyframes whose silhouettes fit (0.00-0.02 at the white
-#: wall's turn ends; the mesh subject's tracking edge 0.09) lead. None: no test
+#: the cluttered wall's sample avatar's -80 end, read 92 degrees from the reference, 1.0; the
+#: bob's -80 end, 0.23), and its near-outline votes would move the outline where it is wrong. The
+#: keyframes whose silhouettes fit (0.00-0.02 at the white wall's turn ends; the mesh subject's
+#: tracking edge 0.09) lead. None: no test
 RECEDE_EDGE_AGREE = 0.1
 #: ... pixels: the outline's band `RECEDE_EDGE_AGREE` leaves out (the overshoot the recession mends)
 RECEDE_EDGE_DEEP = 2.0
