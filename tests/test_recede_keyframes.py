@@ -180,11 +180,16 @@ def _front_end(bald, cam: Camera) -> float:
     return front - left
 
 
-def _profile_views(v, faces, masks=None) -> list[View]:
+SKIN_RGB = (200, 150, 130)
+
+
+def _profile_views(v, faces, masks=None, wall=(255, 255, 255)) -> list[View]:
+    """The profile cameras' views: the person mask skin-coloured over a plain `wall` colour."""
     cams = [_camera(y) for y in PROFILE_YAWS]
     masks = [head_silhouette(v, faces, cam) for cam in cams] if masks is None else masks
-    return [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), cam, np.where(m, SKIN, 0).astype(np.int32))
-            for cam, m in zip(cams, masks)]
+    return [View(np.where(m[..., None], np.array(SKIN_RGB, np.uint8), np.array(wall, np.uint8)).astype(np.uint8), cam,
+                 np.where(m, SKIN, 0).astype(np.int32), frame=i)
+            for i, (cam, m) in enumerate(zip(cams, masks))]
 
 
 def test_the_profile_line_seen_at_one_keyframes_outline_sets_in_with_the_edge_rule(sphere, monkeypatch):
@@ -196,6 +201,7 @@ def test_the_profile_line_seen_at_one_keyframes_outline_sets_in_with_the_edge_ru
     monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
     old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
     monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)      # session 26's rule: every keyframe leads
     new, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
     # every keyframe that shows a disc counting, the front of the profile line (shown face on by
     # the five front cameras, voted out by the side one: 1 in 6) stays out; counted only where a
@@ -225,6 +231,7 @@ def test_with_the_edge_rule_a_truth_that_overshoots_as_the_discs_do_still_leaves
     views = _profile_views(v, faces, [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5
                                       for c in cams])
     monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)
     moved, figures = recede_outline(bald, GaussianSet.empty(), views, _fit(v, faces))
     for cam in cams:
         assert _overshoot(bald, cam) - _overshoot(moved, cam) < 0.25, figures
@@ -251,3 +258,186 @@ def test_near_outline_is_the_distance_to_the_renders_outline(sphere):
     # behind the camera: never near (a camera at the same place looking away)
     away = Camera.look_at((0.0, 0.0, DISTANCE), (0.0, 0.0, 2 * DISTANCE), fov_deg=30.0, width=WIDTH, height=WIDTH)
     assert not near_outline(g, away, 4.0).any()
+
+
+# `RECEDE_EDGE_TURN`: only the far-turned keyframes lead the edge rule. The profile cameras again,
+# the side one (+90) with the true silhouette; the four front ones at +-15, +-30 with a silhouette
+# made of the discs' own render (a truth that overshoots as they do: the sample avatar's), and the
+# reference (0) with the true silhouette eroded by 2 px (a keyframe whose pose or segmentation is
+# off by that much at the cheeks).
+def _half_width(bald, cam: Camera) -> float:
+    """How far (px) the alpha-0.5 render's middle rows reach beyond the true sphere on either
+    side (half their width less the circle's radius), averaged over the 5 rows about the centre."""
+    alpha = np.asarray(render(bald.replace(extras={}), cam, (1.0, 1.0, 1.0)).alpha) > 0.5
+    c = WIDTH // 2
+    width = np.mean([np.flatnonzero(row).max() - np.flatnonzero(row).min() + 1 for row in alpha[c - 2:c + 3]])
+    return width / 2 - cam.fx * math.tan(math.asin(RADIUS / DISTANCE))
+
+
+def test_with_the_turned_keyframes_leading_the_profile_sets_in_and_a_near_frontal_keyframe_alone_does_not(
+        sphere, monkeypatch):
+    import cv2
+
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    tight = cv2.erode(head_silhouette(v, faces, cams[0]).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    masks = ([tight] + [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5 for c in cams[1:5]]
+             + [head_silhouette(v, faces, cams[5])])
+    views = _profile_views(v, faces, masks)
+    views[0].reference = True
+    front, side = cams[0], cams[5]
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", None)
+    every, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert figures["lead"] == [views[5].frame]
+    # the profile line, which only the side camera sees at its outline: set in as with every
+    # keyframe leading (2 px out before), not with session 23's quorum
+    assert _front_end(bald, side) > 1.5 and _front_end(old, side) > _front_end(bald, side) - 0.2
+    assert _front_end(led, side) < 0.5, (_front_end(led, side), figures)
+    # the front camera's sides, which the reference alone votes out (the others' silhouettes
+    # overshoot as the discs do): with every keyframe leading they set in past the others' by
+    # 0.7 px; led by the turned keyframes, as session 23's quorum leaves them
+    assert _half_width(every, front) < _half_width(old, front) - 0.5, (_half_width(every, front), _half_width(old, front))
+    assert abs(_half_width(led, front) - _half_width(old, front)) < 0.15, (_half_width(led, front), _half_width(old, front))
+    # each moved disc straight inward along its face's normal
+    shift = np.asarray(led.means, np.float64) - np.asarray(bald.means, np.float64)
+    depth = np.linalg.norm(shift, axis=1)
+    radial = np.einsum("nc,nc->n", shift, np.asarray(bald.means, np.float64)) / np.linalg.norm(bald.means, axis=1)
+    assert (radial[depth > 0] < -0.9 * depth[depth > 0]).all()
+    # the lead keyframe votes at RECEDE_EDGE_SHARE: past all of a disc's weight it votes nothing,
+    # and the quorum's moves are all that is left
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_SHARE", 1.01)
+    quorum, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    np.testing.assert_array_equal(quorum.means, old.means)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_SHARE", 0.3)
+    # the side camera's silhouette 8 px off (its pose wrong): the sphere's inside lies over its
+    # wall, so it does not lead, and the quorum's moves are all that is left; with no test it leads
+    shifted = [m for m in masks]
+    shifted[5] = np.roll(masks[5], 8, axis=1)
+    off = _profile_views(v, faces, shifted)
+    off[0].reference = True
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old_off, _ = recede_outline(bald, GaussianSet.empty(), off, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    kept, figures = recede_outline(bald, GaussianSet.empty(), off, fit)
+    assert figures["lead"] == []
+    np.testing.assert_array_equal(kept.means, old_off.means)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_AGREE", None)
+    untested, figures = recede_outline(bald, GaussianSet.empty(), off, fit)
+    assert figures["lead"] == [off[5].frame]
+    assert not np.array_equal(untested.means, old_off.means)
+
+
+def test_deep_disagreement_counts_the_wall_under_the_renders_inside(sphere):
+    from avatarkit.track import frame_hull
+
+    v, faces, bald = sphere
+    g = bald.replace(extras={})
+    cam = _camera(0.0)
+    alpha = np.asarray(render(g, cam, (1.0, 1.0, 1.0)).alpha) > 0.5
+    # the render's own silhouette: no wall under it; the true sphere's (1.8 px inside it on
+    # average): a few pixels deeper than 2 px, under RECEDE_EDGE_AGREE (such a keyframe leads)
+    assert multiview.deep_disagreement(g, cam, frame_hull.wall_image(alpha, 0)) == 0.0
+    assert multiview.deep_disagreement(g, cam, frame_hull.wall_image(head_silhouette(v, faces, cam), 0)) < 0.06
+    # the silhouette 6 px to the side: a crescent up to 6 px deep, (6 - 2) / pi per outline px on average
+    moved = multiview.deep_disagreement(g, cam, frame_hull.wall_image(np.roll(alpha, 6, axis=1), 0))
+    assert 0.8 < moved < 1.6, moved
+
+
+def test_turned_yaws_are_the_cameras_turns_from_the_reference(sphere):
+    v, faces, _ = sphere
+    views = _profile_views(v, faces)
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [0, 15, 15, 30, 30, 90], atol=1e-6)
+    # from the marked reference (+30), whichever view comes first; the turn's sign left out
+    views[3].reference = True
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [30, 15, 45, 0, 60, 60], atol=1e-6)
+    # a camera pitched over the head is not turned; one behind it is turned 180
+    up = Camera.look_at((0.0, -DISTANCE * math.sin(0.5), DISTANCE * math.cos(0.5)), (0.0, 0.0, 0.0), fov_deg=30.0,
+                        width=WIDTH, height=WIDTH)
+    views = [View(np.zeros((WIDTH, WIDTH, 3), np.uint8), c, None) for c in (_camera(0.0), up, _camera(180.0))]
+    np.testing.assert_allclose(multiview.turned_yaws(views, np.zeros(3)), [0, 0, 180], atol=1e-6)
+
+
+def test_the_turned_keyframes_lead_their_own_rounds_past_the_quorums(sphere, monkeypatch):
+    # RECEDE_ROUNDS 1, RECEDE_EDGE_ROUNDS 3: the quorum's discs one step in, the side camera's
+    # profile line up to three
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    views = _profile_views(v, faces)
+    views[0].reference = True
+    step = multiview.RECEDE_STEP * bald_discs.camera_pixel(views[0].camera, np.asarray(bald.means, np.float64))
+    monkeypatch.setattr(multiview, "RECEDE_ROUNDS", 1)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+    old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_ROUNDS", 3)
+    led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    depth = np.linalg.norm(np.asarray(led.means, np.float64) - np.asarray(bald.means, np.float64), axis=1)
+    assert len(figures["moved"]) == 3 and depth.max() <= 3 * step * 1.001 and (depth > 2.5 * step).any(), figures
+    # the discs past one step are the side camera's: the sphere's sides at the equator (the front
+    # camera's outline, which the side camera sees face on or not at all) stay at one
+    means = np.asarray(bald.means, np.float64)
+    sides = (np.abs(means[:, 1]) < 0.01) & (np.abs(means[:, 2]) < 0.01)
+    assert sides.sum() > 10 and (depth[sides] <= 1.001 * step).all()
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_ROUNDS", None)
+    two, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert len(figures["moved"]) <= 1
+
+
+
+def test_a_leading_keyframe_votes_only_over_the_wall_unlike_the_person(sphere, monkeypatch):
+    # the side camera's silhouette the true sphere's, 1.8 px inside the discs' outline (as a
+    # segmentation's edge a pixel or two tight would be): over a white wall it leads the profile
+    # line in; over a wall within RECEDE_EDGE_LIKE levels of the skin it votes nothing that
+    # would move, and the profile line stays out
+    v, faces, bald = sphere
+    fit = _fit(v, faces)
+    cams = [_camera(y) for y in PROFILE_YAWS]
+    masks = [np.asarray(render(bald.replace(extras={}), c, (1.0, 1.0, 1.0)).alpha) > 0.5 for c in cams[:5]]
+    masks.append(head_silhouette(v, faces, cams[5]))
+    monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_TURN", 60.0)
+    ends = {}
+    for name, wall in (("white", (255, 255, 255)), ("beige", (215, 175, 150))):
+        views = _profile_views(v, faces, masks, wall)
+        views[0].reference = True
+        monkeypatch.setattr(multiview, "RECEDE_EDGE", None)
+        old, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+        monkeypatch.setattr(multiview, "RECEDE_EDGE", 4.0)
+        led, figures = recede_outline(bald, GaussianSet.empty(), views, fit)
+        assert figures["lead"] == [5]
+        ends[name] = (_front_end(old, cams[5]), _front_end(led, cams[5]))
+    # white: the profile line's front end comes in by more than a pixel; beige: it stays out as
+    # session 23's quorum leaves it (the side camera votes over none of its wall)
+    assert ends["white"][1] < ends["white"][0] - 1.0, ends
+    assert ends["beige"][1] > ends["beige"][0] - 0.3, ends
+    # RECEDE_EDGE_LIKE None: the labels' wall, whatever its colour
+    monkeypatch.setattr(multiview, "RECEDE_EDGE_LIKE", None)
+    views = _profile_views(v, faces, masks, (215, 175, 150))
+    views[0].reference = True
+    anyway, _ = recede_outline(bald, GaussianSet.empty(), views, fit)
+    assert _front_end(anyway, cams[5]) < ends["beige"][0] - 1.0
+
+
+def test_the_sure_wall_leaves_out_the_wall_that_looks_like_the_person_beside_it():
+    person = np.zeros((40, 40), bool)
+    person[10:30, 10:30] = True
+    image = np.full((40, 40, 3), 255, np.uint8)
+    image[person] = SKIN_RGB
+    image[:, :5] = (190, 160, 120)          # a strip of wall within 40 levels of the skin
+    # the frame's blends of skin and white at the edge: the person's last column, the wall's first
+    image[10:30, 29] = (228, 203, 193)
+    image[10:30, 30] = (240, 230, 225)
+    wall = (~person).astype(np.int32)
+    sure = multiview.sure_wall(wall, image, person, 40)
+    assert (sure[:, :5] == 0).all()                                # like the skin: left out
+    # white, and the wall's blend (like the person's blended edge, not its skin inside): kept
+    assert (sure[:, 5:][~person[:, 5:]] == 1).all()
+    assert (sure[person] == 0).all()
+    assert (multiview.sure_wall(wall, image, person, 0)[:, 5:][~person[:, 5:]] == 1).all()

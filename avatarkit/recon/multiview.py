@@ -308,8 +308,10 @@ RECEDE_MIN_FRAMES = 2
 #: "The profile's outline seen at the keyframes' outlines"): at 4 px the mesh subject's profile gain
 #: +2.66 / +2.93 / +2.88 -> +2.73 / +3.01 / +2.99 (seeds 0 / 1 / 2), the bob within 0.04 dB, but one
 #: keyframe's vote now moves a disc, and where a keyframe's pose is off the sample avatar loses:
-#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall
-RECEDE_EDGE = None
+#: -0.12 at +45 (seed 0), -0.28..-0.65 on the whip clip, -0.53..-0.71 on the cluttered wall. On
+#: since session 27 with only the far-turned keyframes leading it (`RECEDE_EDGE_TURN`; docs/
+#: video-build.md "The profile's outline led by the turn ends (session 27)")
+RECEDE_EDGE = 4.0
 #: with `RECEDE_EDGE`, the keyframes a disc must lie near the outline of (instead of
 #: `RECEDE_MIN_FRAMES`): one, since a contour is seen edge-on by few keyframes
 RECEDE_EDGE_FRAMES = 1
@@ -317,6 +319,44 @@ RECEDE_EDGE_FRAMES = 1
 #: is on the wall (instead of `RECEDE_SHARE`): one keyframe may now decide, so its vote asks for a
 #: clearer overshoot
 RECEDE_EDGE_SHARE = 0.3
+#: degrees, with `RECEDE_EDGE`: only the keyframes turned at least this far from the reference
+#: (`turned_yaws`: the yaw of their camera about the head, seen from the reference camera's axes)
+#: lead the edge rule. A disc then moves as session 23's quorum says (every keyframe that shows it),
+#: or where one of these keyframes votes it out and the edge rule's quorum (the keyframes that see
+#: it at their outline) holds. A keyframe turned by t sees at its outline the discs that face
+#: 90 - t from the front-back axis: past 60 degrees the face's profile line, the throat and the
+#: back of the neck, which only the one or two keyframes at each turn's end see edge-on and the
+#: rest see face on. The near-frontal keyframes' outline (the cheeks, the jaw's sides) lies at the
+#: outline of several of them, and there session 23's agreement (the turned keyframes that see it
+#: face on counted) stays: on the disc-made sample avatar, whose truth overshoots as the build does,
+#: their votes alone set the outline in past the truth (the whip clip's +45 -0.46 dB). None: every
+#: keyframe leads (session 26's rule). 60 (session 27): the mesh subject's profile gain +2.66 /
+#: +2.93 / +2.88 -> +2.77 / +3.07 / +3.00 (seeds 0 / 1 / 2), the sample avatar and the bob on
+#: the white and cluttered walls and the whip clip within 0.02 dB of main's, none of their views
+#: lower by more (docs/video-build.md "The profile's outline led by the turn ends (session 27)")
+RECEDE_EDGE_TURN = 60.0
+#: with `RECEDE_EDGE_TURN`: a turned keyframe leads only where its silhouette agrees with the
+#: avatar's beyond the outline's band: at most this many pixels of its wall lie under the avatar's
+#: render more than `RECEDE_EDGE_DEEP` pixels inside the render's outline, per pixel of that outline
+#: (`deep_disagreement`). The recession mends a pixel or two of overshoot; a keyframe that puts the
+#: avatar's inside over its wall disagrees by more than that (its pose or its segmentation is off:
+#: the cluttered wall's sample avatar's -80 end, read 92 degrees from the reference, 1.0; the
+#: bob's -80 end, 0.23), and its near-outline votes would move the outline where it is wrong. The
+#: keyframes whose silhouettes fit (0.00-0.02 at the white wall's turn ends; the mesh subject's
+#: tracking edge 0.09) lead. None: no test
+RECEDE_EDGE_AGREE = 0.1
+#: ... pixels: the outline's band `RECEDE_EDGE_AGREE` leaves out (the overshoot the recession mends)
+RECEDE_EDGE_DEEP = 2.0
+#: with `RECEDE_EDGE_TURN`: a leading keyframe's wall leaves out the pixels whose colour lies within
+#: this many levels (of 255, every channel) of the person's nearest to them (`sure_wall`): where the
+#: wall looks like the skin beside it the segmentation's edge is a guess, and one keyframe's guess
+#: would move the outline (the cluttered wall's beige plaster behind the sample avatar's neck at its
+#: +80 end: the wall label a pixel inside the neck's back, -0.10 dB at -90). On a white wall the
+#: skin's outline is 40+ levels off it even where the frame blends the two. None: the labels' wall
+RECEDE_EDGE_LIKE = 40
+#: with `RECEDE_EDGE_TURN`: the rounds the turned keyframes' votes set discs in (None:
+#: `RECEDE_ROUNDS`); the rounds past `RECEDE_ROUNDS` move only the discs they lead
+RECEDE_EDGE_ROUNDS = None
 #: The bald layer's colours come from a keyframe's `skin_pose` where it has one (`VideoViews.
 #: skin_views`; only `track.video_build.SKIN_POSE` sets one): a frame then has two poses, the
 #: plain registration's for the hair and everything the hair is made from, and the one found with
@@ -1009,13 +1049,82 @@ def recede_outline(bald, hair, views: list[View], fit):
         return [_Posed(both, v.camera) for v in views]
 
     movable = np.ones(nb, bool) if RECEDE_SCALP else ~_region_rows(bald, GaussianSet.empty(), fit, "scalp", every=False)[:nb]
-    edge = RECEDE_EDGE
-    receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
-                                share=RECEDE_SHARE if edge is None else RECEDE_EDGE_SHARE, quorum=RECEDE_QUORUM,
-                                min_frames=RECEDE_MIN_FRAMES if edge is None else RECEDE_EDGE_FRAMES,
-                                near=edge)
+    edge, turn = RECEDE_EDGE, RECEDE_EDGE_TURN
+    if edge is not None and turn is not None:
+        # session 23's quorum, and the edge rule led by the far-turned keyframes only
+        turns = turned_yaws(views, rest.mean(axis=0))
+        agree = RECEDE_EDGE_AGREE
+        if agree is not None:
+            # a turned keyframe whose silhouette disagrees with the avatar's inside does not lead
+            posed = pose(np.zeros((nb, 3)))
+            turns = np.array([t if w is None or t < turn or deep_disagreement(p.gaussians, p.camera, w) <= agree
+                              else -1.0 for t, w, p in zip(turns, walls, posed)])
+        if RECEDE_EDGE_LIKE is not None:
+            # the leading keyframes vote only over the wall that does not look like the person
+            walls = [sure_wall(w, v.image, v.labels != BACKGROUND, RECEDE_EDGE_LIKE) if w is not None and t >= turn
+                     else w for w, v, t in zip(walls, views, turns)]
+        receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
+                                    share=RECEDE_SHARE, quorum=RECEDE_QUORUM, min_frames=RECEDE_MIN_FRAMES,
+                                    near=edge, lead=[bool(t >= turn) for t in turns],
+                                    near_share=RECEDE_EDGE_SHARE, near_min_frames=RECEDE_EDGE_FRAMES,
+                                    lead_rounds=RECEDE_EDGE_ROUNDS)
+        receded.info["lead"] = [int(v.frame) for v, t in zip(views, turns) if t >= turn]
+    else:
+        receded = frame_hull.recede(pose, walls, normals, movable, step=step, rounds=RECEDE_ROUNDS,
+                                    share=RECEDE_SHARE if edge is None else RECEDE_EDGE_SHARE, quorum=RECEDE_QUORUM,
+                                    min_frames=RECEDE_MIN_FRAMES if edge is None else RECEDE_EDGE_FRAMES,
+                                    near=edge)
     moved = bald.replace(means=(rest + receded.offsets).astype(np.float32))
     return moved, {**receded.info, "step_m": round(float(step), 6), "margin_px": RECEDE_MARGIN}
+
+
+def deep_disagreement(gaussians, camera, wall: np.ndarray) -> float:
+    """How far a keyframe's silhouette disagrees with the avatar's beyond the outline's band: the
+    pixels of its `wall` ((H, W) int32 1s, `frame_hull.wall_image`) the render of `gaussians` at
+    `camera` covers (alpha > 0.5) more than `RECEDE_EDGE_DEEP` pixels inside its own outline, per
+    pixel of that outline (the covered pixels next to an uncovered one)."""
+    from scipy import ndimage
+
+    from avatarkit.render import render
+
+    covered = np.asarray(render(gaussians, camera, (0.0, 0.0, 0.0)).alpha) > 0.5       # (H, W)
+    inside = ndimage.distance_transform_edt(covered)                                   # (H, W) px to the outline
+    outline = covered & ~ndimage.binary_erosion(covered, np.ones((3, 3), bool), border_value=0)
+    deep = (np.asarray(wall) == 1) & (inside > float(RECEDE_EDGE_DEEP))
+    return float(deep.sum()) / max(int(outline.sum()), 1)
+
+
+def sure_wall(wall: np.ndarray, image: np.ndarray, person: np.ndarray, levels: float, inset: int = 3) -> np.ndarray:
+    """(H, W) int32: `wall` ((H, W) int32 1s, `frame_hull.wall_image`) less the pixels whose colour
+    in `image` (H, W, 3) uint8 lies within `levels` in every channel of the person's nearest to
+    them, taken `inset` px inside `person` (H, W) bool (the frame blends the wall and the person in
+    the pixel or two at its edge)."""
+    from scipy import ndimage
+
+    core = ndimage.binary_erosion(np.asarray(person, bool), np.ones((2 * inset + 1,) * 2, bool))
+    if not core.any():
+        return np.asarray(wall, np.int32)
+    _, (iy, ix) = ndimage.distance_transform_edt(~core, return_indices=True)     # the nearest core pixel
+    img = np.asarray(image, np.int16)
+    like = (np.abs(img - img[iy, ix]) <= levels).all(axis=-1)
+    return np.where(like, 0, np.asarray(wall, np.int32)).astype(np.int32)
+
+
+def turned_yaws(views: list[View], centre: np.ndarray) -> np.ndarray:
+    """(V,) float64 degrees: how far each view's camera is turned about the point `centre` (3,)
+    (the head, in the rest frame the cameras see) from the reference view's (the first if none
+    is marked), its yaw in the reference camera's axes (x right, z forward: pitch and roll left
+    out), in [0, 180]."""
+    ref = next((v for v in views if v.reference), views[0]).camera
+    axes = np.asarray(ref.rotation, np.float64)                  # (3, 3) rest -> the reference camera
+    centre = np.asarray(centre, np.float64).reshape(3)
+
+    def yaw(camera) -> float:
+        d = axes @ (np.asarray(camera.camera_center, np.float64) - centre)    # the head to the camera
+        return float(np.degrees(np.arctan2(d[0], -d[2])))
+
+    y0 = yaw(ref)
+    return np.array([abs((yaw(v.camera) - y0 + 180.0) % 360.0 - 180.0) for v in views])
 
 
 @dataclass
@@ -1300,7 +1409,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "BODY_WALL_FRINGE", "BODY_WALL_FRINGE_IN_DRAFTS", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_SHARE", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
-           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "recede_outline",
+           "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "deep_disagreement", "recede_outline", "sure_wall", "turned_yaws",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]

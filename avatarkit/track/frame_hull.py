@@ -238,6 +238,29 @@ def near_outline(gaussians, camera, pixels: float) -> np.ndarray:
     return ok & (dist[ix[:, 1], ix[:, 0]] <= pixels)
 
 
+def _tally_lead(views, walls: list, share: float, near_share: float, near: float, lead: list):
+    """`recede`'s tally with lead frames, over the views whose wall is not None: (seen, out) as
+    `_tally` without `near`; (seen_near, out_near) as `_tally` with it, voting at `near_share`;
+    led: the lead frames voting outside at `near_share`. All (N,) float64."""
+    from avatarkit.recon.label_lifting import accumulate_weights
+
+    n = len(views[0].gaussians) if views else 0
+    seen, out, seen_near, out_near, led = (np.zeros(n) for _ in range(5))
+    for v, wall, first in zip(views, walls, lead):
+        if wall is None:
+            continue
+        w = accumulate_weights(v.gaussians, v.camera, wall, 2)               # (N, 2) off / on the wall
+        shows, outside = _votes(w, share, MIN_WEIGHT)
+        _, outside_near = _votes(w, near_share, MIN_WEIGHT)
+        seen += shows
+        out += outside
+        seen_near += shows & (near_outline(v.gaussians, v.camera, near) | outside_near)
+        out_near += outside_near
+        if first:
+            led += outside_near
+    return seen, out, seen_near, out_near, led
+
+
 def _tally_pair(views, walls: list, other_walls: list, share: float):
     """`_tally(views, walls)` and `_tally(views, other_walls)` (nothing cleared) in one pass
     per view where both walls are given (`wall_votes_pair`): (seen, out, seen_other,
@@ -289,7 +312,8 @@ def inward_normals(vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray
 def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: float | None = None,
            rounds: int | None = None, share: float | None = None, quorum: float | None = None,
            min_frames: int | None = None, other_walls: list | None = None,
-           other: np.ndarray | None = None, near: float | None = None) -> Receded:
+           other: np.ndarray | None = None, near: float | None = None, lead: list | None = None,
+           near_share: float | None = None, near_min_frames: int = 1, lead_rounds: int | None = None) -> Receded:
     """The movable Gaussians the frames show over the wall moved inward (module docstring):
     pose(offsets (M, 3)) -> the views (as `carve`'s, their first M Gaussians the movable set's
     M, moved by `offsets` in the rest pose); walls: per view an (H, W) int32 `wall_image` or
@@ -299,9 +323,18 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     voted outside moves `step` (None: `STEP`) further along its normal, `rounds` (None:
     `RECEDE_ROUNDS`) times at most. near (pixels, None: every frame that shows a Gaussian): a
     frame counts a Gaussian as shown only where its centre lies within `near` of that frame's
-    render outline (`near_outline`) or it votes it outside (not with `other`)."""
+    render outline (`near_outline`) or it votes it outside (not with `other`).
+    lead (per view bool, only with near): the frames whose votes `near` counts. A Gaussian then
+    moves as the frames vote without `near` (every frame that shows it, `min_frames`, `share`), or
+    when one of the lead frames votes it outside at `near_share` (None: `share`) and so do
+    `quorum` of the frames that show it near their outline or vote it outside (at least
+    `near_min_frames`): the frames that see it face on hold a Gaussian only against the others;
+    lead_rounds (None: `rounds`): the rounds the lead frames' votes move Gaussians in, the rounds
+    past `rounds` theirs only."""
     if near is not None and other is not None:
         raise ValueError("recede: near= is not taken with other=")
+    if lead is not None and (near is None or len(lead) != len(walls)):
+        raise ValueError("recede: lead= needs near= and one flag per view")
     share = SHARE if share is None else share
     quorum = QUORUM if quorum is None else quorum
     min_frames = MIN_FRAMES if min_frames is None else min_frames
@@ -314,16 +347,24 @@ def recede(pose, walls: list, normals: np.ndarray, movable: np.ndarray, step: fl
     offsets = np.zeros((m, 3))
     moved = np.zeros(m, bool)
     per_round = []
-    for _ in range(rounds):
+    lead_rounds = rounds if lead is None or lead_rounds is None else max(int(lead_rounds), rounds)
+    for r in range(lead_rounds):
         views = pose(offsets)
         if other is not None and other.any():
             # one compositing pass per frame for both walls (`_tally_pair`; two `_tally`s give the same)
             seen, out, seen2, out2 = _tally_pair(views, walls, other_walls, share)
             seen, out = np.where(other, seen2[:m], seen[:m]), np.where(other, out2[:m], out[:m])
+        elif lead is not None:
+            seen, out, seen_near, out_near, led = (t[:m] for t in _tally_lead(
+                views, walls, share, share if near_share is None else near_share, near, lead))
+            quorum_moves = _voted(seen, out, min_frames, quorum) if r < rounds else np.zeros(m, bool)
+            new = movable & (quorum_moves
+                             | ((led >= 1) & _voted(seen_near, out_near, near_min_frames, quorum)))
         else:
             seen, out = _tally(views, walls, None, share, near=near)
             seen, out = seen[:m], out[:m]
-        new = movable & _voted(seen, out, min_frames, quorum)
+        if lead is None:
+            new = movable & _voted(seen, out, min_frames, quorum)
         per_round.append(int(new.sum()))
         if not new.any():
             break
