@@ -160,21 +160,16 @@ def test_rim_and_background_coloured_pixels_do_not_become_pale_cards(scene):
     assert np.all((share > 0.35) & (share < 0.7))
 
 
-def test_wall_the_labels_took_in_past_the_overshoot_gets_no_opaque_wall_discs(scene, monkeypatch):
-    """`COVER_HEAD_INSIDE`: the skin label reaches 4 px into the wall on the head's right side,
-    and the build's discs overshoot the head's outline over the inner 2 px of it (as the bald
-    layer's rim does by 1-2 px). Read at the nearest covered skin pixel, the head's colour was the
-    wall's there (too like the background to unmix: a = 1) and the outer 2 px got opaque
-    wall-coloured discs: the white crescent by the mesh subject's ear. Read again inside the
-    fitted head where it was the wall's, they are background and get none; the discs elsewhere
-    are the same either way."""
+def _overshoot_past_the_label(fit, bald, labels, ear):
+    """The bald layer of `scene` with discs overshooting its outline over the inner 2 px of a
+    4 px band of wall beside the head's right side (as the bald layer's rim does by 1-2 px):
+    (over (H, W) bool the band, inner (H, W) bool its inner 2 px, built GaussianSet, covered (H, W)
+    bool the built render's alpha >= COVER_ALPHA)."""
     from scipy import ndimage
 
-    from avatarkit.recon import coverage
     from avatarkit.recon.hair_strands import back_project
     from avatarkit.rotations import matrix_to_quat
 
-    fit, bald, hair, image, labels, ear, tuft = scene
     cam = fit.camera
     head = labels == SKIN
     ys, xs = np.nonzero(head & ~ear)
@@ -195,7 +190,22 @@ def test_wall_the_labels_took_in_past_the_overshoot_gets_no_opaque_wall_discs(sc
     overshoot = GaussianSet.from_colors(means, quat, np.stack([w, w, 0.15 * w], axis=1), np.full(len(iy), 0.99),
                                         np.tile(np.float32([0.8, 0.6, 0.5]), (len(iy), 1)), extras=extras)
     built = GaussianSet.concat([bald, overshoot])
-    covered = render(built.replace(extras={}), cam).alpha >= COVER_ALPHA
+    return over, inner, built, render(built.replace(extras={}), cam).alpha >= COVER_ALPHA
+
+
+def test_wall_the_labels_took_in_past_the_overshoot_gets_no_opaque_wall_discs(scene, monkeypatch):
+    """`COVER_HEAD_INSIDE`: the skin label reaches 4 px into the wall on the head's right side,
+    and the build's discs overshoot the head's outline over the inner 2 px of it (as the bald
+    layer's rim does by 1-2 px). Read at the nearest covered skin pixel, the head's colour was the
+    wall's there (too like the background to unmix: a = 1) and the outer 2 px got opaque
+    wall-coloured discs: the white crescent by the mesh subject's ear. Read again inside the
+    fitted head where it was the wall's, they are background and get none; the discs elsewhere
+    are the same either way."""
+    from avatarkit.recon import coverage
+
+    fit, bald, hair, image, labels, ear, tuft = scene
+    cam = fit.camera
+    over, inner, built, covered = _overshoot_past_the_label(fit, bald, labels, ear)
     labels = labels.copy()
     labels[over] = SKIN                                                 # the wall taken for skin
     outer = over & ~covered
@@ -407,32 +417,12 @@ def test_wall_taken_in_past_the_overshoot_is_one_case_on_a_white_wall_and_a_skin
     from scipy import ndimage
 
     from avatarkit.recon import coverage
-    from avatarkit.recon.hair_strands import back_project
-    from avatarkit.rotations import matrix_to_quat
     from avatarkit.track.background_plate import Plate
 
     fit, bald, hair, image, labels, ear, tuft = scene
     cam = fit.camera
-    head = labels == SKIN
     person = np.isin(labels, (SKIN, HAIR))
-    ys, xs = np.nonzero(head & ~ear)
-    yy, xx = np.mgrid[:128, :128]
-    over = ndimage.binary_dilation(head, iterations=4) & ~person & (xx > 64) & (np.abs(yy - ys.mean()) < 10)
-    inner = over & ndimage.binary_dilation(head, iterations=2)
-    r0 = render(bald.replace(extras={}), cam)
-    iy, ix = np.nonzero(inner)
-    _, (ny, nx) = ndimage.distance_transform_edt(~(r0.alpha >= COVER_ALPHA), return_indices=True)
-    depth = r0.depth[ny[iy, ix], nx[iy, ix]].astype(np.float64)
-    px = np.stack([ix + 0.5, iy + 0.5], axis=1).astype(np.float64)
-    c = cam.camera_center
-    means = (c + (back_project(fit, px, 1.0) - c) * depth[:, None]).astype(np.float32)
-    w = 1.2 * depth / cam.fx
-    quat = np.tile(matrix_to_quat(np.asarray(cam.rotation, np.float64).T[None])[0], (len(iy), 1))
-    extras = {k: np.zeros(len(iy), np.asarray(v).dtype) for k, v in bald.extras.items()}
-    overshoot = GaussianSet.from_colors(means, quat, np.stack([w, w, 0.15 * w], axis=1), np.full(len(iy), 0.99),
-                                        np.tile(np.float32([0.8, 0.6, 0.5]), (len(iy), 1)), extras=extras)
-    built = GaussianSet.concat([bald, overshoot])
-    covered = render(built.replace(extras={}), cam).alpha >= COVER_ALPHA
+    over, inner, built, covered = _overshoot_past_the_label(fit, bald, labels, ear)
     img = image.copy()
     img[~person] = wall_rgb                                             # the wall, and the photo there
     lab = labels.copy()
