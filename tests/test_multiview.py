@@ -434,14 +434,15 @@ def test_the_neck_no_view_saw_takes_the_colour_of_the_neck_that_has_one(planes):
 
 def test_the_registration_drafts_do_not_fill_the_neck(monkeypatch):
     """`VideoViews.fills_neck`: with `NECK_FILL` the final build fills the neck no view saw, a
-    draft the video build registers against (info["draft"]) does not; off (the default), neither."""
+    draft the video build registers against (info["draft"]) does not (the default since session
+    27); off, neither."""
     from avatarkit.recon import multiview
     from avatarkit.recon.multiview import VideoViews
 
     final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
-    assert not final.fills_neck() and not draft.fills_neck()
-    monkeypatch.setattr(multiview, "NECK_FILL", True)
     assert final.fills_neck() and not draft.fills_neck()
+    monkeypatch.setattr(multiview, "NECK_FILL", False)
+    assert not final.fills_neck() and not draft.fills_neck()
 
 
 def test_the_registration_drafts_keep_the_coverage_of_the_wall_coloured_skin():

@@ -46,7 +46,7 @@ in the registration drafts). Gaussians of the bald head bound to the neck that
 the reference view shows are left alone (the tracked head turns, the neck and the clothes below
 it need not); the neck's sides and back, which the photo does not show, take the blend
 (`NECK_SHOWN`; None: the whole neck is left alone), and what of them no keyframe saw may take
-the colour of the nearest neck that has one (`NECK_FILL`, off).
+the colour of the nearest neck that has one (`NECK_FILL`, on since session 27).
 
 Hair labels: `recon.pipeline.clean_hair` with every keyframe's camera and label image (the label
 lifting sums the votes of all views; with `recon.hair_reassign.CLEAR_SHARE` (off) a candidate of
@@ -253,8 +253,13 @@ EDGE_HAIR_ON_SKIN: float | None = None
 #: subject seed 0 -0.11 / -0.08 dB at +45 / -45, seed 1 -0.10 / -0.11; the sample avatar and the
 #: bob within 0.02); with session 23's rim inset (`bald_discs.INSET`) it gains +0.31 / +0.40 at
 #: +90 / -90 (seed 1 +0.34 / +0.44), nothing else moving more than 0.02: switch it on with that
-#: (docs/video-build.md, "The back of the neck's colour (session 23)")
-NECK_FILL = False
+#: (docs/video-build.md, "The back of the neck's colour (session 23)"). On since session 27 (the
+#: lead, after the merges): scored over black as well (`benchmarks/build_video.py`), every view of
+#: the mesh subject gains with it (seed 0 +0.17 / +0.20 at +45 / -45, +0.88 / +1.19 at +90 / -90),
+#: so its loss over white is the overshooting rim's, as session 23 found; the mesh subject's profile
+#: gain over white +2.88 / +3.17 / +3.14 -> +3.00 / +3.26 / +3.21 (seeds 0 / 1 / 2; +-45 -0.04..-0.10),
+#: the sample avatar and the bob within 0.03 dB on every clip and wall measured
+NECK_FILL = True
 #: ... the neck's Gaussians whose normal points more than this many degrees below the horizontal
 #: (the neck's cut end, under the head model's neck, which no view of a head shows but edge-on
 #: at the outline) keep the portrait's fill
