@@ -21,7 +21,8 @@ Prints
     sessions 5-8 measured on), built from the
     whole video and from the video build's reference frame alone; PSNR of each build's rest
     render against the known avatar's at front, three-quarter and profile views, and the
-    video build's gain (target: profile >= +3 dB); how much hair shell the keyframes grew and how
+    video build's gain (target: profile >= +3 dB), both renders over white (the score) and,
+    beside it, over black (session 27: each background hides a different error); how much hair shell the keyframes grew and how
     many strand directions they set (`--no-multiview-hair` turns both off). Each build runs in its
     own process (`_in_own_process`);
   - synthetic, mesh subject (`synthetic.mesh_head`: the template mesh with a procedural texture
