@@ -358,3 +358,31 @@ def test_relabel_head_leaves_the_wall_continuing_past_the_known_plate_to_the_wal
     after = MV.relabel_head(labels, img, head, (hair, skin), wall=MV.plate_wall(plate, img))
     assert (after[band] != BACKGROUND).sum() < 0.1 * (before[band] != BACKGROUND).sum()
     assert (after[head] != BACKGROUND).all() and (after[~band & ~head] == before[~band & ~head]).all()
+
+
+def test_continuing_counts_what_a_pixel_by_pixel_count_does():
+    """`continuing` (which skips the pixels with no known pixel inside their disc) against the
+    obvious count: for each region pixel, the known pixels within the disc (the same elliptic
+    element) agreeing with its colour within `AGREE` in every channel. Random walls with a large
+    unknown zone, so that most of the region lies farther than r from any known pixel."""
+    rng = np.random.default_rng(5)
+    for _ in range(6):
+        h, w, r = 40, 52, int(rng.integers(2, 7))
+        colour = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+        colour[rng.random((h, w)) < 0.5] = (200, 190, 170)                 # a wall colour repeated
+        image = colour.copy()
+        image[rng.random((h, w)) < 0.3] = (205, 185, 175)                  # within AGREE of it
+        known = np.ones((h, w), bool)
+        known[5:35, 8:45] = False                                          # the head's zone
+        region = rng.random((h, w)) < 0.7
+        got = BP.continuing(known, colour, image, region, r)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2).astype(bool)
+        want = np.zeros((h, w), np.int32)
+        for y, x in zip(*np.nonzero(region)):
+            for dy, dx in zip(*np.nonzero(disc)):
+                yy, xx = y + dy - r, x + dx - r
+                if 0 <= yy < h and 0 <= xx < w and known[yy, xx]:
+                    d = np.abs(colour[yy, xx].astype(int) - image[y, x].astype(int)).max()
+                    want[y, x] += d <= BP.AGREE
+        np.testing.assert_array_equal(got, want)
+        assert (want[region] == 0).any() and (want[region] > 0).any()
