@@ -501,6 +501,14 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
             bald, hair, figures = refine_facing(bald, hair, keyviews,
                                                 sdf.query(np.concatenate([bald.means, hair.means]))[1], keep)
             report.info["facing_refine"] = {**figures, "seconds": round(time.perf_counter() - t0, 3)}
+        if keyviews and plate is not None and not views.info.get("draft", False):
+            # after every colour: the hair coloured more by the wall between the strands than by
+            # the strands is cleared (`hair_fringe.WALL_SHARE`); not in a registration draft (the
+            # turned frames are registered against the drafts as they were)
+            from avatarkit.recon import hair_fringe
+
+            hair, report.info["hair_fringe"] = hair_fringe.clear_wall_hair(hair, fit.camera, plate,
+                                                                           np.asarray(image).shape[:2])
         if OPEN_MOUTH:
             # after the colour matching: hidden at rest, the teeth would only soak up the
             # residual of the lips in front of them
