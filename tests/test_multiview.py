@@ -833,3 +833,46 @@ def test_the_registration_drafts_weigh_the_hairs_samples_by_visibility_alone(mon
     assert final.hair_facing() == 0.5 and draft.hair_facing() is None
     monkeypatch.setattr(multiview, "HAIR_FACING", None)
     assert final.hair_facing() is None and draft.hair_facing() is None
+
+
+def test_hair_the_reference_sees_along_its_shell_little_of_it_shown_keeps_the_facing_blend(monkeypatch):
+    """With `hair_facing` the hair rows the reference sees at a grazing angle (cos < MIN_COS) of
+    whose footprint its camera shows under `HAIR_FACING_SHOWN` join the rows that keep the blend's
+    colour after the photo's matching (figures["_only_others"], `VideoViews.keep_view_colours`):
+    the hair plane seen by the reference turned 75 degrees (its image the outline's light colour)
+    and face-on by a brown keyframe. Kept: exactly the rows the reference saw with under 0.2 of
+    their footprint shown, in the blend's colour, nearer the brown than the light; the rows it shows more of (the
+    plane's near edge) are not; without hair_facing, or with HAIR_FACING_SHOWN 0, none is."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import colour_from_views, footprint_visibility
+
+    brown = np.float32([0.36, 0.24, 0.15])
+    hair, normals, views, _ = _hair_plane_views(brown=tuple(brown), turn=75.0, reference=False)
+    side, front = views[1], views[0]
+    views = [View(side.image, side.camera, None, 1.0, reference=True), front]
+    bald = hair.subset(np.zeros(len(hair), bool))
+    by_ref = view_samples(hair, normals, views[0], hair=np.ones(len(hair), bool)).seen
+    shown = footprint_visibility(hair, views[0].camera)
+    little = by_ref & (shown < multiview.HAIR_FACING_SHOWN)
+    assert little.sum() > 50 and (by_ref & ~little).sum() > 5
+
+    def kept(**kw):
+        _, out, figures = colour_from_views(bald, hair, views, normals, **kw)
+        means, colours = figures["_only_others"]
+        mask = np.zeros(len(hair), bool)
+        if len(means):
+            from scipy.spatial import cKDTree
+
+            dist, _ = cKDTree(np.asarray(means, np.float64)).query(np.asarray(hair.means, np.float64))
+            mask = dist < 1e-7
+        return mask, out, colours, figures
+
+    mask, out, colours, figures = kept(hair_facing=0.5)
+    np.testing.assert_array_equal(mask & by_ref, little)
+    assert figures["hair_grazed_kept"] == int(little.sum())
+    np.testing.assert_allclose(colours, out.colors[mask], atol=1e-6)
+    light = np.float32([0.85, 0.65, 0.55])                           # the reference's image
+    assert np.median(np.abs(out.colors[little] - brown).max(axis=1)) < 0.5 * np.abs(light - brown).max()
+    assert not (kept()[0] & by_ref).any()
+    monkeypatch.setattr(multiview, "HAIR_FACING_SHOWN", 0.0)
+    assert not (kept(hair_facing=0.5)[0] & by_ref).any()

@@ -96,6 +96,13 @@ REFERENCE_WEIGHT = 3.0
 HAIR_FACING: float | None = None
 #: ... the least share of that factor's root a grazing or backward view keeps
 HAIR_FACING_FLOOR = 0.1
+#: ... and with it, the hair Gaussians the reference view sees at a grazing angle or from behind
+#: (cos < `MIN_COS`) of whose footprint its camera shows less than this share keep the blend's
+#: colour after the photo's matching, as those only the other keyframes saw do
+#: (`VideoViews.keep_view_colours`): the photo's matching pulls them to its own outline, the
+#: keyframes that face them show their colour. What the photo shows more of (a bob's hair beside
+#: the cheeks, seen from the front) keeps the photo's colour
+HAIR_FACING_SHOWN = 0.2
 #: the person mask is dilated by this share of the image's longer side before the hull test
 SILHOUETTE_MARGIN = 0.02
 #: a hair Gaussian is seen in a view when at least this share of its own footprint shows there
@@ -959,7 +966,9 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     (outside the neck) of which those no view saw, not kept, not filled as scalp, facing away
     from the reference view and not shown by its camera are filled from the nearest seen ones
     (`HIDDEN_BALD_FILL`, `HIDDEN_BALD_SHOWN`); hair_facing: the hair rows' samples weighted by
-    facing as well (`view_samples(hair_facing=)`, `HAIR_FACING`). Returns
+    facing as well (`view_samples(hair_facing=)`, `HAIR_FACING`), and the hair the reference
+    sees at a grazing angle, little of it shown, kept with the blend's colour after the photo's
+    matching (`HAIR_FACING_SHOWN`, figures["_only_others"]). Returns
     (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
@@ -1027,11 +1036,21 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     # ... and only where the reference view looks at a grazing angle or from behind: what it
     # faces (the brows, say) the reference photo's matching colours best
     only_others = seen & ~seen_by[0] & away
+    grazed_kept = 0
+    if hair_facing is not None and HAIR_FACING_SHOWN is not None:
+        # the hair the reference sees only along its shell, little of it shown: the facing views'
+        # blend, not the photo's outline (`HAIR_FACING_SHOWN`)
+        grazed = is_hair & seen & seen_by[0] & away
+        if grazed.any():
+            grazed &= footprint_visibility(both, views[0].camera) < float(HAIR_FACING_SHOWN)
+        only_others |= grazed
+        grazed_kept = int(grazed.sum())
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
                "hidden_bald_filled": int(bald_filled),
                "hidden_neck_filled": int(neck_filled), "skin_pose_views": split,
+               "hair_grazed_kept": grazed_kept,
                "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
@@ -1444,7 +1463,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "BODY_WALL_FRINGE", "BODY_WALL_FRINGE_IN_DRAFTS", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_FACING", "HAIR_FACING_FLOOR", "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_FACING", "HAIR_FACING_FLOOR", "HAIR_FACING_SHOWN", "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "deep_disagreement", "recede_outline", "sure_wall", "turned_yaws",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]
