@@ -27,7 +27,7 @@ no surface normal to face (the shell's outward direction says little about a str
 the side): a hair Gaussian is seen when the renderer shows at least `HAIR_VISIBLE` of its own
 footprint inside the person (`footprint_visibility`: its blending weight alpha T summed over
 the pixels of the person mask, over its unoccluded integral), and that share is its weight (x
-sharpness). Every sample's weight is then multiplied by `person_weight`: the soft person mask
+sharpness; with `HAIR_FACING`, off, also weighed down where the view looks along the hair shell). Every sample's weight is then multiplied by `person_weight`: the soft person mask
 (`soft_person`: the segmentation's person mask without the background-coloured halo a
 segmentation can take in at the silhouette, blurred) mapped so that a pixel on the silhouette,
 half background, gives nothing.
