@@ -408,7 +408,7 @@ def test_the_colour_stage_samples_the_bald_layer_from_the_skin_views(monkeypatch
     got = {}
 
     def colour_spy(bald, hair, views, normals, keep, body, scalp, drop_skin_hair=False, neck=None, bald_views=None,
-                   hidden_bald=None):
+                   hidden_bald=None, hair_facing=None):
         got["views"], got["bald_views"] = views, bald_views
         return bald, hair, {"_only_others": (np.zeros((0, 3)), np.zeros((0, 3), np.float32))}
 

@@ -747,3 +747,132 @@ def test_the_registration_drafts_do_not_fill_the_hidden_bald_layer(monkeypatch):
     assert not final.fills_hidden_bald() and not draft.fills_hidden_bald()
     monkeypatch.setattr(multiview, "HIDDEN_BALD_FILL", True)
     assert final.fills_hidden_bald() and not draft.fills_hidden_bald()
+
+
+def _hair_plane_views(lit=(0.85, 0.65, 0.55), brown=(0.36, 0.24, 0.15), turn=75.0, reference=True):
+    """A hair plane (the fixture's back plane, normals +Z) seen by a reference on +Z whose image is
+    brown and by a keyframe turned `turn` degrees about Y, which looks along the plane and whose
+    image is lit skin (the hair's outline over the temple): -> (hair, normals, views, cos of the
+    turned camera per Gaussian)."""
+    hair = splat_plane(0.0, (-0.1, 0.1), (0.5, 0.5, 0.5))
+    normals = np.tile([0.0, 0.0, 1.0], (len(hair), 1))
+    front = Camera.look_at((0.0, 0.0, 0.8), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    t = np.radians(turn)
+    side = Camera.look_at((0.8 * np.sin(t), 0.0, 0.8 * np.cos(t)), (0, 0, 0), width=SIZE, height=SIZE, fov_deg=40)
+    views = [View(_image(brown), front, None, 1.0, reference=reference), View(_image(lit), side, None, 1.0)]
+    d = camera_centre(side)[None] - hair.means
+    cos = d[:, 2] / np.linalg.norm(d, axis=1)
+    return hair, normals, views, cos
+
+
+def test_hair_samples_are_weighted_by_facing_the_view_only_when_asked():
+    """`view_samples(hair_facing=)` (`HAIR_FACING`): a hair row's weight is its footprint's
+    visibility x min(1, max(cos / hair_facing, HAIR_FACING_FLOOR)) ^ COS_POWER, cos to the camera
+    along the head's outward normal: a view facing the shell (cos over the knee) keeps the
+    visibility alone, one looking along it is weighed down, to the floor at most; the seen set does
+    not change (the floor keeps every visible hair Gaussian a sample), the bald rows' weights do not
+    change, and without it the weight is the visibility alone."""
+    from avatarkit.recon.multiview import COS_POWER, HAIR_FACING_FLOOR
+
+    hair, normals, views, cos = _hair_plane_views(turn=80.0)
+    is_hair = np.ones(len(hair), bool)
+    plain = view_samples(hair, normals, views[1], hair=is_hair)
+    faced = view_samples(hair, normals, views[1], hair=is_hair, hair_facing=0.5)
+    assert plain.seen.sum() > 50
+    np.testing.assert_array_equal(plain.seen, faced.seen)
+    s = plain.seen
+    factor = np.clip(cos[s] / 0.5, HAIR_FACING_FLOOR, 1.0) ** COS_POWER
+    np.testing.assert_allclose(faced.weight[s], plain.weight[s] * factor, rtol=1e-6)
+    assert np.all(faced.weight[s] < 0.2 * plain.weight[s])       # (cos(80 deg) / 0.5)^2 = 0.12
+    # the view facing the plane (cos ~1, over the knee) is not weighed down
+    front = view_samples(hair, normals, views[0], hair=is_hair)
+    front_faced = view_samples(hair, normals, views[0], hair=is_hair, hair_facing=0.5)
+    np.testing.assert_allclose(front_faced.weight, front.weight, rtol=1e-6)
+    # a knee past every cos: the floor's square, for every row alike
+    floor = view_samples(hair, normals, views[1], hair=is_hair, hair_facing=100.0)
+    np.testing.assert_allclose(floor.weight[s], HAIR_FACING_FLOOR ** COS_POWER * plain.weight[s], rtol=1e-6)
+    # bald rows (hair=False) are weighted by cos^2 whatever hair_facing says
+    bald_plain = view_samples(hair, normals, views[1], hair=np.zeros(len(hair), bool))
+    bald_faced = view_samples(hair, normals, views[1], hair=np.zeros(len(hair), bool), hair_facing=0.5)
+    np.testing.assert_array_equal(bald_plain.weight, bald_faced.weight)
+
+
+def test_the_hair_a_keyframe_sees_along_the_shell_takes_the_colour_the_facing_view_shows():
+    """`colour_from_views(hair_facing=)`: the hair plane seen face-on in brown by one keyframe and
+    along its shell in lit skin by another turned 80 degrees (neither the reference, whose weight
+    would lead either way). By visibility alone the blend is pulled well toward
+    the skin; weighted by facing it stays near the brown the facing view shows (median within
+    0.05, a third of the pull or less), every hair row both see at least twice as near as by
+    visibility alone; the seen counts are the same."""
+    from avatarkit.recon.multiview import colour_from_views
+
+    brown = np.float32([0.36, 0.24, 0.15])
+    hair, normals, views, _ = _hair_plane_views(brown=tuple(brown), reference=False, turn=80.0)
+    bald = hair.subset(np.zeros(len(hair), bool))
+    _, plain, fp = colour_from_views(bald, hair, views, normals)
+    _, faced, ff = colour_from_views(bald, hair, views, normals, hair_facing=0.5)
+    assert fp["per_view"] == ff["per_view"] and fp["seen"] == ff["seen"]
+    both = view_samples(hair, normals, views[0], hair=np.ones(len(hair), bool)).seen & \
+        view_samples(hair, normals, views[1], hair=np.ones(len(hair), bool)).seen
+    assert both.sum() > 50
+    off_plain = np.abs(plain.colors[both] - brown).max(axis=1)
+    off_faced = np.abs(faced.colors[both] - brown).max(axis=1)
+    assert np.median(off_plain) > 0.15
+    assert np.median(off_faced) < min(0.05, np.median(off_plain) / 3)
+    assert np.all(off_faced < 0.5 * off_plain)
+
+
+def test_the_registration_drafts_weigh_the_hairs_samples_by_visibility_alone(monkeypatch):
+    """`VideoViews.hair_facing`: `HAIR_FACING` in the final build, None in a draft the video
+    build registers its turned keyframes against (info["draft"]) and when the switch is None."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import VideoViews
+
+    final, draft = VideoViews(np.zeros(3), []), VideoViews(np.zeros(3), [], {"draft": True})
+    monkeypatch.setattr(multiview, "HAIR_FACING", 0.5)
+    assert final.hair_facing() == 0.5 and draft.hair_facing() is None
+    monkeypatch.setattr(multiview, "HAIR_FACING", None)
+    assert final.hair_facing() is None and draft.hair_facing() is None
+
+
+def test_hair_the_reference_sees_along_its_shell_little_of_it_shown_keeps_the_facing_blend(monkeypatch):
+    """With `hair_facing` the hair rows the reference sees at a grazing angle (cos < MIN_COS) of
+    whose footprint its camera shows under `HAIR_FACING_SHOWN` join the rows that keep the blend's
+    colour after the photo's matching (figures["_only_others"], `VideoViews.keep_view_colours`):
+    the hair plane seen by the reference turned 75 degrees (its image the outline's light colour)
+    and face-on by a brown keyframe. Kept: exactly the rows the reference saw with under 0.2 of
+    their footprint shown, in the blend's colour, nearer the brown than the light; the rows it shows more of (the
+    plane's near edge) are not; without hair_facing, or with HAIR_FACING_SHOWN 0, none is."""
+    from avatarkit.recon import multiview
+    from avatarkit.recon.multiview import colour_from_views, footprint_visibility
+
+    brown = np.float32([0.36, 0.24, 0.15])
+    hair, normals, views, _ = _hair_plane_views(brown=tuple(brown), turn=75.0, reference=False)
+    side, front = views[1], views[0]
+    views = [View(side.image, side.camera, None, 1.0, reference=True), front]
+    bald = hair.subset(np.zeros(len(hair), bool))
+    by_ref = view_samples(hair, normals, views[0], hair=np.ones(len(hair), bool)).seen
+    shown = footprint_visibility(hair, views[0].camera)
+    little = by_ref & (shown < multiview.HAIR_FACING_SHOWN)
+    assert little.sum() > 50 and (by_ref & ~little).sum() > 5
+
+    def kept(**kw):
+        _, out, figures = colour_from_views(bald, hair, views, normals, **kw)
+        means, colours = figures["_only_others"]
+        mask = np.zeros(len(hair), bool)
+        if len(means):
+            from scipy.spatial import cKDTree
+
+            dist, _ = cKDTree(np.asarray(means, np.float64)).query(np.asarray(hair.means, np.float64))
+            mask = dist < 1e-7
+        return mask, out, colours, figures
+
+    mask, out, colours, figures = kept(hair_facing=0.5)
+    np.testing.assert_array_equal(mask & by_ref, little)
+    assert figures["hair_grazed_kept"] == int(little.sum())
+    np.testing.assert_allclose(colours, out.colors[mask], atol=1e-6)
+    light = np.float32([0.85, 0.65, 0.55])                           # the reference's image
+    assert np.median(np.abs(out.colors[little] - brown).max(axis=1)) < 0.5 * np.abs(light - brown).max()
+    assert not (kept()[0] & by_ref).any()
+    monkeypatch.setattr(multiview, "HAIR_FACING_SHOWN", 0.0)
+    assert not (kept(hair_facing=0.5)[0] & by_ref).any()

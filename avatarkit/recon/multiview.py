@@ -27,7 +27,7 @@ no surface normal to face (the shell's outward direction says little about a str
 the side): a hair Gaussian is seen when the renderer shows at least `HAIR_VISIBLE` of its own
 footprint inside the person (`footprint_visibility`: its blending weight alpha T summed over
 the pixels of the person mask, over its unoccluded integral), and that share is its weight (x
-sharpness). Every sample's weight is then multiplied by `person_weight`: the soft person mask
+sharpness; with `HAIR_FACING`, off, also weighed down where the view looks along the hair shell). Every sample's weight is then multiplied by `person_weight`: the soft person mask
 (`soft_person`: the segmentation's person mask without the background-coloured halo a
 segmentation can take in at the silhouette, blurred) mapped so that a pixel on the silhouette,
 half background, gives nothing.
@@ -81,6 +81,28 @@ HAIR_NEIGHBOURS = 8
 COS_POWER = 2
 #: the reference keyframe's weight factor (the portrait build's view)
 REFERENCE_WEIGHT = 3.0
+#: a hair Gaussian's sample is weighted, besides its visibility, by min(1, max(cos /
+#: HAIR_FACING, `HAIR_FACING_FLOOR`)) ^ `COS_POWER`, cos between the head's outward normal at it
+#: (the SDF's gradient, as for the bald layer) and the direction to the camera
+#: (`view_samples(hair_facing=)`): a view that looks along the hair shell (cos under HAIR_FACING)
+#: sees it at its own outline, where each pixel is the whole shell's depth and a pose error of a
+#: few degrees moves the sample across the hair's edge (onto the skin of the temple, the wall, or
+#: the other way), while the views that face the shell see the Gaussian through the fewest layers
+#: and count alike; the floor keeps every visible hair Gaussian a sample (the seen set, and so the
+#: hidden hair's fill, does not change). The final build only, not the drafts the turned
+#: keyframes are registered against (`VideoViews.hair_facing`). None: the visibility alone (the
+#: rule before session 28). Session 28 (docs/video-build.md, "The hair's samples weighted by
+#: facing (session 28)")
+HAIR_FACING: float | None = None
+#: ... the least share of that factor's root a grazing or backward view keeps
+HAIR_FACING_FLOOR = 0.1
+#: ... and with it, the hair Gaussians the reference view sees at a grazing angle or from behind
+#: (cos < `MIN_COS`) of whose footprint its camera shows less than this share keep the blend's
+#: colour after the photo's matching, as those only the other keyframes saw do
+#: (`VideoViews.keep_view_colours`): the photo's matching pulls them to its own outline, the
+#: keyframes that face them show their colour. What the photo shows more of (a bob's hair beside
+#: the cheeks, seen from the front) keeps the photo's colour
+HAIR_FACING_SHOWN = 0.2
 #: the person mask is dilated by this share of the image's longer side before the hull test
 SILHOUETTE_MARGIN = 0.02
 #: a hair Gaussian is seen in a view when at least this share of its own footprint shows there
@@ -690,7 +712,8 @@ def _person_weight(soft: np.ndarray, px: np.ndarray) -> np.ndarray:
 
 def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
                  depth_tolerance: float | None = None, render_result=None, min_cos: float | None = None,
-                 hair: np.ndarray | None = None, body: np.ndarray | None = None) -> Samples:
+                 hair: np.ndarray | None = None, body: np.ndarray | None = None,
+                 hair_facing: float | None = None) -> Samples:
     """Visibility, weight and colour of every Gaussian in one view (module docstring).
     normals: (N, 3) unit outward normals. sample_labels: labels whose pixels may be sampled
     (default skin and hair; None labels in the view: every pixel). min_cos: the facing cut
@@ -701,7 +724,9 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
     has labels every sample's weight is multiplied by `person_weight` (a pixel on the
     silhouette, half background, gives nothing) and a zero weight is no sample. body: (N,) bool,
     the Gaussians that may also sample body-labelled pixels inside the view's fitted head
-    (`View.head`) when the view is not the reference (`SCALP_BODY`)."""
+    (`View.head`) when the view is not the reference (`SCALP_BODY`). hair_facing: the hair rows'
+    weight is also multiplied by min(1, max(cos / hair_facing, `HAIR_FACING_FLOOR`)) ^
+    `COS_POWER` (`HAIR_FACING`; None: not)."""
     depth_tolerance = DEPTH_TOLERANCE if depth_tolerance is None else depth_tolerance
     min_cos = MIN_COS if min_cos is None else min_cos
     from avatarkit.recon.image_sampling import sample_image
@@ -746,7 +771,11 @@ def view_samples(gaussians, normals: np.ndarray, view: View, sample_labels=None,
         inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= 0) & (px[:, 0] < cam.width) \
             & (px[:, 1] >= 0) & (px[:, 1] < cam.height)
         seen = np.where(hair, inside & (vis >= HAIR_VISIBLE), seen)
-        weight = np.where(hair, vis, weight)
+        hair_weight = vis
+        if hair_facing is not None:
+            # a view along the shell samples the hair's own outline (`HAIR_FACING`)
+            hair_weight = vis * np.clip(cos / float(hair_facing), float(HAIR_FACING_FLOOR), 1.0) ** COS_POWER
+        weight = np.where(hair, hair_weight, weight)
     wall_coloured = view.info.get("wall_coloured")
     if BODY_WALL and wall_coloured is not None and view.labels is not None and not view.reference:
         from avatarkit.recon.segment import BODY
@@ -919,7 +948,8 @@ def label_weights(means: np.ndarray, samples: list[Samples], views: list[View], 
 def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: np.ndarray | None = None,
                       body: np.ndarray | None = None, scalp: np.ndarray | None = None,
                       drop_skin_hair: bool = False, neck: np.ndarray | None = None,
-                      bald_views: list[View] | None = None, hidden_bald: np.ndarray | None = None):
+                      bald_views: list[View] | None = None, hidden_bald: np.ndarray | None = None,
+                      hair_facing: float | None = None):
     """Bald and hair recoloured from the views (module docstring, "Colour"): every Gaussian's
     samples (`view_samples`, hair by the renderer's visibility), their weighted mean
     (`blend_colours`), then hair no view saw filled from the nearest seen hair
@@ -935,20 +965,23 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     `VideoViews.skin_views`): the hair rows keep `views`' samples; hidden_bald: (N,) bool bald rows
     (outside the neck) of which those no view saw, not kept, not filled as scalp, facing away
     from the reference view and not shown by its camera are filled from the nearest seen ones
-    (`HIDDEN_BALD_FILL`, `HIDDEN_BALD_SHOWN`). Returns
+    (`HIDDEN_BALD_FILL`, `HIDDEN_BALD_SHOWN`); hair_facing: the hair rows' samples weighted by
+    facing as well (`view_samples(hair_facing=)`, `HAIR_FACING`), and the hair the reference
+    sees at a grazing angle, little of it shown, kept with the blend's colour after the photo's
+    matching (`HAIR_FACING_SHOWN`, figures["_only_others"]). Returns
     (bald, hair, figures)."""
     from avatarkit.gaussians.gaussian_set import GaussianSet
 
     both = GaussianSet.concat([bald.replace(extras={}), hair.replace(extras={})])
     is_hair = np.zeros(len(both), bool)
     is_hair[len(bald):] = True
-    samples = [view_samples(both, normals, v, hair=is_hair, body=body) for v in views]
+    samples = [view_samples(both, normals, v, hair=is_hair, body=body, hair_facing=hair_facing) for v in views]
     split = 0
     for i, b in enumerate(bald_views or []):
         if b is not views[i]:
             # the bald rows seen from the skin's pose: the union rendered from that camera (its
             # depth and alpha decide the bald discs' visibility), the hair rows left to `views`
-            s, t = samples[i], view_samples(both, normals, b, hair=is_hair, body=body)
+            s, t = samples[i], view_samples(both, normals, b, hair=is_hair, body=body, hair_facing=hair_facing)
             samples[i] = Samples(np.where(is_hair, s.seen, t.seen), np.where(is_hair, s.weight, t.weight),
                                  np.where(is_hair[:, None], s.colour, t.colour))
             split += 1
@@ -1003,11 +1036,21 @@ def colour_from_views(bald, hair, views: list[View], normals: np.ndarray, keep: 
     # ... and only where the reference view looks at a grazing angle or from behind: what it
     # faces (the brows, say) the reference photo's matching colours best
     only_others = seen & ~seen_by[0] & away
+    grazed_kept = 0
+    if hair_facing is not None and HAIR_FACING_SHOWN is not None:
+        # the hair the reference sees only along its shell, little of it shown: the facing views'
+        # blend, not the photo's outline (`HAIR_FACING_SHOWN`)
+        grazed = is_hair & seen & seen_by[0] & away
+        if grazed.any():
+            grazed &= footprint_visibility(both, views[0].camera) < float(HAIR_FACING_SHOWN)
+        only_others |= grazed
+        grazed_kept = int(grazed.sum())
     figures = {"seen": int(seen.sum()), "of": len(both),
                "seen_only_by_other_keyframes": int((seen & ~seen_by[0]).sum()),
                "hidden_hair_filled": int(filled), "hidden_scalp_filled": int(scalp_filled),
                "hidden_bald_filled": int(bald_filled),
                "hidden_neck_filled": int(neck_filled), "skin_pose_views": split,
+               "hair_grazed_kept": grazed_kept,
                "edge_hair_on_skin_dropped": int(on_skin.sum()),
                "per_view": [int(s.seen.sum()) for s in samples],
                "hair_seen": int((is_hair & seen).sum()), "hair": int(is_hair.sum())}
@@ -1364,6 +1407,11 @@ class VideoViews:
         draft (info["draft"])."""
         return bool(NECK_FILL and not self.info.get("draft", False))
 
+    def hair_facing(self) -> float | None:
+        """The floor of the facing weight on the hair's samples (`HAIR_FACING`): None (the
+        visibility alone) in a registration draft (info["draft"])."""
+        return None if HAIR_FACING is None or self.info.get("draft", False) else float(HAIR_FACING)
+
     def drops_skin_hair(self) -> bool:
         """Whether `colour` drops the hair the reference shows edge-on that the keyframes see on
         skin (`EDGE_HAIR_ON_SKIN`): not in a registration draft (info["draft"])."""
@@ -1406,7 +1454,8 @@ class VideoViews:
             hidden_bald &= ~self.neck_rows(bald, hair, fit)
         bald, hair, figures = colour_from_views(bald, hair, views, normals, keep, body, scalp,
                                                 drop_skin_hair=self.drops_skin_hair(), neck=neck,
-                                                bald_views=skin, hidden_bald=hidden_bald)
+                                                bald_views=skin, hidden_bald=hidden_bald,
+                                                hair_facing=self.hair_facing())
         self._only_others = figures.pop("_only_others")
         if receded is not None:
             figures["receded"] = receded
@@ -1414,7 +1463,7 @@ class VideoViews:
 
 
 __all__ = ["ALPHA_MIN", "BACKGROUND_COLOUR", "BODY_WALL", "BODY_WALL_FRINGE", "BODY_WALL_FRINGE_IN_DRAFTS", "COS_POWER", "DEPTH_TOLERANCE", "DRAFT_SCALP_FILL", "EDGE_BAND", "EDGE_HAIR_ON_SKIN", "EDGE_MARGIN",
-           "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
+           "HAIR_FACING", "HAIR_FACING_FLOOR", "HAIR_FACING_SHOWN", "HAIR_NEIGHBOURS", "HAIR_VISIBLE", "HIDDEN_BALD_FILL", "HIDDEN_BALD_SHOWN", "MIN_COS", "NECK_FILL", "NECK_FILL_DOWN", "NECK_SHOWN", "RECEDE_EDGE", "RECEDE_EDGE_FRAMES", "RECEDE_EDGE_AGREE", "RECEDE_EDGE_DEEP", "RECEDE_EDGE_LIKE", "RECEDE_EDGE_ROUNDS", "RECEDE_EDGE_SHARE", "RECEDE_EDGE_TURN", "RECEDE_KEYFRAMES", "RECEDE_MARGIN", "RECEDE_MIN_FRAMES", "RECEDE_OUTLINE_POSES", "RECEDE_QUORUM", "RECEDE_ROUNDS", "RECEDE_SCALP", "RECEDE_SHARE", "RECEDE_STEP", "REFERENCE_WEIGHT", "RELABEL_CONNECTED", "RELABEL_CONNECTED_IN", "RELABEL_PLATE", "RELABEL_PLATE_MATCHES", "RELABEL_PLATE_NEAR", "plate_wall", "RELABEL_KEYFRAMES", "RELABEL_REACH", "SCALP_BODY", "SCALP_FILL", "SILHOUETTE_MARGIN", "SKIN_POSE_IN_DRAFTS", "SKIN_POSE_RECEDE", "SOFT_MASK_SIGMA",
            "Keyframe", "Samples", "VideoViews", "View", "blend_colours", "camera_centre", "colour_from_views",
            "fill_hidden_hair", "footprint_visibility", "head_silhouette", "keyframe_cameras", "label_weights", "neck_kept", "person_weight", "pose_matrix", "deep_disagreement", "recede_outline", "sure_wall", "turned_yaws",
            "reference_colours", "refine_colours_views", "relabel_head", "silhouette_outside", "soft_person", "view_samples", "wall_palette_pixels"]
