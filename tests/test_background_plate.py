@@ -459,3 +459,30 @@ def test_agreeing_stops_at_enough_and_square_bound_bounds_the_count(monkeypatch)
     for enough in (1, 3, 7):
         np.testing.assert_array_equal(BP.agreeing(pad_k, pad_c, ys, xs, c, disc, enough),
                                       np.minimum(want[ys, xs], enough))
+
+
+def test_disc_bound_is_a_lower_bound_that_the_wall_beside_the_wall_reaches():
+    """`disc_bound` (the known pixels of a pixel's own colour bin in rectangles inside its disc)
+    never exceeds the count (`agreeing`, checked above against the pixel-by-pixel one), with
+    discs wider than its bands (r 13 and 21: each band as wide as its narrowest row) and with
+    known pixels crowding the disc's rim; the wall's own pixels beside the known wall reach 3."""
+    rng = np.random.default_rng(8)
+    for r in (13, 21):
+        h, w = 70, 90
+        colour = np.full((h, w, 3), (200, 190, 170), np.uint8)
+        colour[rng.random((h, w)) < 0.3] = (60, 70, 80)
+        image = colour.copy()
+        image[rng.random((h, w)) < 0.3] = (205, 185, 175)                  # the wall's bin
+        image[rng.random((h, w)) < 0.2] = (190, 195, 160)                  # agrees, another bin
+        known = rng.random((h, w)) < 0.5
+        known[20:50, 25:65] = False
+        ys, xs = np.nonzero(np.ones((h, w), bool))
+        c = image[ys, xs].astype(np.int16)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+        count = BP.agreeing(np.pad(known, r), np.pad(colour.astype(np.int16), ((r, r), (r, r), (0, 0))),
+                            ys, xs, c, disc)
+        for strips in (1, 3, 8, 64):
+            low = BP.disc_bound(known, colour, ys, xs, c, disc, strips)
+            assert (low <= count).all()
+        wall = (image[ys, xs] == (205, 185, 175)).all(axis=1) & (count >= 3)
+        assert (BP.disc_bound(known, colour, ys, xs, c, disc)[wall] >= 3).mean() > 0.9
