@@ -36,6 +36,9 @@ Decisions
     - Memory stays flat in the video's length: opening reads the packet headers once (no
       decoding) to count frames and collect their timestamps (8 bytes a frame), and frames are
       decoded one at a time.
+    - Size: frames longer than `MAX_SIDE` (1280 px) on their upright longer side are read
+      area-downscaled to it, by every command alike (a phone's 1080x1920 clip at 720x1280);
+      `info.width x info.height` is the size read, `info.scale` the factor (session 28).
     - `info.frame_count` counts the stream's packets (after edit lists); a damaged file may
       decode fewer frames, and iteration then simply yields fewer.
 
