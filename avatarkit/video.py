@@ -36,6 +36,9 @@ Decisions
     - Memory stays flat in the video's length: opening reads the packet headers once (no
       decoding) to count frames and collect their timestamps (8 bytes a frame), and frames are
       decoded one at a time.
+    - Size: frames longer than `MAX_SIDE` (1280 px) on their upright longer side are read
+      area-downscaled to it, by every command alike (a phone's 1080x1920 clip at 720x1280);
+      `info.width x info.height` is the size read, `info.scale` the factor (session 28).
     - `info.frame_count` counts the stream's packets (after edit lists); a damaged file may
       decode fewer frames, and iteration then simply yields fewer.
 
@@ -58,6 +61,13 @@ import numpy as np
 
 from avatarkit.errors import FormatError, InputError
 
+#: frames larger than this on their longer side (upright, px) are read downscaled to it (area
+#: averaging, cv2.INTER_AREA, as `recon.image_io.MAX_SIDE` does for photos; `info.width x
+#: info.height` is then the size read, `info.scale` the factor); None: full size. A phone's
+#: 1080x1920 video at 1280: 720x1280, 0.44x the pixels; every command reads the same frames, so a
+#: build, its tracking and `evaluate` agree. The shared 480x480 clips and the benchmark's videos
+#: are not reached (session 28, docs/video-build.md "A phone's video: size and time")
+MAX_SIDE: int | None = 1280
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".tif", ".tiff", ".bmp")
 #: names `avatarkit inspect` routes here (the reader itself goes by content, not by name)
 VIDEO_FILE_EXTENSIONS = (".mp4", ".mov", ".m4v", ".mkv", ".webm", ".avi", ".gif")
@@ -78,6 +88,7 @@ class VideoInfo:
     rotation: int               # degrees the stored picture is turned clockwise to show it: 0/90/180/270
     mirrored: bool              # the display matrix also mirrors the picture (rare)
     variable_frame_rate: bool   # the spacing of the frames' timestamps varies
+    scale: float = 1.0          # width read / the file's upright width (`MAX_SIDE`; 1.0: full size)
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,6 +138,12 @@ def apply_transform(img: np.ndarray, transform: str) -> np.ndarray:
     """img: (H, W, C) stored picture -> the picture shown, turned as `display_transform` says."""
     if transform == "none":
         return img
+    if transform in _CV2_TURNS and img.ndim == 3 and img.shape[2] in (3, 4) and img.dtype == np.uint8:
+        # OpenCV's blocked copy: a phone's 1080x1920 portrait frame turns in a few ms, numpy's
+        # strided one in ~25 (once per frame per pass over the video; the same pixels)
+        import cv2
+
+        return cv2.rotate(np.ascontiguousarray(img), _CV2_TURNS[transform])
     if transform == "clock":
         out = np.rot90(img, -1)
     elif transform == "cclock":
@@ -144,6 +161,30 @@ def apply_transform(img: np.ndarray, transform: str) -> np.ndarray:
     else:
         raise ValueError(f"unknown display transform {transform!r}")
     return np.ascontiguousarray(out)
+
+
+#: the quarter and half turns `apply_transform` leaves to OpenCV (cv2.ROTATE_90_CLOCKWISE,
+#: ROTATE_90_COUNTERCLOCKWISE, ROTATE_180)
+_CV2_TURNS = {"clock": 0, "cclock": 2, "hvflip": 1}
+
+
+def read_size(width: int, height: int, max_side: int | None = None) -> tuple[int, int]:
+    """(width, height) frames of an upright size are read at: at most `max_side` (None:
+    `MAX_SIDE`, read now; 0 or None there: full size) on the longer side, the aspect kept."""
+    max_side = MAX_SIDE if max_side is None else max_side
+    if not max_side or max(width, height) <= max_side:
+        return width, height
+    k = max_side / max(width, height)
+    return max(1, round(width * k)), max(1, round(height * k))
+
+
+def fit_frame(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """rgb (H, W, C) uint8 at (width, height) `size` (`read_size`): area-averaged where smaller."""
+    if (rgb.shape[1], rgb.shape[0]) == tuple(size):
+        return rgb
+    import cv2
+
+    return cv2.resize(rgb, tuple(size), interpolation=cv2.INTER_AREA)
 
 
 def _rotate_tag_matrix(tag: str) -> list[int] | None:
@@ -231,12 +272,14 @@ class _FFmpegVideo(VideoReader):
         first, transform, rotation, mirrored, codec, rates = self._probe_first_frame()
         self._transform = transform
         h, w = first.shape[:2]
+        self._size = read_size(w, h)                     # (width, height) the frames are read at
         n = len(self._pts)
         fps = _average_fps(self.times, rates)
-        self.info = VideoInfo(path=path, kind="video", width=w, height=h, fps=fps, frame_count=n,
-                              duration=float(self.times[-1] + 1.0 / fps), codec=codec,
+        self.info = VideoInfo(path=path, kind="video", width=self._size[0], height=self._size[1], fps=fps,
+                              frame_count=n, duration=float(self.times[-1] + 1.0 / fps), codec=codec,
                               rotation=rotation, mirrored=mirrored,
-                              variable_frame_rate=_is_variable(self.times, float(self._time_base)))
+                              variable_frame_rate=_is_variable(self.times, float(self._time_base)),
+                              scale=self._size[0] / w)
 
     def _open_stream(self):
         container = _open_container(self.path)
@@ -307,7 +350,7 @@ class _FFmpegVideo(VideoReader):
                         continue
                     if idx >= end:
                         break
-                    rgb = apply_transform(frame.to_ndarray(format="rgb24"), self._transform)
+                    rgb = fit_frame(apply_transform(frame.to_ndarray(format="rgb24"), self._transform), self._size)
                     yield Frame(index=idx, time=float(self.times[idx]), rgb=rgb)
             except (av.FFmpegError, OSError) as e:  # FFmpeg errors mid-stream: a damaged file
                 raise FormatError(f"the video stops decoding at frame {expected or 0} "
@@ -336,9 +379,11 @@ class _ImageFolder(VideoReader):
         self.times = np.arange(n, dtype=np.float64) / fps
         first = self._load(0)
         h, w = first.shape[:2]
-        self.info = VideoInfo(path=path, kind="images", width=w, height=h, fps=fps, frame_count=n,
-                              duration=n / fps, codec="images", rotation=0, mirrored=False,
-                              variable_frame_rate=False)
+        self._full = (w, h)
+        self._size = read_size(w, h)
+        self.info = VideoInfo(path=path, kind="images", width=self._size[0], height=self._size[1], fps=fps,
+                              frame_count=n, duration=n / fps, codec="images", rotation=0, mirrored=False,
+                              variable_frame_rate=False, scale=self._size[0] / w)
 
     def _load(self, i: int) -> np.ndarray:
         from avatarkit.recon.image_io import load_image
@@ -352,10 +397,10 @@ class _ImageFolder(VideoReader):
     def _frames(self, start: int, end: int) -> Iterator[Frame]:
         for i in range(start, end):
             rgb = self._load(i)
-            if rgb.shape[:2] != (self.info.height, self.info.width):
+            if (rgb.shape[1], rgb.shape[0]) != self._full:
                 raise FormatError(f"is {rgb.shape[1]}x{rgb.shape[0]}, the folder's first image is "
-                                  f"{self.info.width}x{self.info.height}", self.files[i])
-            yield Frame(index=i, time=float(self.times[i]), rgb=rgb)
+                                  f"{self._full[0]}x{self._full[1]}", self.files[i])
+            yield Frame(index=i, time=float(self.times[i]), rgb=fit_frame(rgb, self._size))
 
 
 def open_video(path: str | os.PathLike, fps: float | None = None) -> VideoReader:
@@ -388,7 +433,9 @@ def inspect_video(path: Path):
     with open_video(path) as video:
         info, times = video.info, video.times
     s = Summary("video", str(path))
-    s.add("codec", info.codec).add("size", f"{info.width}x{info.height}")
+    s.add("codec", info.codec).add("size", f"{info.width}x{info.height}" if info.scale == 1.0 else
+                                   f"{round(info.width / info.scale)}x{round(info.height / info.scale)} "
+                                   f"(read at {info.width}x{info.height}, `video.MAX_SIDE`)")
     s.add("frames", info.frame_count).add("fps", round(info.fps, 4))
     s.add("duration (s)", round(info.duration, 4))
     turn = f"{info.rotation} degrees clockwise" if info.rotation else "none"

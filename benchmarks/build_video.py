@@ -37,7 +37,10 @@ Prints
     cores) wall and CPU seconds, per stage, and the single-frame build of one of its frames
     (the ratio is the video build's cost over it). The shared clips barely turn (one
     keyframe), so `--time-synthetic` times a 250-frame 480x480 synthetic turning video too,
-    where every multi-view stage runs.
+    where every multi-view stage runs; `--time-phone` times the mesh subject's 250-frame
+    480x480 turning video and the same frames at a phone's size (`synthetic.phone_video`:
+    1080x1920 portrait at 30 fps, stored landscape with a display matrix, H.264 High) in the same
+    process, the ratio of the two and the process's peak memory after each (session 28).
 """
 from __future__ import annotations
 
@@ -248,7 +251,7 @@ def real(videos: list[str], counts: tuple[int, int], tmp: str) -> None:
               f"dB whole frame (target >= +1 dB); evaluate wall {wall:.0f} s, CPU {cpu:.0f} s")
 
 
-def timing(video: str, counts: tuple[int, int], tmp: str) -> None:
+def timing(video: str, counts: tuple[int, int], tmp: str) -> tuple[float, float]:
     from avatarkit.recon.pipeline import BuildOptions
     from avatarkit.track.build_frame import build_image
     from avatarkit.track.video_build import build_video_avatar
@@ -278,6 +281,32 @@ def timing(video: str, counts: tuple[int, int], tmp: str) -> None:
         print(f"  of the colours stage, the facing refine over {fr['views']} keyframes: {fr['seconds']:.1f} s")
     print(f"  baseline single-frame build of frame {ref}: wall {swall:.1f} s, CPU {scpu:.1f} s; "
           f"ratio video / single: wall {wall / swall:.2f}x, CPU {cpu / scpu:.2f}x")
+    print(f"  peak memory of this process so far: {peak_rss_mb():.0f} MB")
+    return wall, cpu
+
+
+def peak_rss_mb() -> float:
+    """The process's peak resident memory (MB; Linux's ru_maxrss is in kB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def time_phone(counts: tuple[int, int], tmp: str) -> None:
+    """The mesh subject's 250-frame 480x480 eased turning video, then the same frames at a
+    phone's size (1080x1920 portrait, 30 fps, `synthetic.phone_video`), built in this process
+    one after the other: the phone clip's time as a ratio to the square one's."""
+    from avatarkit.synthetic.mesh_head import MeshHead, turning_video
+    from avatarkit.synthetic.phone_video import phone_video
+    from avatarkit.synthetic.turning_video import eased_turning_clip
+
+    square = os.path.join(tmp, "mesh_turn480.mp4")
+    turning_video(MeshHead.make(), square, size=480, clip=eased_turning_clip(250))
+    phone = os.path.join(tmp, "mesh_turn_phone.mp4")
+    phone_video(square, phone)
+    w0, c0 = timing(square, counts, tmp)
+    w1, c1 = timing(phone, counts, tmp)
+    print(f"phone clip / 480x480 clip: wall {w1 / w0:.2f}x, CPU {c1 / c0:.2f}x (load {os.getloadavg()[0]:.1f})")
 
 
 def main() -> None:
@@ -308,6 +337,9 @@ def main() -> None:
                          "(recon.facing_refine; AVATARKIT_FACING_REFINE=1 does the same)")
     ap.add_argument("--time-synthetic", action="store_true",
                     help="also time the build of a 250-frame 480x480 synthetic turning video")
+    ap.add_argument("--time-phone", action="store_true",
+                    help="also time the mesh subject's 250-frame 480x480 turning video and the same frames at a "
+                         "phone's size (1080x1920 portrait, 30 fps) in the same process")
     a = ap.parse_args()
     print(f"CPU: {cpu_model()}; load {os.getloadavg()[0]:.1f}; python {sys.version.split()[0]}")
     from _switches import apply_switches
@@ -355,6 +387,8 @@ def main() -> None:
             write_turning_video(make_sample_avatar(n_hair=3000, n_bald=12000, style="short", cage_vertices=200),
                                 path, size=480, frames=250)
             timing(path, counts, tmp)
+        if a.time_phone:
+            time_phone(counts, tmp)
         videos = sorted(glob.glob(os.path.join(VIDEOS, "*.mp4")))
         if a.skip_real or not videos:
             if not videos:

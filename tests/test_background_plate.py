@@ -386,3 +386,103 @@ def test_continuing_counts_what_a_pixel_by_pixel_count_does():
                     want[y, x] += d <= BP.AGREE
         np.testing.assert_array_equal(got, want)
         assert (want[region] == 0).any() and (want[region] > 0).any()
+
+
+def _obvious_count(known, colour, image, region, r):
+    """The pixel-by-pixel count `continuing` makes: for each region pixel, the known pixels
+    within the elliptic disc agreeing with its colour within `AGREE` in every channel."""
+    h, w = known.shape
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2).astype(bool)
+    want = np.zeros((h, w), np.int32)
+    for y, x in zip(*np.nonzero(region)):
+        for dy, dx in zip(*np.nonzero(disc)):
+            yy, xx = y + dy - r, x + dx - r
+            if 0 <= yy < h and 0 <= xx < w and known[yy, xx]:
+                d = np.abs(colour[yy, xx].astype(int) - image[y, x].astype(int)).max()
+                want[y, x] += d <= BP.AGREE
+    return want
+
+
+@pytest.mark.parametrize("chunk", [256, 5])
+def test_continues_decides_what_the_full_count_does(monkeypatch, chunk):
+    """`continues` (a summed-area bound per colour bin, then counting only up to the threshold)
+    against the obvious count's decision, count >= enough, for thresholds from 1 to past every
+    count: random walls of a repeated colour with pixels within `AGREE` of it, colours one bin
+    off and one just past `AGREE` (the bins' edges), a large unknown zone. Chunks of 5 offsets:
+    the pixels that reached the threshold are dropped while others still count."""
+    monkeypatch.setattr(BP, "AGREEING_CHUNK", chunk)
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        h, w, r = 36, 44, int(rng.integers(1, 7))
+        colour = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+        colour[rng.random((h, w)) < 0.5] = (200, 190, 170)                 # the wall's colour
+        image = colour.copy()
+        image[rng.random((h, w)) < 0.25] = (212, 178, 182)                 # within AGREE (12)
+        image[rng.random((h, w)) < 0.15] = (213, 190, 170)                 # 13 off: never agrees
+        image[rng.random((h, w)) < 0.1] = (188, 202, 158)                  # 12 off the other way
+        known = np.ones((h, w), bool)
+        known[4:30, 7:38] = False
+        region = rng.random((h, w)) < 0.8
+        want = _obvious_count(known, colour, image, region, r)
+        assert (want[region] == 0).any() and (want[region] >= 3).any()
+        for enough in (1, 2, 3, 4, 9, int(want.max()), int(want.max()) + 1):
+            got = BP.continues(known, colour, image, region, r, enough)
+            np.testing.assert_array_equal(got, region & (want >= enough))
+
+
+def test_agreeing_stops_at_enough_and_square_bound_bounds_the_count(monkeypatch):
+    """`agreeing(enough=)` returns min(count, enough) (the nearest offsets first, pixels dropped
+    as they reach it); `square_bound` is at least the count everywhere and 0 where no known
+    colour of a neighbouring bin lies in the square (a white wall beside skin)."""
+    rng = np.random.default_rng(3)
+    h, w, r = 30, 34, 4
+    colour = np.full((h, w, 3), 250, np.uint8)                             # a white wall...
+    colour[rng.random((h, w)) < 0.4] = (120, 90, 200)                      # ...with a violet pattern
+    image = colour.copy()
+    image[8:22, 9:25] = (210, 160, 130)                                    # skin: no wall colour near
+    image[rng.random((h, w)) < 0.2] = (245, 255, 240)                      # wall-white specks
+    known = np.ones((h, w), bool)
+    known[6:24, 7:27] = False
+    region = np.ones((h, w), bool)
+    want = _obvious_count(known, colour, image, region, r)
+    ys, xs = np.nonzero(region)
+    c = image[ys, xs].astype(np.int16)
+    bound = BP.square_bound(known, colour, ys, xs, c, r)
+    assert (bound >= want[ys, xs]).all()
+    skin = (image[ys, xs] == (210, 160, 130)).all(axis=1)
+    assert skin.any() and (bound[skin] == 0).all()
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    pad_k = np.pad(known, r)
+    pad_c = np.pad(colour.astype(np.int16), ((r, r), (r, r), (0, 0)))
+    np.testing.assert_array_equal(BP.agreeing(pad_k, pad_c, ys, xs, c, disc), want[ys, xs])
+    monkeypatch.setattr(BP, "AGREEING_CHUNK", 4)            # pixels dropped between chunks
+    for enough in (1, 3, 7):
+        np.testing.assert_array_equal(BP.agreeing(pad_k, pad_c, ys, xs, c, disc, enough),
+                                      np.minimum(want[ys, xs], enough))
+
+
+def test_disc_bound_is_a_lower_bound_that_the_wall_beside_the_wall_reaches():
+    """`disc_bound` (the known pixels of a pixel's own colour bin in rectangles inside its disc)
+    never exceeds the count (`agreeing`, checked above against the pixel-by-pixel one), with
+    discs wider than its bands (r 13 and 21: each band as wide as its narrowest row) and with
+    known pixels crowding the disc's rim; the wall's own pixels beside the known wall reach 3."""
+    rng = np.random.default_rng(8)
+    for r in (13, 21):
+        h, w = 70, 90
+        colour = np.full((h, w, 3), (200, 190, 170), np.uint8)
+        colour[rng.random((h, w)) < 0.3] = (60, 70, 80)
+        image = colour.copy()
+        image[rng.random((h, w)) < 0.3] = (205, 185, 175)                  # the wall's bin
+        image[rng.random((h, w)) < 0.2] = (190, 195, 160)                  # agrees, another bin
+        known = rng.random((h, w)) < 0.5
+        known[20:50, 25:65] = False
+        ys, xs = np.nonzero(np.ones((h, w), bool))
+        c = image[ys, xs].astype(np.int16)
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+        count = BP.agreeing(np.pad(known, r), np.pad(colour.astype(np.int16), ((r, r), (r, r), (0, 0))),
+                            ys, xs, c, disc)
+        for strips in (1, 3, 8, 64):
+            low = BP.disc_bound(known, colour, ys, xs, c, disc, strips)
+            assert (low <= count).all()
+        wall = (image[ys, xs] == (205, 185, 175)).all(axis=1) & (count >= 3)
+        assert (BP.disc_bound(known, colour, ys, xs, c, disc)[wall] >= 3).mean() > 0.9

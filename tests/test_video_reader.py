@@ -448,3 +448,52 @@ def test_unreadable_file(tmp_path):
             open_video(path)
     finally:
         path.chmod(0o644)
+
+
+def test_apply_transform_turns_as_numpy_does():
+    """`apply_transform`'s OpenCV quarter / half turns (uint8 RGB(A)) give numpy's rot90 / flips
+    pixel for pixel, on odd-sized pictures; other dtypes and channel counts take numpy's path."""
+    from avatarkit.video import apply_transform
+
+    rng = np.random.default_rng(2)
+    want = {"clock": lambda a: np.rot90(a, -1), "cclock": lambda a: np.rot90(a, 1),
+            "hvflip": lambda a: a[::-1, ::-1], "cclock_flip": lambda a: a.transpose(1, 0, 2),
+            "clock_flip": lambda a: np.rot90(a, -1)[::-1], "hflip": lambda a: a[:, ::-1], "vflip": lambda a: a[::-1]}
+    for shape, dtype in (((37, 61, 3), np.uint8), ((8, 5, 4), np.uint8), ((9, 6, 1), np.uint8), ((7, 4, 3), np.float32)):
+        img = (rng.random(shape) * 255).astype(dtype)
+        for name, turn in want.items():
+            got = apply_transform(img, name)
+            assert got.shape == turn(img).shape and got.dtype == img.dtype and got.flags.c_contiguous
+            np.testing.assert_array_equal(got, turn(img))
+
+
+def test_max_side_reads_large_frames_area_downscaled(tmp_path, monkeypatch):
+    """Frames larger than `video.MAX_SIDE` come out area-averaged to it (cv2.INTER_AREA of the
+    upright full frame), `info` giving the size read and the scale, for a plain file, a phone's
+    rotated portrait file and an image folder; at or under it they are the file's own pixels."""
+    import cv2
+
+    import avatarkit.video as V
+
+    rng = np.random.default_rng(4)
+    up = [cv2.resize(rng.integers(0, 256, (8, 5, 3), dtype=np.uint8), (40, 64)) for _ in range(3)]  # upright 40x64
+    plain = make_video(tmp_path / "plain.mp4", up)
+    turned = make_video(tmp_path / "turned.mp4", [np.ascontiguousarray(np.rot90(u, 1)) for u in up], rotation=-90)
+    folder = tmp_path / "pngs"
+    write_pngs(folder, [f"f{i}.png" for i in range(3)], w=40, h=64)
+    monkeypatch.setattr(V, "MAX_SIDE", None)
+    full = {p: [f.rgb for f in open_video(p, fps=10 if p == folder else None).frames()] for p in (plain, turned, folder)}
+    monkeypatch.setattr(V, "MAX_SIDE", 32)
+    for p in (plain, turned, folder):
+        with open_video(p, fps=10 if p == folder else None) as v:
+            assert (v.info.width, v.info.height, v.info.scale) == (20, 32, 0.5)
+            got = [f.rgb for f in v.frames()]
+            assert v.frame(1).rgb.shape == (32, 20, 3)
+        for g, f in zip(got, full[p]):
+            np.testing.assert_array_equal(g, cv2.resize(f, (20, 32), interpolation=cv2.INTER_AREA))
+    monkeypatch.setattr(V, "MAX_SIDE", 64)                        # at the limit: untouched
+    with open_video(plain) as v:
+        assert (v.info.width, v.info.height, v.info.scale) == (40, 64, 1.0)
+        np.testing.assert_array_equal(v.frame(2).rgb, full[plain][2])
+    assert V.read_size(1080, 1920, 1280) == (720, 1280) and V.read_size(1920, 1080, 1280) == (1280, 720)
+    assert V.read_size(480, 480, 1280) == (480, 480) and V.read_size(4000, 3000, 0) == (4000, 3000)

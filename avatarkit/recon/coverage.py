@@ -160,8 +160,9 @@ def wall_continued(plate, image: np.ndarray, region: np.ndarray) -> np.ndarray:
     if not known.any():
         return out
     r = max(1, int(round(float(reach) * max(region.shape))))
-    count = background_plate.continuing(known, colour, image, region, r)
-    return region & (count >= COVER_PLATE_MATCHES)
+    # the decision only: counting stops at the threshold (`continues`: a phone video's 1920 px
+    # frame has a disc of ~116,000 offsets here)
+    return region & background_plate.continues(known, colour, image, region, r, COVER_PLATE_MATCHES)
 
 
 def under_jaw(means: np.ndarray, ids: np.ndarray, model, vertices: np.ndarray) -> np.ndarray:

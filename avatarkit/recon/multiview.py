@@ -562,7 +562,7 @@ def _continues_plate(image: np.ndarray, colour: np.ndarray, known: np.ndarray, r
 
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
     todo = ~known & (cv2.dilate(known.astype(np.uint8), disc) > 0)
-    return todo & (background_plate.continuing(known, colour, image, todo, r) >= RELABEL_PLATE_MATCHES)
+    return todo & background_plate.continues(known, colour, image, todo, r, RELABEL_PLATE_MATCHES)
 
 
 def relabel_head(labels: np.ndarray, image: np.ndarray, head: np.ndarray, colours,

@@ -217,16 +217,152 @@ def _continued(known: np.ndarray, colour: np.ndarray, candidate: np.ndarray, c_c
 
 
 def agreeing(wall: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarray, c: np.ndarray,
-             disc: np.ndarray) -> np.ndarray:
+             disc: np.ndarray, enough: int | None = None) -> np.ndarray:
     """(N,) int: for each pixel (ys, xs) (N,) of colour c (N, 3) int16, how many pixels of `wall`
     within `disc` ((2r + 1, 2r + 1) bool, centred on it) are within `AGREE` of c in every channel;
     wall (h + 2r, w + 2r) bool and colour (h + 2r, w + 2r, 3) int16 padded by r (so (ys, xs)
-    index the disc's corner)."""
+    index the disc's corner). enough: a pixel stops counting once it has this many (the count
+    returned is min(count, enough)): the disc's offsets nearest its centre first, the pixels done
+    dropped every `AGREEING_CHUNK` offsets."""
     count = np.zeros(len(ys), np.int32)
-    for dy, dx in zip(*np.nonzero(disc)):
-        yy, xx = ys + dy, xs + dx
-        count += wall[yy, xx] & (np.abs(colour[yy, xx] - c).max(axis=1) <= AGREE)
-    return count
+    if enough is None:
+        for dy, dx in zip(*np.nonzero(disc)):
+            yy, xx = ys + dy, xs + dx
+            count += wall[yy, xx] & (np.abs(colour[yy, xx] - c).max(axis=1) <= AGREE)
+        return count
+    dys, dxs = np.nonzero(disc)
+    r = disc.shape[0] // 2
+    order = np.argsort((dys - r) ** 2 + (dxs - r) ** 2, kind="stable")
+    dys, dxs = dys[order], dxs[order]
+    live = np.arange(len(ys))                               # (L,) the pixels still counting
+    ly, lx, lc, n = ys, xs, c, count.copy()
+    for i0 in range(0, len(dys), AGREEING_CHUNK):
+        if enough <= 0 or len(live) == 0:
+            break
+        for dy, dx in zip(dys[i0:i0 + AGREEING_CHUNK], dxs[i0:i0 + AGREEING_CHUNK]):
+            yy, xx = ly + dy, lx + dx
+            n += wall[yy, xx] & (np.abs(colour[yy, xx] - lc).max(axis=1) <= AGREE)
+        count[live] = n
+        more = n < enough
+        live, ly, lx, lc, n = live[more], ly[more], lx[more], lc[more], n[more]
+    return np.minimum(count, enough)
+
+
+#: `agreeing(enough=)`: how many of the disc's offsets run between two drops of the pixels done
+AGREEING_CHUNK = 256
+
+
+def square_bound(known: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarray, c: np.ndarray,
+                 r: int) -> np.ndarray:
+    """(N,) int: an upper bound of `agreeing`'s count for the pixels (ys, xs) (N,) of colour c
+    (N, 3) int: the pixels the plate knows (`known` (H, W) bool, of colour `colour` (H, W, 3);
+    unpadded) in the (2r + 1)-square around each (which holds its disc) whose colour's bin
+    (`AGREE` levels a channel) is within one of c's in every channel. Two levels within `AGREE`
+    of each other lie in the same bin or in neighbouring ones, so every pixel `agreeing` counts
+    is counted here. One summed-area table per bin the known wall's colours fill (a plain wall:
+    a few; a cluttered one: a few hundred)."""
+    import cv2
+
+    H, W = known.shape
+    w = max(int(AGREE), 1)
+    n = 255 // w + 1
+    kb = np.asarray(colour, np.int32)[known] // w                    # (K, 3) the known pixels' bins
+    code = (kb[:, 0] * n + kb[:, 1]) * n + kb[:, 2]
+    bins, inv = np.unique(code, return_inverse=True)
+    label = np.full((H, W), -1, np.int32)
+    label[known] = inv.ravel()
+    pb = np.asarray(c, np.int32) // w                                # (N, 3)
+    y0, y1 = np.clip(ys - r, 0, H), np.clip(ys + r + 1, 0, H)
+    x0, x1 = np.clip(xs - r, 0, W), np.clip(xs + r + 1, 0, W)
+    bound = np.zeros(len(ys), np.int64)
+    for j, b in enumerate(bins):
+        i = np.flatnonzero((np.abs(pb - (b // (n * n), (b // n) % n, b % n)) <= 1).all(axis=1))
+        if len(i) == 0:
+            continue
+        S = cv2.integral((label == j).astype(np.uint8), sdepth=cv2.CV_32S)   # (H + 1, W + 1)
+        bound[i] += S[y1[i], x1[i]] - S[y0[i], x1[i]] - S[y1[i], x0[i]] + S[y0[i], x0[i]]
+    return bound
+
+
+def disc_bound(known: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarray, c: np.ndarray,
+               disc: np.ndarray, strips: int | None = None) -> np.ndarray:
+    """(N,) int: a lower bound of `agreeing`'s count for the pixels (ys, xs) (N,) of colour c
+    (N, 3) int: the known pixels (`known` (H, W) bool, of colour `colour` (H, W, 3); unpadded)
+    of c's own colour bin (`AGREE` + 1 levels a channel: two levels in one bin are within `AGREE`)
+    in a stack of rectangles inside the disc ((2r + 1, 2r + 1), `strips` (None: `DISC_STRIPS`)
+    bands of rows above and below a middle one, each as wide as the disc's narrowest row in it).
+    The wall continuing into the wall it stands beside has most of its disc in its own colour:
+    decided without counting (`continues`)."""
+    import cv2
+
+    H, W = known.shape
+    r = disc.shape[0] // 2
+    half = (np.asarray(disc, bool).sum(axis=1) - 1) // 2            # (2r + 1,) each row's half-width
+    k = max(1, int(DISC_STRIPS if strips is None else strips))
+    edges = np.unique(np.round(np.linspace(0, r, k + 1)).astype(int))    # row offsets 0 = e0 < e1 .. = r
+    # pieces (dy0, dy1, hw): rows dy0..dy1 (offsets from the centre), columns -hw..hw
+    pieces = [(-edges[0], edges[0], int(half[r + edges[0]]))]
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        hw = int(half[r + hi])                                      # the band's narrowest row
+        pieces += [(lo + 1, hi, hw), (-hi, -lo - 1, hw)]
+    w = int(AGREE) + 1
+    n = 255 // w + 1
+    kb = np.asarray(colour, np.int32)[known] // w
+    code = (kb[:, 0] * n + kb[:, 1]) * n + kb[:, 2]
+    bins, inv = np.unique(code, return_inverse=True)
+    label = np.full((H, W), -1, np.int32)
+    label[known] = inv.ravel()
+    pb = np.asarray(c, np.int32) // w
+    pcode = (pb[:, 0] * n + pb[:, 1]) * n + pb[:, 2]
+    bound = np.zeros(len(ys), np.int64)
+    for j in np.flatnonzero(np.isin(bins, pcode)):
+        i = np.flatnonzero(pcode == bins[j])
+        S = cv2.integral((label == j).astype(np.uint8), sdepth=cv2.CV_32S)   # (H + 1, W + 1)
+        for dy0, dy1, hw in pieces:
+            y0, y1 = np.clip(ys[i] + dy0, 0, H), np.clip(ys[i] + dy1 + 1, 0, H)
+            x0, x1 = np.clip(xs[i] - hw, 0, W), np.clip(xs[i] + hw + 1, 0, W)
+            bound[i] += S[y1, x1] - S[y0, x1] - S[y1, x0] + S[y0, x0]
+    return bound
+
+
+#: `disc_bound`: the bands of rows (each side of the middle row) its rectangles fill the disc with
+DISC_STRIPS = 8
+
+
+def continues(known: np.ndarray, colour: np.ndarray, image: np.ndarray, region: np.ndarray,
+              r: int, enough: int) -> np.ndarray:
+    """(H, W) bool: the pixels of `region` (H, W) bool where `continuing`'s count reaches `enough`
+    (the same decision, without counting past it): only the pixels whose `square_bound` reaches
+    it are counted (a head's skin beside a white wall is not near any of its colours), each until
+    it has `enough` (`agreeing(enough=)`), and not those whose `disc_bound` reaches it already
+    (the wall beside the known wall: the relabelling's band). At the coverage's reach (0.1 of the longer side) a
+    phone video's 1920 px frame has a disc of ~116,000 offsets against 7,200 at 480 px, over 16x
+    the pixels: hours counted in full (session 28, docs/video-build.md)."""
+    import cv2
+
+    region = np.asarray(region, bool)
+    out = np.zeros(region.shape, bool)
+    known = np.asarray(known, bool)
+    if enough <= 0:
+        return region.copy()
+    ys, xs = np.nonzero(region)
+    if len(ys) == 0 or not known.any():
+        return out
+    c = np.asarray(image, np.int16)[ys, xs]
+    may = square_bound(known, colour, ys, xs, c, r) >= enough
+    ys, xs, c = ys[may], xs[may], c[may]
+    if len(ys) == 0:
+        return out
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    sure = disc_bound(known, colour, ys, xs, c, disc) >= enough
+    out[ys[sure], xs[sure]] = True
+    ys, xs, c = ys[~sure], xs[~sure], c[~sure]
+    if len(ys) == 0:
+        return out
+    count = agreeing(np.pad(known, r), np.pad(np.asarray(colour, np.int16), ((r, r), (r, r), (0, 0))),
+                     ys, xs, c, disc, enough)
+    out[ys, xs] = count >= enough
+    return out
 
 
 def continuing(known: np.ndarray, colour: np.ndarray, image: np.ndarray, region: np.ndarray,
@@ -375,4 +511,4 @@ def video_plate(video: str | os.PathLike, result) -> Plate | None:
 
 
 __all__ = ["AGREE", "CONTINUE_MATCHES", "CONTINUE_MARGIN", "CONTINUE_DEEP", "CONTINUE_REACH", "PALETTE_BIN", "MIN_AGREEMENT", "MIN_FRAMES", "PASS_FRAMES", "PASS_MARGIN", "PASS_SHARE", "PLATE_FRAMES", "PLATE_SIZE", "ZONE_MARGIN", "ZONE_SLOPE",
-           "ZONE_START", "Plate", "agreeing", "continuing", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
+           "ZONE_START", "Plate", "agreeing", "continues", "continuing", "disc_bound", "square_bound", "DISC_STRIPS", "in_palette", "person_zone", "plate_from_frames", "video_plate", "wall_palette"]
