@@ -92,8 +92,8 @@ REFERENCE_WEIGHT = 3.0
 #: hidden hair's fill, does not change). The final build only, not the drafts the turned
 #: keyframes are registered against (`VideoViews.hair_facing`). None: the visibility alone (the
 #: rule before session 28). Session 28 (docs/video-build.md, "The hair's samples weighted by
-#: facing (session 28)")
-HAIR_FACING: float | None = None
+#: facing (session 28)"); on since that session's merges (0.5)
+HAIR_FACING: float | None = 0.5
 #: ... the least share of that factor's root a grazing or backward view keeps
 HAIR_FACING_FLOOR = 0.1
 #: ... and with it, the hair Gaussians the reference view sees at a grazing angle or from behind
