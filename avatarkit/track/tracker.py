@@ -5,7 +5,8 @@ Per frame (`track_frames`):
    MediaPipe's tracking graph does); the detectors run only on the first frame, after a frame
    without a face, or when the mesh's presence score drops below `min_presence`. On
    re-detection the face nearest the last one seen is kept (`face_index` picks, left to right,
-   on the first detection).
+   on the first detection); a face much smaller than the person's (`MINOR_FACE`: a photo on the
+   wall, a passer-by) is never taken, on the first detection or later.
 2. Fit (`solve.fit_frame`: the objective of `face.fit`, the core the portrait build uses,
    minimised by Levenberg-Marquardt): the head's rotation and translation, the jaw and the head
    model's expression coefficients, with the identity shape fixed, warm-started from the
@@ -80,7 +81,8 @@ REFINE_EVERY = {"photometric-fast": 5}
 
 @dataclass
 class TrackOptions:
-    """face_index: which face, left to right, on the first detection; smoothing: the Whittaker
+    """face_index: which face, left to right, on the first detection (among the faces at least
+    `MINOR_FACE` of the widest, as the portrait analysis numbers them); smoothing: the Whittaker
     smoother's lambda (frames^4, 0 = off); min_presence: re-detect below this face-mesh presence;
     expr_components: expression coefficients fitted (None: the model's, at most MAX_EXPR);
     focal: pixels (None: the portrait lens of `recon.fit.portrait_focal`); iterations:

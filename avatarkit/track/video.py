@@ -3,7 +3,8 @@
 Identity. With an avatar (`avatar=`), its head model and identity shape are used as they are,
 so the clip drives that avatar exactly. Otherwise (the template, or `head_model=` a FLAME file)
 the identity is fitted over the first frames: `IDENTITY_FRAMES` frames spread over the first
-`IDENTITY_SECONDS` seconds that have a face, each fitted for pose + shape (+ expression and jaw,
+`IDENTITY_SECONDS` seconds that have a face (the first such window: a clip may open on the
+empty wall, `NO_FACE_SCAN`), each fitted for pose + shape (+ expression and jaw,
 so a talking mouth does not bend the face shape) by the tracker's Levenberg-Marquardt solver
 (shape coefficients join the expression ones in `solve.FrameProblem`), and the shape is their
 per-coefficient median.
