@@ -445,3 +445,37 @@ def test_the_plate_is_scaled_as_the_frame_is():
     target = _target(wall, 32)
     bg = plate_background(Plate(wall, n, n.copy(), 10), (H, W), target.shape[:2], np.ones(3))
     np.testing.assert_allclose(bg, target, atol=1.0 / 255)
+
+
+@pytest.fixture(scope="module")
+def wide_scene(scene):
+    """The scene's 128 px picture as the window (x 400..528, y 200..328) of a 640x360 landscape
+    frame: the same head and pose, small and off-centre in a wider picture."""
+    from avatarkit.render import render
+    from avatarkit.render.camera import Camera
+
+    gs, camera, ref_pose, truth, _ = scene
+    big = Camera(camera.fx, camera.fy, camera.cx + 400, camera.cy + 200, 640, 360, camera.world_to_camera)
+    frame = render(gs, pose_camera(big, ref_pose, truth), background=(1.0, 1.0, 1.0))
+    return big, (np.clip(frame.rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def test_a_head_small_in_a_wide_frame_is_registered_in_a_window_around_it(scene, wide_scene, monkeypatch):
+    from avatarkit.track import register
+    from avatarkit.track.register import head_window
+
+    gs, camera, ref_pose, truth, _ = scene
+    big, image = wide_scene
+    # the scene's own frame is all head: compared whole, as before the window
+    assert head_window(gs, camera, (128, 128)) is None
+    x0, y0, x1, y1 = head_window(gs, big, image.shape[:2])
+    assert 300 < x0 < 420 and 510 < x1 < 640 and y1 == 360 and 100 < y0 < 220, (x0, y0, x1, y1)
+    guess = pose_from_params([math.radians(45.0), 0.0, 0.0, 0.0, -0.05, -0.5])
+    yaws = (math.radians(40.0), math.radians(100.0))
+    want = np.degrees(params_from_pose(truth)[:3])
+    found = np.degrees(params_from_pose(register_frame(gs, image, big, ref_pose, guess, yaws).pose)[:3])
+    assert abs(found[0] - want[0]) < 2.0 and abs(found[1] - want[1]) < 2.0, (found, want)
+    # the whole 640x360 frame at 96 px leaves the head ~20 px across: the pose is lost
+    monkeypatch.setattr(register, "WINDOW_MARGIN", None)
+    whole = np.degrees(params_from_pose(register_frame(gs, image, big, ref_pose, guess, yaws).pose)[:3])
+    assert abs(whole[0] - want[0]) > 2.0 or abs(whole[1] - want[1]) > 2.0, (whole, want)

@@ -5,7 +5,8 @@ Per frame (`track_frames`):
    MediaPipe's tracking graph does); the detectors run only on the first frame, after a frame
    without a face, or when the mesh's presence score drops below `min_presence`. On
    re-detection the face nearest the last one seen is kept (`face_index` picks, left to right,
-   on the first detection).
+   on the first detection); a face much smaller than the person's (`MINOR_FACE`: a photo on the
+   wall, a passer-by) is never taken, on the first detection or later.
 2. Fit (`solve.fit_frame`: the objective of `face.fit`, the core the portrait build uses,
    minimised by Levenberg-Marquardt): the head's rotation and translation, the jaw and the head
    model's expression coefficients, with the identity shape fixed, warm-started from the
@@ -50,6 +51,11 @@ _C = np.diag([1.0, -1.0, -1.0])
 ERROR_SCALE = 0.05
 #: expression coefficients tracked at most (FLAME has 100; the leading ones carry the motion)
 MAX_EXPR = 50
+#: a detected face narrower than this share of the widest face in the frame, or of the widest box
+#: the followed face has had, is not followed (`_pick_face`; the portrait analysis's
+#: `recon.portrait.MINOR_FACE_FRACTION`, 0.4, so the tracker and the reference keyframe's
+#: portrait build take the same face); 0 follows any face, as before session 28
+MINOR_FACE = 0.4
 #: frames with a face the landmark calibration looks at (`FrameTracker.calibrate`); fewer than
 #: CALIBRATION_MIN in the whole video: no calibration
 CALIBRATION_FRAMES = 30
@@ -75,7 +81,8 @@ REFINE_EVERY = {"photometric-fast": 5}
 
 @dataclass
 class TrackOptions:
-    """face_index: which face, left to right, on the first detection; smoothing: the Whittaker
+    """face_index: which face, left to right, on the first detection (among the faces at least
+    `MINOR_FACE` of the widest, as the portrait analysis numbers them); smoothing: the Whittaker
     smoother's lambda (frames^4, 0 = off); min_presence: re-detect below this face-mesh presence;
     expr_components: expression coefficients fitted (None: the model's, at most MAX_EXPR);
     focal: pixels (None: the portrait lens of `recon.fit.portrait_focal`); iterations:
@@ -184,15 +191,29 @@ def model_embedding(model, path=None):
     return emb
 
 
-def _pick_face(faces, face_index: int, last_centre):
+def _pick_face(faces, face_index: int, last_centre, face_width: float | None = None):
+    """The face to follow among `faces` (left to right), or None. Faces narrower than
+    `MINOR_FACE` of the widest one in the frame, or of the widest box the followed face has
+    had (`face_width`, pixels; None before the first), are passed over: a photo on the wall, a
+    passer-by, a phone screen or a false detection behind the person. The portrait analysis drops
+    the same ones (`recon.portrait.MINOR_FACE_FRACTION`). Without that, the first detection took
+    the leftmost face (a smaller face top left of the head: the build followed it), and a
+    re-detection where the person's face is not found (a profile) took the nearest face left,
+    the small one, and followed it from then on (docs/video-build.md, session 28). First
+    detection (`last_centre` None): the `face_index`-th of the faces kept; then the nearest to
+    `last_centre`."""
     if not faces:
         return None
+    widest = max([f.width for f in faces] + ([face_width] if face_width else []))
+    kept = [f for f in faces if f.width >= MINOR_FACE * widest]
+    if not kept:
+        return None
     if last_centre is None:
-        if face_index >= len(faces):
+        if face_index >= len(kept):
             return None
-        return faces[face_index]
-    d = [float(np.linalg.norm(np.asarray(f.center) - last_centre)) for f in faces]
-    return faces[int(np.argmin(d))]
+        return kept[face_index]
+    d = [float(np.linalg.norm(np.asarray(f.center) - last_centre)) for f in kept]
+    return kept[int(np.argmin(d))]
 
 
 def face_scale(eye_centres: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
@@ -252,6 +273,8 @@ class FrameTracker:
         self.prev_mesh = None
         self.prev_fit = None
         self.last_centre = None
+        # the widest detector box the followed face has had (pixels; `_pick_face`)
+        self.face_width = None
 
     def landmarks(self, rgb: np.ndarray):
         """The face mesh of this frame, or None."""
@@ -264,11 +287,13 @@ class FrameTracker:
             if mesh.presence < o.min_presence:
                 mesh = None
         if mesh is None:
-            face = _pick_face(detect_faces(rgb), o.face_index, self.last_centre)
+            face = _pick_face(detect_faces(rgb), o.face_index, self.last_centre, self.face_width)
             if face is not None:
                 mesh = face_landmarks(rgb, face, mirror=o.mirror_landmarks)
                 if mesh.presence < o.min_presence:
                     mesh = None
+                else:
+                    self.face_width = max(self.face_width or 0.0, face.width)
         self.prev_mesh = mesh
         if mesh is not None:
             self.last_centre = np.asarray(mesh.points[:, :2], np.float64).mean(0)

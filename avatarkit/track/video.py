@@ -3,7 +3,8 @@
 Identity. With an avatar (`avatar=`), its head model and identity shape are used as they are,
 so the clip drives that avatar exactly. Otherwise (the template, or `head_model=` a FLAME file)
 the identity is fitted over the first frames: `IDENTITY_FRAMES` frames spread over the first
-`IDENTITY_SECONDS` seconds that have a face, each fitted for pose + shape (+ expression and jaw,
+`IDENTITY_SECONDS` seconds that have a face (the first such window: a clip may open on the
+empty wall, `NO_FACE_SCAN`), each fitted for pose + shape (+ expression and jaw,
 so a talking mouth does not bend the face shape) by the tracker's Levenberg-Marquardt solver
 (shape coefficients join the expression ones in `solve.FrameProblem`), and the shape is their
 per-coefficient median.
@@ -34,10 +35,43 @@ from avatarkit.track.tracker import REFINE_CHOICES, REFINE_SETTINGS, FrameTracke
 
 IDENTITY_FRAMES = 8
 IDENTITY_SECONDS = 3.0
+#: without a face in the first `IDENTITY_SECONDS`, look on window by window (`video_identity`):
+#: a clip that opens on 3 s or more of empty wall failed as if it had no face (session 28)
+NO_FACE_SCAN = True
 
 
 def fit_identity(frames: list, model, size: tuple[int, int], options: TrackOptions, embedding) -> np.ndarray:
     """(S,) identity shape from a few frames (module docstring). InputError if none has a face."""
+    shapes = _identity_shapes(frames, model, size, options, embedding)
+    if not shapes:
+        raise InputError(f"no face found in the first {len(frames)} frames used to fit the identity")
+    return np.median(np.stack(shapes), axis=0)
+
+
+def video_identity(video, start: int, end: int, model, size: tuple[int, int], options: TrackOptions,
+                   embedding) -> np.ndarray:
+    """(S,) identity shape from the first `IDENTITY_SECONDS` window of frames start..end-1 that
+    shows a face: a clip may open on the empty wall (the person steps in, the phone is set up)
+    for longer than one window. InputError naming how much was looked at when no window shows
+    one (a video without a face)."""
+    window = max(int(IDENTITY_SECONDS * video.info.fps), 1)
+    looked = 0
+    for first in range(start, end, window):
+        frames = _identity_frames(video, first, end)
+        looked += len(frames)
+        shapes = _identity_shapes(frames, model, size, options, embedding)
+        if shapes:
+            return np.median(np.stack(shapes), axis=0)
+        if not NO_FACE_SCAN:
+            break
+    seconds = (end - start) / max(video.info.fps, 1e-9)
+    if not NO_FACE_SCAN:
+        raise InputError(f"no face found in the first {looked} frames used to fit the identity")
+    raise InputError(f"no face found in the video ({looked} frames looked at, spread over its {seconds:.1f} s)")
+
+
+def _identity_shapes(frames: list, model, size: tuple[int, int], options: TrackOptions, embedding) -> list:
+    """Each frame's (S,) identity shape, for the frames with a face."""
     from avatarkit.face.fit import LandmarkTargets, initial_pose
     from avatarkit.track.solve import FrameProblem, fit_frame, rest_points
 
@@ -56,9 +90,7 @@ def fit_identity(frames: list, model, size: tuple[int, int], options: TrackOptio
                         depth_weight=options.depth_weight, expr_prior=options.expr_prior,
                         jaw_prior=options.jaw_prior, shape=np.zeros(model.num_shape))
         shapes.append(fit.shape)
-    if not shapes:
-        raise InputError(f"no face found in the first {len(frames)} frames used to fit the identity")
-    return np.median(np.stack(shapes), axis=0)
+    return shapes
 
 
 def _identity_frames(video, start: int, end: int) -> list:
@@ -142,7 +174,7 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
             shape = None
         embedding = model_embedding(model, landmark_embedding)
         if shape is None:
-            shape = fit_identity(_identity_frames(video, start, end), model, size, options, embedding)
+            shape = video_identity(video, start, end, model, size, options, embedding)
         calibration = None
         if avatar is not None and options.subject_calibration and options.view_correction is False:
             import dataclasses

@@ -41,6 +41,7 @@ import math
 import os
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
@@ -404,7 +405,7 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
                             "tracking_edge": edge}, plate)
     else:
         source["mode"] = "single frame (the head does not turn: one keyframe)"
-    with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="avatarkit-frame-") as tmp, _frame_errors(tmp, video, ref_frame):
         from avatarkit.export.images import write_png
 
         png = Path(tmp) / f"frame{ref_frame}.png"
@@ -507,6 +508,22 @@ def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int
     build["timings_s"] = {**{k: round(v, 3) for k, v in timings.items()}, **build["timings_s"]}
     build["total_s"] = round(sum(build["timings_s"].values()), 3)
     return avatar
+
+
+@contextmanager
+def _frame_errors(folder: str, video: str, frame: int):
+    """An error the portrait build raises about the reference keyframe's PNG in the temporary
+    `folder` names the video and the frame instead ("clip.mp4 (frame 50): face is too small"):
+    the PNG is gone when the user reads the message."""
+    from avatarkit.errors import AvatarKitError
+
+    try:
+        yield
+    except AvatarKitError as e:
+        if e.path is None or not os.path.abspath(e.path).startswith(os.path.abspath(folder) + os.sep):
+            raise
+        err = type(e)(e.message, f"{video} (frame {frame})")
+        raise err from e.__cause__
 
 
 def _open_mouth(avatar, result, image: np.ndarray, ref_frame: int):
