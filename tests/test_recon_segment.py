@@ -11,6 +11,7 @@ from avatarkit.recon.image_io import read_image
 from avatarkit.recon.portrait import analysis_from_box, analyze_portrait
 from avatarkit.recon.segment import (BACKGROUND, BODY, HAIR, SKIN, ColourModel, lab_to_rgb, rgb_to_lab,
                                      segment_person, segment_portrait)
+from avatarkit.recon import segment
 from avatarkit.recon.synthetic import synthetic_portrait
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "portrait.jpg"
@@ -296,3 +297,51 @@ def test_a_head_filling_the_frame_on_a_flat_dark_wall_is_not_the_whole_frame(wal
     assert iou(seg.hair, truth == HAIR) > 0.95
     monkeypatch.setattr(S, "WALL_TAKEN", None)
     assert segment_portrait(image, a).person.mean() > 0.99   # the rule before: the whole frame
+
+
+def dimmed(image: np.ndarray, factor: float) -> np.ndarray:
+    """`image` (H, W, 3) uint8 with every level times `factor` (a dim room, an under-exposed camera)."""
+    return np.clip(np.round(image.astype(np.float32) * factor), 0, 255).astype(np.uint8)
+
+
+def test_a_dim_picture_still_finds_its_hair(monkeypatch):
+    # The mesh subject's front view at 50 % light: Lab's contrast between its hair and skin
+    # shrank under the models' fixed floor and too few "not skin" seeds were left (a bald
+    # avatar). Brightened to its own full exposure (`DIM_GAIN`), its hair is found as on the
+    # lit picture, and the colour models are the dim picture's own colours.
+    image, _, hair = mesh_subject_front()
+    dim = dimmed(image, 0.5)
+    assert segment.exposure_gain(image) == 1.0 and 1.9 < segment.exposure_gain(dim) < 2.1  # the light end: 255, 128
+    seg = segment_portrait(dim, analyze_portrait(dim))
+    assert seg.hair_source == "grabcut" and iou(seg.hair, hair) > 0.9
+    lit = segment_portrait(image, analyze_portrait(image))
+    assert iou(seg.hair, lit.hair) > 0.9
+    hair_lab = rgb_to_lab(dim[seg.hair])
+    assert np.median(seg.hair_model.distance2(hair_lab)) < 16
+    assert abs(seg.skin_model.mean[0] - np.median(rgb_to_lab(dim[seg.skin])[:, 0])) < 10
+    monkeypatch.setattr(segment, "DIM_GAIN", None)  # the rule off: what main did
+    assert not segment_portrait(dim, analyze_portrait(dim)).hair.any()
+
+
+@pytest.mark.parametrize("factor", [0.5, 0.3])
+def test_a_dim_bald_head_stays_bald(factor):
+    # brightening a dim bald head to its full exposure finds no hair there either
+    sp = synthetic_portrait(hair=False, blur=1.0, noise=4)
+    dim = dimmed(sp.image, factor)
+    assert segment.exposure_gain(dim) >= segment.DIM_GAIN_MIN
+    seg = segment_portrait(dim, analysis_from_box(dim.shape[1::-1], sp.face_box))
+    assert not seg.hair.any() and seg.hair_model is None and seg.hair_source == "none"
+
+
+def test_a_dim_picture_is_tried_again_only_when_it_finds_no_hair(monkeypatch):
+    # the dim rule never runs where the picture's own segmentation finds hair (every lit and
+    # most dim portraits: their labels are exactly as before) nor on a lit bald head
+    calls = []
+    real = segment._person_and_hair
+    monkeypatch.setattr(segment, "_person_and_hair", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for kw in (dict(blur=1.0, noise=4), dict(hair=False, blur=1.0, noise=4)):
+        sp = synthetic_portrait(**kw)
+        segment_portrait(sp.image, analysis_from_box(sp.image.shape[1::-1], sp.face_box))
+    dim = dimmed(synthetic_portrait(blur=1.0, noise=4).image, 0.5)
+    seg = segment_portrait(dim, analysis_from_box(dim.shape[1::-1], synthetic_portrait(blur=1.0, noise=4).face_box))
+    assert seg.hair.any() and len(calls) == 3

@@ -16,7 +16,8 @@ Built-in method (all in the eye frame of `PortraitAnalysis`, unit = inter-ocular
 2. a skin colour model: a robust Gaussian in CIE Lab fitted to the cheeks and nose (below the
    eyes, above the mouth), outliers (nostrils, shadows) trimmed;
 3. hair seeds: person pixels in a band above the forehead and at the temples that are not skin;
-   a robust Gaussian hair colour model from them (no seeds: a bald head, no hair label);
+   a robust Gaussian hair colour model from them (no seeds: a bald head, no hair label; a
+   dim picture that gives none is tried once more brightened to its full exposure, `DIM_GAIN`);
 4. hair vs the rest of the person: a second GrabCut restricted to the person, seeded with the
    hair seeds (sure hair) and the face core (sure not hair); background pixels are repainted
    with the skin colour so they cannot teach the "not hair" model hair-like colours;
@@ -261,6 +262,20 @@ PLATE_OPEN = 0.05
 #: and the white-walled bob's video build lost 0.6 dB at +90
 PLATE_TAKEN = 0.02
 
+#: a picture that gives no hair and whose light end is dim (`exposure_gain` at least
+#: `DIM_GAIN_MIN`) is segmented again brightened by that gain, at most this (None: never).
+#: Lab's contrast between colours shrinks with the light (L, a and b follow the cube root of
+#: the luminance) while the colour models' floor (`MIN_STD`) and 8-bit levels do not: the
+#: sample avatar's blonde hair on its skin, darkened to 50 %, left 94 "not skin" seeds that
+#: GrabCut dropped, and the mesh subject's already at 60 % too few seeds (a bald avatar).
+#: Session 28 (docs/building.md "A dim picture").
+DIM_GAIN = 4.0
+#: ...when the light end is below 255 / this (a full exposure reaches ~255)...
+DIM_GAIN_MIN = 1.25
+#: ...measured at this percentile of the pixels' brightest channel (a few specular pixels,
+#: a lamp's, are not the exposure)
+DIM_PERCENTILE = 99.0
+
 
 def _colour_bins(img: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint8 -> (H, W) int: each pixel's colour bin (`WALL_BIN` levels a side)."""
@@ -474,6 +489,38 @@ def _working_copy(image: np.ndarray, analysis: PortraitAnalysis, work_size: int)
     return image, analysis, k
 
 
+def _skin_pixels(reg: dict[str, np.ndarray], person: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixels the skin model is fitted to (the cheeks and nose, or the face core)."""
+    skin_px = reg["skin_sample"] & person
+    return skin_px if skin_px.sum() >= 10 else reg["face_core"]
+
+
+def _person_and_hair(img, lab, reg, iterations, iod, boundary, plate, find_hair: bool):
+    """Steps 1-4 on `img` (H, W, 3) uint8 and its `lab`: (person (H, W) bool, skin model, the
+    skin model's distance2 (H, W), hair model or None, hair (H, W) bool)."""
+    person = _person(img, reg, iterations, iod, boundary, plate)
+    skin = ColourModel.fit(lab[_skin_pixels(reg, person)])
+    skin_d2 = skin.distance2(lab)
+
+    hair_model, hair = None, np.zeros(img.shape[:2], bool)
+    if find_hair:
+        seeds = reg["seed_zone"] & person & (skin_d2 > MATCH_D2) & ~reg["face_core"]
+        if seeds.sum() >= max(20, 0.05 * (reg["seed_zone"] & person).sum()):
+            hair_model = ColourModel.fit(lab[seeds])
+            seeds &= hair_model.distance2(lab) <= MATCH_D2
+            hair = _hair_grabcut(img, lab, person, reg, skin, hair_model, seeds, iterations, iod, skin_d2)
+            if not hair.any():
+                hair_model = None
+    return person, skin, skin_d2, hair_model, hair
+
+
+def exposure_gain(img: np.ndarray) -> float:
+    """The gain that brings `img`'s (H, W, 3) uint8 light end (the `DIM_PERCENTILE` of each
+    pixel's brightest channel) to 255: 1.0 for a picture already there, 255 for a black one."""
+    top = float(np.percentile(np.asarray(img).max(axis=2), DIM_PERCENTILE))
+    return 255.0 / max(top, 1.0)
+
+
 def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=None, *,
                      work_size: int | None = None, iterations: int = 3, boundary: bool = True,
                      path: str | os.PathLike | None = None, plate=None) -> Segmentation:
@@ -499,22 +546,25 @@ def segment_portrait(image: np.ndarray, analysis: PortraitAnalysis, hair_mask=No
     reg = face_regions(u, v)
     lab = rgb_to_lab(img)
 
-    person = _person(img, reg, iterations, iod, boundary, plate)
-    skin_px = reg["skin_sample"] & person
-    if skin_px.sum() < 10:
-        skin_px = reg["face_core"]
-    skin = ColourModel.fit(lab[skin_px])
-    skin_d2 = skin.distance2(lab)
+    person, skin, skin_d2, hair_model, hair = _person_and_hair(img, lab, reg, iterations, iod, boundary, plate,
+                                                               imported is None)
+    retry = imported is None and hair_model is None and DIM_GAIN is not None
+    gain = min(DIM_GAIN, exposure_gain(img)) if retry else 1.0
+    if gain >= DIM_GAIN_MIN:
+        # a dim picture that gave no hair (`DIM_GAIN`): again on it brightened to a full
+        # exposure; its labels kept when that finds hair, the models refitted to the real colours
+        bright = np.clip(np.round(img.astype(np.float32) * gain), 0, 255).astype(np.uint8)
+        import cv2
 
-    hair_model, hair = None, np.zeros(img.shape[:2], bool)
-    if imported is None:
-        seeds = reg["seed_zone"] & person & (skin_d2 > MATCH_D2) & ~reg["face_core"]
-        if seeds.sum() >= max(20, 0.05 * (reg["seed_zone"] & person).sum()):
-            hair_model = ColourModel.fit(lab[seeds])
-            seeds &= hair_model.distance2(lab) <= MATCH_D2
-            hair = _hair_grabcut(img, lab, person, reg, skin, hair_model, seeds, iterations, iod, skin_d2)
-            if not hair.any():
-                hair_model = None
+        cv2.setRNGSeed(0)  # GrabCut's RNG as a bright picture's segmentation starts it (`_working_copy`)
+        b_lab = rgb_to_lab(bright)
+        # (no plate: it holds the wall's real colours, which the brightened wall does not match)
+        b_person, _, b_d2, b_model, b_hair = _person_and_hair(bright, b_lab, reg, iterations, iod, boundary,
+                                                              None, True)
+        if b_model is not None:
+            person, hair, skin_d2 = b_person, b_hair, b_d2
+            skin = ColourModel.fit(lab[_skin_pixels(reg, person)])
+            hair_model = ColourModel.fit(lab[hair])
 
     chin = FACE_PROPORTIONS["chin"][1]
     labels = np.zeros(img.shape[:2], np.uint8)
