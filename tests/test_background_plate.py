@@ -376,14 +376,7 @@ def test_continuing_counts_what_a_pixel_by_pixel_count_does():
         known[5:35, 8:45] = False                                          # the head's zone
         region = rng.random((h, w)) < 0.7
         got = BP.continuing(known, colour, image, region, r)
-        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2).astype(bool)
-        want = np.zeros((h, w), np.int32)
-        for y, x in zip(*np.nonzero(region)):
-            for dy, dx in zip(*np.nonzero(disc)):
-                yy, xx = y + dy - r, x + dx - r
-                if 0 <= yy < h and 0 <= xx < w and known[yy, xx]:
-                    d = np.abs(colour[yy, xx].astype(int) - image[y, x].astype(int)).max()
-                    want[y, x] += d <= BP.AGREE
+        want = _obvious_count(known, colour, image, region, r)
         np.testing.assert_array_equal(got, want)
         assert (want[region] == 0).any() and (want[region] > 0).any()
 
