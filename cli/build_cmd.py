@@ -62,12 +62,16 @@ _FILE = click.Path(dir_okay=False)
 @click.option("--frame-hull/--no-frame-hull", default=None,
               help="With the frame-colours stage: clear the hair Gaussians those frames show over the "
               "background and move the bald head's surface there inward (default on; docs/video-build.md).")
+@click.option("--focal-mm", type=click.FloatRange(min=0, min_open=True), help="The camera's lens, "
+              "35 mm-equivalent across the picture's longer side (a phone's main camera ~26, its "
+              "selfie camera ~24). Default: an assumed 50 mm portrait lens (docs/video-build.md, "
+              "\"The camera's lens\").")
 @click.option("--preview/--no-preview", default=True, show_default=True,
               help="Render front, three-quarter and profile previews into the folder.")
 @quiet_option
 def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model, flame_params,
               face_index, face_detector, landmark_embedding, hair_mode, n_bald, n_hair, seed, frame,
-              keyframes, register, jaw_corrective, frame_colours, frame_refine, frame_hull, preview, quiet):
+              keyframes, register, jaw_corrective, frame_colours, frame_refine, frame_hull, focal_mm, preview, quiet):
     """Build an avatar from one roughly frontal PORTRAIT photo (JPEG, PNG, WebP, ...), or from
     a PORTRAIT video (MP4, MOV, MKV, AVI, WebM): by default from the whole video (tracked;
     keyframes covering the head's turns give the identity shape, colours and hair bounds;
@@ -92,7 +96,8 @@ def build_cmd(portrait, output, hair_mask, head_splats, bald_splats, head_model,
 
     options = BuildOptions(hair_mask=hair_mask, head_splats=head_splats, bald_splats=bald_splats,
                            head_model=head_model, flame_params=flame_params, face_index=face_index,
-                           face_detector=face_detector, landmark_embedding=landmark_embedding, hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview)
+                           face_detector=face_detector, landmark_embedding=landmark_embedding, hair_mode=hair_mode, n_bald=n_bald, n_hair=n_hair, seed=seed, preview=preview,
+                           focal_mm=focal_mm)
     if frame_colours is False and (frame_refine is not None or frame_hull is not None):
         raise click.UsageError("--frame-refine and --frame-hull go with the frame-colours stage, "
                                "not --no-frame-colours")

@@ -27,6 +27,9 @@ _FILE = click.Path(dir_okay=False)
               help="Which face, numbered left to right from 0, when the first frame has several.")
 @click.option("--smoothing", type=FiniteFloatRange(min=0), default=4.0, show_default=True,
               help="Temporal smoothing (frames^4; 0 = none). It does not lag: see docs/tracking.md.")
+@click.option("--focal-mm", type=click.FloatRange(min=0, min_open=True), help="The camera's lens, "
+              "35 mm-equivalent across the frame's longer side (a phone's main camera ~26). Default: an "
+              "assumed 50 mm portrait lens; give the one the avatar was built with (docs/video-build.md).")
 @click.option("--preview", type=_FILE, help="Also write the video with the fitted head's landmarks "
               "and mesh drawn on it (.mp4 or .gif).")
 @click.option("--align-to-build/--no-align-to-build", default=True, show_default=True,
@@ -52,7 +55,7 @@ _FILE = click.Path(dir_okay=False)
               "model, neck and shoulders with the head (docs/tracking.md).")
 @quiet_option
 def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end, face_index,
-              smoothing, preview, align_to_build, subject_calibration, subject_part, refine, refine_every, head_on,
+              smoothing, focal_mm, preview, align_to_build, subject_calibration, subject_part, refine, refine_every, head_on,
               quiet):
     """Track the face in VIDEO (MP4, MOV, MKV, AVI, ... or a folder of images at 30 fps) and
     write its motion as a clip that `avatarkit bake` takes.
@@ -88,7 +91,7 @@ def track_cmd(video, output, avatar, head_model, landmark_embedding, start, end,
     if refine_every is not None and refine is None:
         raise click.UsageError("--refine-every goes with --refine")
     options = TrackOptions(face_index=face_index, smoothing=smoothing, subject_calibration=subject_calibration,
-                           subject_part=subject_part, refine=refine, refine_every=refine_every)
+                           subject_part=subject_part, refine=refine, refine_every=refine_every, focal_mm=focal_mm)
     with cli_warnings(quiet), _LazyBar("tracking", quiet) as bar:
         result = track_video(video, avatar=avatar, head_model=head_model,
                              landmark_embedding=landmark_embedding, start=start, end=end,

@@ -284,7 +284,8 @@ def test_the_stage_tracks_its_frames_with_the_refinement_asked(monkeypatch, stag
     monkeypatch.setattr(video, "tracked_with_built_avatar", fake)
     monkeypatch.setattr(fc, "REFINE", stage)
     with pytest.raises(KeyboardInterrupt):
-        fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None), 0, refine=refine)
+        fc.fuse_frame_colours(SimpleNamespace(), "v.mp4", SimpleNamespace(meshes=None, camera=SimpleNamespace(fx=266.0)),
+                              0, refine=refine)
     assert seen["options"].refine == expected
     assert seen["options"].refine_every == every == fc.stage_spacing(expected)
 

@@ -960,6 +960,27 @@ MUTATIONS = [
     M("recon.bald_spread_any_earlier_neighbour", "avatarkit/recon/bald_discs.py",
       "            if kept[j]:", "            if True:", ["tests/test_bald_holes.py", "-k", "spread"],
       "the fast _spread dropping a point near an earlier one the greedy thinning had dropped itself"),
+    # --- the camera's lens (session 28) ----------------------------------------------------------
+    M("recon.lens_ignored", "avatarkit/recon/fit.py",
+      "    mm = FOCAL_35MM if focal_mm is None else float(focal_mm)", "    mm = FOCAL_35MM",
+      ["tests/test_lens.py", "-k", "given_lens or tracker_takes or phone_lens"], "portrait_focal ignoring the lens the user gave (the assumed 50 mm always)"),
+    M("recon.lens_not_passed_to_the_fit", "avatarkit/recon/pipeline.py",
+      "            fit = fit_head(analysis, segmentation, head_model, embedding=embedding, focal=focal)",
+      "            fit = fit_head(analysis, segmentation, head_model, embedding=embedding)",
+      ["tests/test_lens.py", "-k", "fits_the_head"], "the build fitting the head with the assumed lens although told another"),
+    M("track.lens_not_tracked", "avatarkit/track/video_build.py",
+      "TrackOptions(face_index=options.face_index or 0, focal_mm=options.focal_mm)",
+      "TrackOptions(face_index=options.face_index or 0)",
+      ["tests/test_lens.py", "-k", "tracks_with"], "the video build tracking with the assumed lens although told another"),
+    M("track.lens_pixels_overridden", "avatarkit/track/tracker.py",
+      "    return float(options.focal) if options.focal else portrait_focal(*size, options.focal_mm)",
+      "    return portrait_focal(*size, options.focal_mm)",
+      ["tests/test_lens.py", "-k", "pixels_win or frame_colours"],
+      "the tracker's focal in pixels (a saved tracking's camera) overridden by the lens"),
+    M("track.lens_frame_colours_assumed", "avatarkit/track/frame_colours.py",
+      "refine_every=stage_spacing(refine), focal=float(tracking.camera.fx))",
+      "refine_every=stage_spacing(refine))",
+      ["tests/test_lens.py", "-k", "frame_colours"], "the frame-colours stage re-tracking with the assumed lens, not the build's"),
 ]
 
 

@@ -89,9 +89,12 @@ def torch_single_thread():
         torch.set_num_threads(before)
 
 
-def portrait_focal(width: int, height: int) -> float:
-    """Focal length in pixels of the assumed portrait lens (see the module docstring)."""
-    return FOCAL_35MM / SENSOR_WIDTH_MM * max(int(width), int(height))
+def portrait_focal(width: int, height: int, focal_mm: float | None = None) -> float:
+    """Focal length in pixels of the assumed portrait lens (see the module docstring), or of the
+    lens the user gave: `focal_mm` 35 mm-equivalent across the image's longer side (a phone's
+    main camera ~26, its selfie camera ~24: docs/video-build.md, "The camera's lens")."""
+    mm = FOCAL_35MM if focal_mm is None else float(focal_mm)
+    return mm / SENSOR_WIDTH_MM * max(int(width), int(height))
 
 
 def view_camera(rotation, translation, width: int, height: int, focal: float | None = None) -> Camera:
@@ -598,7 +601,8 @@ class SyntheticHead:
 
 def synthetic_head_view(rotation=(0.0, 0.0, 0.0), distance: float = 0.6, shape=None, size: int = 256,
                         n_gaussians: int = 30000, seed: int = 0, offset=(0.0, 0.0),
-                        background=(0.47, 0.59, 0.73), light=None, ambient: float = 0.35) -> SyntheticHead:
+                        background=(0.47, 0.59, 0.73), light=None, ambient: float = 0.35,
+                        focal: float | None = None) -> SyntheticHead:
     """Render the template head (bald Gaussians on its surface, `synthetic.sample_avatar`) posed
     by `rotation` (3,) axis-angle in the view frame, its eye midpoint at `distance` metres in
     front of the camera, shifted by `offset` (x, y) metres.
@@ -606,7 +610,8 @@ def synthetic_head_view(rotation=(0.0, 0.0, 0.0), distance: float = 0.6, shape=N
     light: None (flat colours, as the avatar's), or a direction (3,) toward the light in the
     camera's frame (x right, y down, z forward: e.g. (-0.4, -0.5, -1) from the upper left
     front): each Gaussian's colour is scaled by ambient + (1 - ambient) max(0, n.l) with n its
-    host triangle's normal, so the shading follows the head's pose like a photo's."""
+    host triangle's normal, so the shading follows the head's pose like a photo's. focal: the
+    camera's, pixels (default `portrait_focal`: another lens is a mismatch the fit is told of)."""
     import dataclasses
 
     from avatarkit.export.images import to_uint8
@@ -623,7 +628,7 @@ def synthetic_head_view(rotation=(0.0, 0.0, 0.0), distance: float = 0.6, shape=N
     rot = np.asarray(rotation, np.float64)
     mid = rest[[lm["right_eye"], lm["left_eye"]]].astype(np.float64).mean(axis=0)
     trans = np.array([offset[0], offset[1], -distance]) - axis_angle_to_matrix(rot) @ mid
-    cam = view_camera(rot, trans, size, size)
+    cam = view_camera(rot, trans, size, size, focal)
     bald = make_bald(model, rest, n_gaussians, seed)
     if light is not None:
         tri = np.asarray(rest, np.float64)[model.faces[bald.extras["binding"]]]

@@ -35,6 +35,7 @@ place): a failed build never leaves a partial avatar folder.
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -125,6 +126,8 @@ class BuildOptions:
     clean_hair: run the 3D hair segmentation on the hair (always on for imported splats).
     refine_iterations: rounds of colour matching against the photo (0 = off).
     preview: render the preview images. name: the avatar's name (default: the photo's stem).
+    focal_mm: the camera's lens, 35 mm-equivalent across the image's longer side (None: the
+    assumed 50 mm portrait lens, `recon.fit.portrait_focal`); a video build tracks with it too.
     """
 
     hair_mask: str | os.PathLike | None = None
@@ -145,6 +148,7 @@ class BuildOptions:
     preview_size: int = 512
     seed: int = 0
     name: str | None = None
+    focal_mm: float | None = None
 
     def check(self) -> None:
         if (self.head_splats is None) != (self.bald_splats is None):
@@ -161,6 +165,9 @@ class BuildOptions:
                 raise InputError(f"{name} must be a positive integer, got {value!r}")
         if isinstance(self.n_hair, bool) or int(self.n_hair) != self.n_hair or self.n_hair < 0:
             raise InputError(f"n_hair must be a non-negative integer, got {self.n_hair!r}")
+        if self.focal_mm is not None and not (isinstance(self.focal_mm, (int, float)) and not isinstance(self.focal_mm, bool)
+                                              and math.isfinite(self.focal_mm) and self.focal_mm > 0):
+            raise InputError(f"focal length (mm) must be a positive number, got {self.focal_mm!r}")
         if self.face_index is not None and (int(self.face_index) != self.face_index or self.face_index < 0):
             raise InputError(f"face index must be a non-negative integer, got {self.face_index!r}")
         for name in ("hair_mask", "head_splats", "bald_splats", "head_model", "flame_params", "landmark_embedding"):
@@ -322,7 +329,7 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     from avatarkit.recon.assemble import assemble, refine_colours, rig_bald
     from avatarkit.recon.bald import make_bald_image
     from avatarkit.recon import outline_trim
-    from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, scalp_hint
+    from avatarkit.recon.fit import fit_head, fit_with_params, load_flame_params, portrait_focal, scalp_hint
     from avatarkit.recon.hair_rig import detect_hair_mode, rig_hair, rig_sdf
     from avatarkit.recon.image_io import load_image
     from avatarkit.recon.import_lifter import ImportLifter
@@ -361,14 +368,16 @@ def build_avatar(portrait_path: str | os.PathLike, options: BuildOptions | None 
     with stage("segment"):
         segmentation = segment_portrait(image, analysis, options.hair_mask, path=path, plate=plate)
     with stage("fit"):
+        # the lens the user gave (None: `recon.fit.portrait_focal`'s assumed one)
+        focal = None if options.focal_mm is None else portrait_focal(image.shape[1], image.shape[0], options.focal_mm)
         if flame is not None and views is None:
-            fit = fit_with_params(analysis, segmentation, head_model, flame, embedding=embedding)
+            fit = fit_with_params(analysis, segmentation, head_model, flame, embedding=embedding, focal=focal)
         else:
             # a video build fits its reference keyframe as the single-frame build does (shape
             # included): with the joint identity fixed, the pose-only fit matched the reference
             # worse and cost the front view 1.3-2 dB on the synthetic turning videos
             # (docs/video-build.md); the joint fit's poses still register the keyframes
-            fit = fit_head(analysis, segmentation, head_model, embedding=embedding)
+            fit = fit_head(analysis, segmentation, head_model, embedding=embedding, focal=focal)
         report.info["fit"] = fit.summary()
         report.info["camera"] = fit.camera.to_dict()
         # a coarse SDF is enough to grow hair on; the rig gets a fine one of the final head.

@@ -495,7 +495,8 @@ def fuse_frame_colours(avatar, video: str | os.PathLike, tracking, reference_fra
 
     refine = stage_refine(refine)
     settings = stage_settings(refine)
-    options = TrackOptions(refine=refine, refine_every=stage_spacing(refine))
+    # the build's tracking's lens (the user's `BuildOptions.focal_mm`, else the assumed one)
+    options = TrackOptions(refine=refine, refine_every=stage_spacing(refine), focal=float(tracking.camera.fx))
     with tracked_with_built_avatar(avatar, video, tracking.meshes, options) as (folder, result):
         align_to_build(result, folder, reference_frame)
         # the frames posed as `evaluate` and `track` will drive the avatar: the neck's colours

@@ -85,7 +85,8 @@ class TrackOptions:
     `MINOR_FACE` of the widest, as the portrait analysis numbers them); smoothing: the Whittaker
     smoother's lambda (frames^4, 0 = off); min_presence: re-detect below this face-mesh presence;
     expr_components: expression coefficients fitted (None: the model's, at most MAX_EXPR);
-    focal: pixels (None: the portrait lens of `recon.fit.portrait_focal`); iterations:
+    focal: pixels (None: `focal_mm`'s lens, else the portrait lens of `recon.fit.portrait_focal`);
+    focal_mm: the lens, 35 mm-equivalent across the frame's longer side (`tracking_focal`); iterations:
     Levenberg-Marquardt steps per frame (`solve.fit_frame`); depth_weight, expr_prior,
     jaw_prior, outline_weight: the objective's weights (`face.fit`); calibration_frames: frames with a face the
     per-landmark calibration uses (`FrameTracker.calibrate`; below CALIBRATION_MIN: none).
@@ -134,6 +135,7 @@ class TrackOptions:
     min_presence: float = 0.5
     expr_components: int | None = None
     focal: float | None = None
+    focal_mm: float | None = None
     iterations: int = 8
     depth_weight: float = 0.0
     expr_prior: float = 1e-3
@@ -237,20 +239,27 @@ def confidence(presence: float, median_error: float, scale: float) -> float:
     return float(presence) / (1.0 + (float(median_error) / (ERROR_SCALE * max(float(scale), 1e-6))) ** 2)
 
 
+def tracking_focal(options: TrackOptions, size: tuple[int, int]) -> float:
+    """The tracker's focal length in pixels for frames of `size` (W, H): `options.focal` if given,
+    else the lens `options.focal_mm` (None: the assumed one) by `recon.fit.portrait_focal`."""
+    from avatarkit.recon.fit import portrait_focal
+
+    return float(options.focal) if options.focal else portrait_focal(*size, options.focal_mm)
+
+
 class FrameTracker:
     """The per-frame half of tracking: landmarks with ROI propagation, and the landmark fit."""
 
     def __init__(self, model, shape: np.ndarray, size: tuple[int, int], options: TrackOptions,
                  embedding=None):
         from avatarkit.face.fit import LandmarkModel
-        from avatarkit.recon.fit import portrait_focal
 
         self.model, self.options = model, options
         self.size = (int(size[0]), int(size[1]))
         self.shape = np.asarray(shape, np.float64).reshape(-1)
         self.embedding = embedding if embedding is not None else model_embedding(model)
         self.lm = LandmarkModel(model, self.embedding)
-        self.focal = float(options.focal) if options.focal else portrait_focal(*self.size)
+        self.focal = tracking_focal(options, self.size)
         E = model.num_expr if options.expr_components is None else options.expr_components
         self.expr_components = int(max(0, min(model.num_expr, E, MAX_EXPR)))
         from avatarkit.head.model import HeadParams

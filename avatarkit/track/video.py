@@ -31,7 +31,8 @@ from typing import Callable
 import numpy as np
 
 from avatarkit.errors import InputError
-from avatarkit.track.tracker import REFINE_CHOICES, REFINE_SETTINGS, FrameTracker, TrackOptions, TrackResult, model_embedding, track_frames
+from avatarkit.track.tracker import (REFINE_CHOICES, REFINE_SETTINGS, FrameTracker, TrackOptions, TrackResult,
+                                     model_embedding, track_frames, tracking_focal)
 
 IDENTITY_FRAMES = 8
 IDENTITY_SECONDS = 3.0
@@ -195,10 +196,9 @@ def _track(p, avatar, head_model, landmark_embedding, start, end, options, progr
         refiner = None
         if options.refine is not None:
             from avatarkit.avatar import load_avatar
-            from avatarkit.recon.fit import portrait_focal
             from avatarkit.track.photometric import PoseRefiner, Settings
 
-            focal = float(options.focal) if options.focal else portrait_focal(*size)
+            focal = tracking_focal(options, size)
             refiner = PoseRefiner(load_avatar(avatar), focal, size, Settings(**REFINE_SETTINGS[options.refine]))
         result = track_frames(frames, model, shape, size, fps, options, step, name, embedding, meshes, refiner)
         result.subject_calibration = calibration
@@ -211,10 +211,9 @@ def calibrate_on_avatar(avatar, model, shape, embedding, size: tuple[int, int], 
     the tracker's focal length for this video size over the background the video's first frame
     shows around the head (`subject_calibration.border_colour`; white without a frame)."""
     from avatarkit.avatar import load_avatar
-    from avatarkit.recon.fit import portrait_focal
     from avatarkit.track import subject_calibration as sc
 
-    focal = float(options.focal) if options.focal else portrait_focal(*size)
+    focal = tracking_focal(options, size)
     background = (1.0, 1.0, 1.0) if first_rgb is None else sc.border_colour(first_rgb)
     return sc.calibrate_subject(sc.rigid_avatar_renderer(load_avatar(avatar), background), model, shape, embedding,
                                 focal, grid=sc.AVATAR_GRID, part=options.subject_part)

@@ -326,7 +326,8 @@ def build_tracking(video: str | os.PathLike, options, progress: Callable[[int, i
     from avatarkit.track.video import track_video
 
     return track_video(video, head_model=options.head_model, landmark_embedding=options.landmark_embedding,
-                       options=TrackOptions(face_index=options.face_index or 0), progress=progress)
+                       options=TrackOptions(face_index=options.face_index or 0, focal_mm=options.focal_mm),
+                       progress=progress)
 
 
 def build_video_avatar(video: str | os.PathLike, options=None, *, keyframes: int | None = None,
