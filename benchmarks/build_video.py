@@ -61,7 +61,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 VIDEOS = os.path.join(HERE, "..", "..", "shared", "data", "videos")
 
 
-from _timing import cpu_model  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
+from _timing import cpu_model, peak_rss_mb  # noqa: E402  (run as benchmarks/NAME.py: its folder is on sys.path)
 
 
 def _score(kind: str, path: str, png: str | None, counts: tuple[int, int], style: str, size: int,
@@ -283,13 +283,6 @@ def timing(video: str, counts: tuple[int, int], tmp: str) -> tuple[float, float]
           f"ratio video / single: wall {wall / swall:.2f}x, CPU {cpu / scpu:.2f}x")
     print(f"  peak memory of this process so far: {peak_rss_mb():.0f} MB")
     return wall, cpu
-
-
-def peak_rss_mb() -> float:
-    """The process's peak resident memory (MB; Linux's ru_maxrss is in kB)."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def time_phone(counts: tuple[int, int], tmp: str) -> None:

@@ -27,7 +27,7 @@ no surface normal to face (the shell's outward direction says little about a str
 the side): a hair Gaussian is seen when the renderer shows at least `HAIR_VISIBLE` of its own
 footprint inside the person (`footprint_visibility`: its blending weight alpha T summed over
 the pixels of the person mask, over its unoccluded integral), and that share is its weight (x
-sharpness; with `HAIR_FACING`, off, also weighed down where the view looks along the hair shell). Every sample's weight is then multiplied by `person_weight`: the soft person mask
+sharpness; with `HAIR_FACING` (on), also weighed down where the view looks along the hair shell). Every sample's weight is then multiplied by `person_weight`: the soft person mask
 (`soft_person`: the segmentation's person mask without the background-coloured halo a
 segmentation can take in at the silhouette, blurred) mapped so that a pixel on the silhouette,
 half background, gives nothing.
@@ -1408,8 +1408,8 @@ class VideoViews:
         return bool(NECK_FILL and not self.info.get("draft", False))
 
     def hair_facing(self) -> float | None:
-        """The floor of the facing weight on the hair's samples (`HAIR_FACING`): None (the
-        visibility alone) in a registration draft (info["draft"])."""
+        """The knee of the facing weight on the hair's samples (`HAIR_FACING`, a cosine): None
+        (the visibility alone) in a registration draft (info["draft"])."""
         return None if HAIR_FACING is None or self.info.get("draft", False) else float(HAIR_FACING)
 
     def drops_skin_hair(self) -> bool:

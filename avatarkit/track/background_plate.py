@@ -252,6 +252,20 @@ def agreeing(wall: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarra
 AGREEING_CHUNK = 256
 
 
+def _colour_bins(known: np.ndarray, colour: np.ndarray, w: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The known pixels' colour bins, `w` levels a channel: (n bins a channel, bins (B,) int, each
+    the code (r * n + g) * n + b of a bin the known pixels fill, label (H, W) int32: the index in
+    `bins` of each known pixel's bin, -1 where unknown), for `known` (H, W) bool and `colour`
+    (H, W, 3)."""
+    n = 255 // w + 1
+    kb = np.asarray(colour, np.int32)[known] // w                    # (K, 3) the known pixels' bins
+    code = (kb[:, 0] * n + kb[:, 1]) * n + kb[:, 2]
+    bins, inv = np.unique(code, return_inverse=True)
+    label = np.full(known.shape, -1, np.int32)
+    label[known] = inv.ravel()
+    return n, bins, label
+
+
 def square_bound(known: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.ndarray, c: np.ndarray,
                  r: int) -> np.ndarray:
     """(N,) int: an upper bound of `agreeing`'s count for the pixels (ys, xs) (N,) of colour c
@@ -265,12 +279,7 @@ def square_bound(known: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.n
 
     H, W = known.shape
     w = max(int(AGREE), 1)
-    n = 255 // w + 1
-    kb = np.asarray(colour, np.int32)[known] // w                    # (K, 3) the known pixels' bins
-    code = (kb[:, 0] * n + kb[:, 1]) * n + kb[:, 2]
-    bins, inv = np.unique(code, return_inverse=True)
-    label = np.full((H, W), -1, np.int32)
-    label[known] = inv.ravel()
+    n, bins, label = _colour_bins(known, colour, w)
     pb = np.asarray(c, np.int32) // w                                # (N, 3)
     y0, y1 = np.clip(ys - r, 0, H), np.clip(ys + r + 1, 0, H)
     x0, x1 = np.clip(xs - r, 0, W), np.clip(xs + r + 1, 0, W)
@@ -306,12 +315,7 @@ def disc_bound(known: np.ndarray, colour: np.ndarray, ys: np.ndarray, xs: np.nda
         hw = int(half[r + hi])                                      # the band's narrowest row
         pieces += [(lo + 1, hi, hw), (-hi, -lo - 1, hw)]
     w = int(AGREE) + 1
-    n = 255 // w + 1
-    kb = np.asarray(colour, np.int32)[known] // w
-    code = (kb[:, 0] * n + kb[:, 1]) * n + kb[:, 2]
-    bins, inv = np.unique(code, return_inverse=True)
-    label = np.full((H, W), -1, np.int32)
-    label[known] = inv.ravel()
+    n, bins, label = _colour_bins(known, colour, w)
     pb = np.asarray(c, np.int32) // w
     pcode = (pb[:, 0] * n + pb[:, 1]) * n + pb[:, 2]
     bound = np.zeros(len(ys), np.int64)

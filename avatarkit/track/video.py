@@ -55,6 +55,8 @@ def video_identity(video, start: int, end: int, model, size: tuple[int, int], op
     shows a face: a clip may open on the empty wall (the person steps in, the phone is set up)
     for longer than one window. InputError naming how much was looked at when no window shows
     one (a video without a face)."""
+    if not NO_FACE_SCAN:
+        return fit_identity(_identity_frames(video, start, end), model, size, options, embedding)
     window = max(int(IDENTITY_SECONDS * video.info.fps), 1)
     looked = 0
     for first in range(start, end, window):
@@ -63,11 +65,7 @@ def video_identity(video, start: int, end: int, model, size: tuple[int, int], op
         shapes = _identity_shapes(frames, model, size, options, embedding)
         if shapes:
             return np.median(np.stack(shapes), axis=0)
-        if not NO_FACE_SCAN:
-            break
     seconds = (end - start) / max(video.info.fps, 1e-9)
-    if not NO_FACE_SCAN:
-        raise InputError(f"no face found in the first {looked} frames used to fit the identity")
     raise InputError(f"no face found in the video ({looked} frames looked at, spread over its {seconds:.1f} s)")
 
 
